@@ -1,0 +1,31 @@
+# The two set-up commands: `make demo` and `make test`. Each creates .venv, installs torch==2.13.0 first (the CPU
+# wheel this machine has on disk), then biomotion with its extras, then runs.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+DATA ?= ../shared/data
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test venv clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e '.[validate,ml,test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/biomotion analyze $(DATA)/opencap/Subject4/IK/walking1_ik.mot \
+	    --model $(DATA)/opencap/Subject4/Models/optimized_scale_and_markers.osim \
+	    --grf $(DATA)/opencap/Subject4/ID/walking1_grf.mot --out demo-output/walking1
+	@echo "demo outputs written to demo-output/walking1"
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -n 2 -q; status=$$?; \
+	if [ $$status -eq 5 ]; then echo "pytest collected no tests"; exit 0; fi; exit $$status
+
+clean:
+	rm -rf $(VENV) demo-output .pytest_cache

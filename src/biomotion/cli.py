@@ -1,0 +1,117 @@
+"""The ``biomotion`` command: a thin layer over the Python API.
+
+Each verb lives in a function that parses nothing itself: `argparse` builds the interface, the API does the work.
+A `BiomotionError` is printed on one line (``biomotion: error: ...``) and the command exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from biomotion import __version__
+from biomotion.errors import BiomotionError
+
+DEFAULT_DATA_ROOT = Path("../shared/data")
+
+
+def _data_build(args: argparse.Namespace) -> int:
+    from biomotion.data.registry import build_cache
+
+    manifest = build_cache(args.data_root, args.out, rate=args.rate, sources=args.source or None,
+                           progress=not args.quiet)
+    counts = manifest["counts"]
+    print(f"cached {counts['clips']} clips ({counts['frames']} frames at {manifest['rate_hz']:g} Hz) "
+          f"from {len(counts['per_source'])} sources in {manifest['build_seconds']:.1f} s -> {args.out}")
+    for source, n in counts["per_source"].items():
+        print(f"  {source:10s} {n:5d} clips  {counts['subjects_per_source'][source]:3d} subjects")
+    print(f"  splits: {counts['per_split']}")
+    for skipped in manifest["skipped_sources"]:
+        print(f"  skipped {skipped}")
+    return 0
+
+
+def _data_sources(args: argparse.Namespace) -> int:
+    from biomotion.data.sources import SOURCES
+
+    for source in SOURCES.values():
+        state = "present" if source.present(args.data_root) else "absent"
+        print(f"{source.name:10s} {source.folder + '/':26s} {state:8s} {source.description}")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from biomotion.io.convert import convert
+
+    written = convert(args.input, args.output)
+    print(f"wrote {written}")
+    return 0
+
+
+def _inspect(args: argparse.Namespace) -> int:
+    from biomotion.io.convert import describe
+
+    print(json.dumps(describe(args.input), indent=1))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="biomotion",
+        description="Personalized, biomechanically plausible human motion: read captured motion, analyse it on a "
+                    "musculoskeletal model, build training data, generate and evaluate.")
+    parser.add_argument("--version", action="version", version=f"biomotion {__version__}")
+    verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    data = verbs.add_parser("data", help="build and inspect the cached training set",
+                            description="The dataset registry: every source under a data root mapped onto the "
+                                        "canonical Rajagopal 2016 coordinates, one rate, subject-level splits.")
+    data_verbs = data.add_subparsers(dest="data_verb", metavar="ACTION", required=True)
+    build = data_verbs.add_parser(
+        "build", help="build the cache (clips.safetensors + manifest.json)",
+        description="Read every registered source present under --data-root, resample to --rate with an "
+                    "anti-alias filter, map coordinates by name onto Rajagopal 2016 (masks for absent ones), and "
+                    "write clips.safetensors and manifest.json (counts per source, subject, action; splits).")
+    build.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+                       help="folder laid out like ../shared/data (default: %(default)s)")
+    build.add_argument("--out", type=Path, required=True, help="cache folder to write")
+    build.add_argument("--rate", type=float, default=30.0, help="common rate in Hz (default: %(default)s)")
+    build.add_argument("--source", action="append", help="only this source (repeatable); default: all present")
+    build.add_argument("--quiet", action="store_true", help="no progress bar")
+    build.set_defaults(run=_data_build)
+    sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")
+    sources.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    sources.set_defaults(run=_data_sources)
+
+    convert = verbs.add_parser(
+        "convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)",
+        description="Read INPUT in any supported format and write OUTPUT in the format its suffix names: "
+                    "coordinates .mot/.sto/.csv, markers .trc/.csv (from .trc, .c3d or BVH joint positions), "
+                    "skeletons .bvh/.bvh.gz.")
+    convert.add_argument("input", type=Path)
+    convert.add_argument("output", type=Path)
+    convert.set_defaults(run=_convert)
+
+    inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")
+    inspect.add_argument("input", type=Path)
+    inspect.set_defaults(run=_inspect)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except BiomotionError as error:
+        print(f"biomotion: error: {error}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("biomotion: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

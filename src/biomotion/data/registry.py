@@ -1,0 +1,183 @@
+"""Build and read the cached training set: every registered source, one rate, canonical coordinates, splits.
+
+Layout of a cache folder:
+- ``clips.safetensors``: ``values`` [N_frames_total, 39] float32 (SI units, canonical coordinates, all clips
+  concatenated) and ``masks`` [N_clips, 39] uint8.
+- ``manifest.json``: rate, coordinate names, one record per clip (id, source, subject, split, labels, profile,
+  offset and length into ``values``, start time, source file relative to the data root), counts per source,
+  subject, action and split, sources skipped, and the build settings.
+
+Splits are by subject, never by clip, so no person is in two splits (PG-BIG Sec. 4.1 evaluates on held-out
+subjects): a subject's split is a stable hash of ``source/subject``, so adding subjects never moves others.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections import Counter
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+from tqdm import tqdm
+
+from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.data.sources import SOURCES, ClipSpec, discover_all, forward_speed
+from biomotion.errors import BiomotionError, DataFormatError
+from biomotion.io.atomic import atomic_write
+from biomotion.motion import Motion
+from biomotion.profile import Profile
+from biomotion.trial import Labels
+
+SPLIT_FRACTIONS = (("train", 0.70), ("val", 0.15), ("test", 0.15))
+MANIFEST = "manifest.json"
+ARRAYS = "clips.safetensors"
+
+
+def subject_split(source: str, subject: str, fractions=SPLIT_FRACTIONS) -> str:
+    """Deterministic subject-level split from a hash of ``source/subject`` (uniform in [0, 1))."""
+    digest = hashlib.sha256(f"{source}/{subject}".encode()).digest()
+    u = int.from_bytes(digest[:8], "big") / 2**64
+    edge = 0.0
+    for name, fraction in fractions:
+        edge += fraction
+        if u < edge:
+            return name
+    return fractions[-1][0]
+
+
+@dataclass(frozen=True)
+class ClipRecord:
+    """Manifest entry of one cached clip."""
+
+    clip_id: str
+    source: str
+    subject: str
+    split: str
+    labels: dict
+    profile: dict
+    offset: int
+    n_frames: int
+    start_time: float
+    file: str
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(root.resolve()))
+    except ValueError:
+        return path.name
+
+
+def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT_RATE,
+                sources: Iterable[str] | None = None, progress: bool = True) -> dict:
+    """Build the cache in ``out`` from every source present under ``data_root``; returns the manifest.
+
+    A clip that fails to load stops the build with its file named (malformed data is an error, not a skip);
+    sources absent from the data root are listed under ``skipped``. Files are written atomically, the manifest
+    last, so a folder with a manifest always holds a complete cache.
+    """
+    data_root, out = Path(data_root), Path(out)
+    started = time.perf_counter()
+    specs, skipped = discover_all(data_root, sources)
+    if not specs:
+        raise BiomotionError(f"no clips found under {data_root}; skipped: {'; '.join(skipped) or 'none'}")
+    chunks: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
+    records: list[ClipRecord] = []
+    offset = 0
+    for spec in tqdm(specs, desc="building dataset cache", unit="clip", disable=not progress):
+        source = SOURCES[spec.source]
+        motion = source.load_motion(spec)
+        labels = spec.labels
+        if source.overground and labels.speed is None and labels.action in ("walk", "run"):
+            labels = replace(labels, speed=round(forward_speed(motion), 3))
+        clip = motion.resample(rate) if abs(motion.rate - rate) > 1e-6 else motion
+        if not np.all(np.isfinite(clip.values[:, clip.mask])):
+            raise DataFormatError(spec.path, "non-finite coordinate values after resampling")
+        chunks.append(clip.values.astype(np.float32))
+        masks.append(clip.mask.astype(np.uint8))
+        records.append(ClipRecord(
+            clip_id=spec.clip_id, source=spec.source, subject=spec.subject,
+            split=subject_split(spec.source, spec.subject), labels=asdict(labels), profile=spec.profile.to_dict(),
+            offset=offset, n_frames=clip.n_frames, start_time=float(clip.times[0]),
+            file=_relative(spec.path, data_root)))
+        offset += clip.n_frames
+    from safetensors.numpy import save_file
+
+    out.mkdir(parents=True, exist_ok=True)
+    arrays = {"values": np.concatenate(chunks, axis=0), "masks": np.stack(masks)}
+    tmp = out / f".{ARRAYS}.tmp"
+    save_file(arrays, str(tmp))
+    tmp.replace(out / ARRAYS)
+    manifest = {
+        "format": "biomotion-dataset-cache/1",
+        "rate_hz": rate,
+        "coordinates": list(CANONICAL_COORDINATES),
+        "units": "rad for rotations, m for pelvis_tx/ty/tz; OpenSim ground frame (y up)",
+        "split_rule": "sha256(source/subject) -> train 70 %, val 15 %, test 15 %, by subject",
+        "counts": _counts(records),
+        "skipped_sources": skipped,
+        "build_seconds": round(time.perf_counter() - started, 2),
+        "clips": [asdict(r) for r in records],
+    }
+    with atomic_write(out / MANIFEST) as handle:
+        json.dump(manifest, handle, indent=1)
+    return manifest
+
+
+def _counts(records: list[ClipRecord]) -> dict:
+    per_subject = Counter(f"{r.source}/{r.subject}" for r in records)
+    return {
+        "clips": len(records),
+        "frames": int(sum(r.n_frames for r in records)),
+        "per_source": dict(Counter(r.source for r in records)),
+        "subjects_per_source": dict(Counter(key.split("/")[0] for key in per_subject)),
+        "per_subject": dict(per_subject),
+        "per_action": dict(Counter(f"{r.source}/{r.labels['action']}" for r in records)),
+        "per_split": dict(Counter(r.split for r in records)),
+        "subjects_per_split": dict(Counter(subject_split(*key.split("/", 1)) for key in per_subject)),
+    }
+
+
+class DatasetCache:
+    """Read access to a built cache: clips as `Motion` (canonical coordinates, masks), filtered by split/source."""
+
+    def __init__(self, folder: str | Path) -> None:
+        self.folder = Path(folder)
+        manifest_path = self.folder / MANIFEST
+        if not manifest_path.exists():
+            raise BiomotionError(f"{self.folder} is not a dataset cache (no {MANIFEST}); "
+                                 "build one with `biomotion data build`")
+        self.manifest = json.loads(manifest_path.read_text())
+        from safetensors.numpy import load_file
+
+        arrays = load_file(str(self.folder / ARRAYS))
+        self.values = arrays["values"]
+        self.masks = arrays["masks"].astype(bool)
+        self.records = self.manifest["clips"]
+        self.rate = float(self.manifest["rate_hz"])
+        self.coordinates = tuple(self.manifest["coordinates"])
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def indices(self, split: str | None = None, source: str | None = None, action: str | None = None) -> list[int]:
+        return [i for i, r in enumerate(self.records)
+                if (split is None or r["split"] == split) and (source is None or r["source"] == source)
+                and (action is None or r["labels"]["action"] == action)]
+
+    def motion(self, index: int) -> Motion:
+        record = self.records[index]
+        values = self.values[record["offset"]:record["offset"] + record["n_frames"]].astype(np.float64)
+        times = record["start_time"] + np.arange(record["n_frames"]) / self.rate
+        return Motion(times=times, names=self.coordinates, values=values, mask=self.masks[index])
+
+    def labels(self, index: int) -> Labels:
+        return Labels(**self.records[index]["labels"])
+
+    def profile(self, index: int) -> Profile:
+        return Profile.from_dict(self.records[index]["profile"])

@@ -1,0 +1,217 @@
+"""Data sources of the registry: each finds its clips under a data root and loads one as a canonical `Trial`.
+
+A source is a folder of the data root (``fukuchi-running/``, ``opencap/Subject4/`` ...). `Source.discover` lists
+what is present — any subjects, so a folder holding other runners or a subset works the same — and `Source.load`
+returns the clip mapped onto `CANONICAL_COORDINATES` (mask False for coordinates the source lacks, knee sign made
+canonical). Sources that need retargeting (BVH, raw C3D) register themselves through `register_source`.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable
+
+import numpy as np
+
+from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
+from biomotion.io.mot import read_motion
+from biomotion.io.tables import read_subject_table
+from biomotion.motion import Motion
+from biomotion.profile import Profile
+from biomotion.trial import Labels, Trial
+
+
+@dataclass(frozen=True)
+class ClipSpec:
+    """One clip a source offers: a stable id, its file, who and what."""
+
+    clip_id: str
+    source: str
+    path: Path
+    subject: str
+    labels: Labels
+    profile: Profile = field(default_factory=Profile)
+
+
+@dataclass(frozen=True)
+class Source:
+    """A registered source: folder under the data root, a discoverer and a loader of canonical motion."""
+
+    name: str
+    folder: str
+    discover: Callable[[Path], list[ClipSpec]]
+    load_motion: Callable[[ClipSpec], Motion]
+    description: str = ""
+    overground: bool = False  # locomotion speed can be measured from the pelvis path (not on a treadmill)
+
+    def present(self, data_root: Path) -> bool:
+        return (data_root / self.folder).is_dir()
+
+    def load(self, spec: ClipSpec) -> Trial:
+        return Trial(motion=self.load_motion(spec), profile=spec.profile, labels=spec.labels, source=spec.path)
+
+
+SOURCES: dict[str, Source] = {}
+
+
+def register_source(source: Source) -> Source:
+    """Add (or replace) a source in the registry; returns it so it can be used as a module-level constant."""
+    SOURCES[source.name] = source
+    return source
+
+
+def to_canonical(motion: Motion, *, knee_flipped: bool = False) -> Motion:
+    """Columns in canonical order (absent ones masked) with the canonical (positive-flexion) knee sign."""
+    selected = motion.select(CANONICAL_COORDINATES)
+    if knee_flipped:
+        values = selected.values.copy()
+        for name in KNEE_COORDINATES:
+            values[:, selected.index(name)] *= -1.0
+        selected = selected.with_values(values)
+    return selected
+
+
+def forward_speed(motion: Motion) -> float:
+    """Mean horizontal pelvis speed (m/s) from ``pelvis_tx/tz``: the walking speed of an overground clip."""
+    horizontal = np.stack([motion["pelvis_tx"], motion["pelvis_tz"]], axis=1)
+    return float(np.linalg.norm(horizontal[-1] - horizontal[0]) / motion.duration)
+
+
+def _profiles(table: Path) -> dict[str, Profile]:
+    return read_subject_table(table) if table.exists() else {}
+
+
+# --- Fukuchi 2017 running: ik/<speed>/<runner>_<speed>_ik_simple.mot ---------------------------------------------
+
+def _fukuchi_discover(root: Path) -> list[ClipSpec]:
+    base = root / "fukuchi-running"
+    profiles = _profiles(base / "participantInfo.csv")
+    specs = []
+    for path in sorted(base.glob("ik/T*/*_ik_simple.mot")):
+        match = re.match(r"(RBDS\d+)_T(\d)(\d)_ik_simple", path.stem)
+        if not match:
+            continue
+        runner, speed = match.group(1), float(f"{match.group(2)}.{match.group(3)}")
+        specs.append(ClipSpec(clip_id=f"fukuchi/{runner}/T{match.group(2)}{match.group(3)}", source="fukuchi",
+                              path=path, subject=runner, profile=profiles.get(runner, Profile(subject_id=runner)),
+                              labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed} m/s")))
+    return specs
+
+
+FUKUCHI = register_source(Source(
+    name="fukuchi", folder="fukuchi-running", discover=_fukuchi_discover,
+    load_motion=lambda spec: to_canonical(read_motion(spec.path), knee_flipped=True),
+    description="Fukuchi 2017 treadmill running, OpenSim IK at 2.5/3.5/4.5 m/s (16 lower-body coordinates)"))
+
+
+# --- OpenCap Subject4: IK/<trial>_ik.mot ------------------------------------------------------------------------
+
+_OPENCAP_ACTIVITIES = (  # (trial-name prefix, action, style), longest prefixes first
+    ("walkingTS", "walk", "trunk sway"), ("walkingTI", "walk", "toe-in"), ("walkingTO", "walk", "toe-out"),
+    ("walking", "walk", "normal"), ("DJAsym", "drop jump", "asymmetric"), ("DJ", "drop jump", "normal"),
+    ("squatsAsym", "squat", "asymmetric"), ("squats", "squat", "normal"),
+    ("STSweakLegs", "sit-to-stand", "weak legs"), ("STSAsym", "sit-to-stand", "asymmetric"),
+    ("STS", "sit-to-stand", "normal"), ("static", "static", "normal"),
+)
+
+#: Subject 4 of the OpenCap validation set (``opencap/SOURCE.md``: 62.6 kg, 1.68 m from ``rescaling_setup.xml``).
+OPENCAP_SUBJECT4 = Profile(subject_id="Subject4", mass=62.6, height=1.68)
+
+
+def _opencap_discover(root: Path) -> list[ClipSpec]:
+    specs = []
+    for subject_dir in sorted(p for p in (root / "opencap").glob("Subject*") if p.is_dir()):
+        subject = subject_dir.name
+        profile = OPENCAP_SUBJECT4 if subject == "Subject4" else Profile(subject_id=subject)
+        for path in sorted(subject_dir.glob("IK/*_ik.mot")):
+            if path.stem.endswith("_manual_scaling_ik"):  # the lab's hand-scaled model: same trials again
+                continue
+            trial = path.stem.removesuffix("_ik")
+            activity = next(((a, s) for prefix, a, s in _OPENCAP_ACTIVITIES if trial.startswith(prefix)), None)
+            if activity is None:
+                continue
+            action, style = activity
+            text = action if style == "normal" else f"{action}, {style}"
+            specs.append(ClipSpec(clip_id=f"opencap/{subject}/{trial}", source="opencap", path=path, subject=subject,
+                                  profile=profile, labels=Labels(action=action, style=style, text=text)))
+    return specs
+
+
+OPENCAP = register_source(Source(
+    name="opencap", folder="opencap", discover=_opencap_discover,
+    load_motion=lambda spec: to_canonical(read_motion(spec.path)),
+    description="OpenCap lab validation: walking variants, drop jumps, squats, sit-to-stand (33 coordinates)",
+    overground=True))
+
+
+# --- Hamner & Delp 2013 running: <subject>/Run_<speed>.mot ------------------------------------------------------
+
+def _hamner_discover(root: Path) -> list[ClipSpec]:
+    base = root / "Hamner2013"
+    profiles = _profiles(base / "subjects.csv")
+    specs = []
+    for path in sorted(base.glob("subject*/Run_*.mot")):
+        match = re.fullmatch(r"Run_(\d+)", path.stem)
+        if not match:
+            continue
+        subject, speed = path.parent.name, float(match.group(1))
+        specs.append(ClipSpec(clip_id=f"hamner/{subject}/Run_{match.group(1)}", source="hamner", path=path,
+                              subject=subject, profile=profiles.get(subject, Profile(subject_id=subject)),
+                              labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed:g} m/s")))
+    return specs
+
+
+def _hamner_load(spec: ClipSpec) -> Motion:
+    motion = read_motion(spec.path)  # SIMM header without inDegrees: degrees (Hamner2013/SOURCE.md)
+    coordinates = [n for n in motion.names if n in CANONICAL_COORDINATES]
+    return to_canonical(motion.select(coordinates), knee_flipped=True)
+
+
+HAMNER = register_source(Source(
+    name="hamner", folder="Hamner2013", discover=_hamner_discover, load_motion=_hamner_load,
+    description="Hamner & Delp 2013 treadmill running at 2-5 m/s, full body with arms (37 coordinates)"))
+
+
+# --- Schreiber & Moissenet 2019 walking: <subject>/C{4,5}_xx_ik.mot ---------------------------------------------
+
+_SCHREIBER_CONDITIONS = {"C4": "spontaneous", "C5": "fast"}
+
+
+def _schreiber_discover(root: Path) -> list[ClipSpec]:
+    base = root / "SchreiberMoissenet2019"
+    profiles = _profiles(base / "subjects.csv")
+    specs = []
+    for path in sorted(base.glob("*/C*_ik.mot")):
+        match = re.fullmatch(r"(C\d)_(\d+)_ik", path.stem)
+        if not match or match.group(1) not in _SCHREIBER_CONDITIONS:
+            continue
+        subject, style = path.parent.name, _SCHREIBER_CONDITIONS[match.group(1)]
+        specs.append(ClipSpec(clip_id=f"schreiber/{subject}/{match.group(1)}_{match.group(2)}", source="schreiber",
+                              path=path, subject=subject, profile=profiles.get(subject, Profile(subject_id=subject)),
+                              labels=Labels(action="walk", style=style, text=f"walk overground at a {style} speed")))
+    return specs
+
+
+SCHREIBER = register_source(Source(
+    name="schreiber", folder="SchreiberMoissenet2019", discover=_schreiber_discover,
+    load_motion=lambda spec: to_canonical(read_motion(spec.path)),
+    description="Schreiber & Moissenet 2019 overground walking, spontaneous and fast (Rajagopal, 39 coordinates)",
+    overground=True))
+
+
+def discover_all(data_root: Path, names: Iterable[str] | None = None) -> tuple[list[ClipSpec], list[str]]:
+    """Clips of every registered source present under ``data_root``; also the names of sources skipped (absent)."""
+    clips: list[ClipSpec] = []
+    skipped: list[str] = []
+    for name in names or list(SOURCES):
+        source = SOURCES[name]
+        if not source.present(data_root):
+            skipped.append(f"{name} (no {source.folder}/ under {data_root})")
+            continue
+        found = source.discover(data_root)
+        if not found:
+            skipped.append(f"{name} ({source.folder}/ holds no clips)")
+        clips.extend(found)
+    return clips, skipped

@@ -1,0 +1,124 @@
+"""TRC marker files (Motion Analysis track row column format, as OpenSim reads and writes them).
+
+Layout: ``PathFileType`` line; a line of keys (``DataRate CameraRate NumFrames NumMarkers Units ...``) and a line of
+their values; a line ``Frame# Time <marker> <tab> <tab> <marker> ...``; a line ``X1 Y1 Z1 X2 ...``; then one row
+per frame. Missing samples are empty fields or NaN. Units (``mm``, ``cm``, ``m``) are converted to metres here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from biomotion.errors import DataFormatError
+from biomotion.io.atomic import atomic_write
+from biomotion.motion import Markers
+
+UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+
+
+def read_trc(path: str | Path) -> Markers:
+    """Read a ``.trc`` file as `Markers` in metres (NaN where a marker is missing)."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read: {error.strerror}") from None
+    if len(lines) < 5:
+        raise DataFormatError(path, f"only {len(lines)} lines: a TRC file has 5 header lines then data")
+    if not lines[0].startswith("PathFileType"):
+        raise DataFormatError(path, "first line must start with 'PathFileType'", line=1)
+    keys = lines[1].split()
+    values = lines[2].split()
+    if len(values) < len(keys):
+        raise DataFormatError(path, f"{len(keys)} header keys but {len(values)} values", line=3)
+    meta = dict(zip(keys, values))
+    try:
+        rate = float(meta["DataRate"])
+        declared_frames = int(float(meta["NumFrames"]))
+        declared_markers = int(float(meta["NumMarkers"]))
+    except (KeyError, ValueError) as error:
+        raise DataFormatError(path, f"bad header value ({error})", line=3) from None
+    units = meta.get("Units", "")
+    if units not in UNIT_SCALE:
+        raise DataFormatError(path, f"unknown units {units!r} (expected mm, cm or m)", line=3, field="Units")
+    if not np.isfinite(rate) or rate <= 0:
+        raise DataFormatError(path, f"DataRate must be positive, got {meta['DataRate']}", line=3, field="DataRate")
+    label_fields = lines[3].rstrip().split("\t")
+    if len(label_fields) < 2 or label_fields[0].strip() != "Frame#":
+        raise DataFormatError(path, "marker label line must start with 'Frame#\\tTime'", line=4)
+    names = [name.strip() for name in label_fields[2:] if name.strip()]
+    if len(names) != declared_markers:
+        raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}",
+                              line=4)
+    width = 2 + 3 * len(names)
+    rows, numbers = [], []
+    for number in range(5, len(lines)):
+        text = lines[number].rstrip()
+        if not text.strip():
+            continue
+        fields = text.split("\t")
+        if len(fields) > width:
+            raise DataFormatError(path, f"{len(fields)} fields, expected {width} (2 + 3 x {len(names)} markers)",
+                                  line=number + 1)
+        fields += [""] * (width - len(fields))
+        rows.append(fields)
+        numbers.append(number + 1)
+    if not rows:
+        raise DataFormatError(path, "no data rows", line=6)
+    table = np.array(rows, dtype=object)
+    table[table == ""] = "nan"
+    try:
+        data = table.astype(float)
+    except ValueError:
+        for fields, number in zip(rows, numbers):
+            for token in fields:
+                try:
+                    float(token or "nan")
+                except ValueError:
+                    raise DataFormatError(path, f"not a number: {token!r}", line=number) from None
+        raise
+    if len(data) < declared_frames:
+        raise DataFormatError(path, f"truncated: header declares {declared_frames} frames, file has {len(data)}",
+                              line=numbers[-1])
+    times = data[:, 1]
+    if not np.all(np.isfinite(times)):
+        raise DataFormatError(path, "time is missing", line=numbers[int(np.flatnonzero(~np.isfinite(times))[0])])
+    steps = np.diff(times)
+    if np.any(steps <= 0):
+        row = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise DataFormatError(path, f"time does not increase ({times[row - 1]} then {times[row]})",
+                              line=numbers[row])
+    positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
+    return Markers(times=times, names=tuple(names), positions=positions)
+
+
+def write_trc(path: str | Path, markers: Markers, *, units: str = "m", rate: float | None = None) -> Path:
+    """Write `Markers` as a ``.trc`` file OpenSim reads; occluded samples are left empty.
+
+    ``rate`` (Hz) defaults to the markers' own; a single frame has none, so it must then be given.
+    """
+    if units not in UNIT_SCALE:
+        raise ValueError(f"units must be one of {sorted(UNIT_SCALE)}, got {units!r}")
+    path = Path(path)
+    rate = markers.rate if rate is None else float(rate)
+    if not np.isfinite(rate) or rate <= 0:
+        raise ValueError("a single-frame marker set has no rate: pass rate=")
+    count = len(markers.names)
+    header = [
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}",
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames",
+        f"{rate!r}\t{rate!r}\t{markers.n_frames}\t{count}\t{units}\t{rate!r}\t1\t{markers.n_frames}",
+        "Frame#\tTime\t" + "\t".join(f"{name}\t\t" for name in markers.names),
+        "\t\t" + "\t".join(f"X{i}\tY{i}\tZ{i}" for i in range(1, count + 1)),
+        "",
+    ]
+    values = markers.positions.reshape(markers.n_frames, -1) / UNIT_SCALE[units]
+    body = []
+    for frame, (time, row) in enumerate(zip(markers.times, values), start=1):
+        cells = ["" if not np.isfinite(v) else repr(float(v)) for v in row]
+        body.append("\t".join([str(frame), repr(float(time)), *cells]))
+    with atomic_write(path) as handle:
+        handle.write("\n".join(header) + "\n" + "\n".join(body) + "\n")
+    return path

@@ -1,0 +1,90 @@
+"""Dataset registry: the cache built from the real data matches the data (counts, labels, masks, splits)."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from biomotion.cli import main
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.registry import DatasetCache, build_cache, subject_split
+from biomotion.io.mot import read_motion
+from tests.conftest import DATA_ROOT
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory, data_root):
+    out = tmp_path_factory.mktemp("cache")
+    build_cache(data_root, out, progress=False)
+    return DatasetCache(out)
+
+
+def test_counts_match_the_files(cache):
+    counts = cache.manifest["counts"]
+    fukuchi_files = list(DATA_ROOT.glob("fukuchi-running/ik/T*/*_ik_simple.mot"))
+    runners = {p.name.split("_")[0] for p in fukuchi_files}
+    assert counts["per_source"]["fukuchi"] == len(fukuchi_files) == 3 * len(runners)
+    assert counts["subjects_per_source"]["fukuchi"] == len(runners)
+    opencap = [p for p in DATA_ROOT.glob("opencap/Subject4/IK/*_ik.mot") if "manual" not in p.name]
+    assert counts["per_source"]["opencap"] == len(opencap) == 24
+    assert counts["per_source"]["hamner"] == len(list(DATA_ROOT.glob("Hamner2013/subject*/Run_?.mot")))
+    assert counts["per_source"]["schreiber"] == len(list(DATA_ROOT.glob("SchreiberMoissenet2019/*/C*_ik.mot")))
+    assert counts["clips"] == len(cache) == sum(counts["per_source"].values())
+    assert counts["frames"] == cache.values.shape[0]
+    assert counts["per_action"]["opencap/drop jump"] == 6  # DJ1-3 + DJAsym1-3
+
+
+def test_splits_are_by_subject(cache):
+    split_of = {}
+    for record in cache.records:
+        key = (record["source"], record["subject"])
+        assert split_of.setdefault(key, record["split"]) == record["split"], key
+        assert record["split"] == subject_split(*key)
+    assert set(split_of.values()) == {"train", "val", "test"}
+
+
+def test_canonical_mapping_masks_and_knee_sign(cache):
+    assert cache.coordinates == CANONICAL_COORDINATES and cache.rate == 30.0
+    fukuchi = cache.indices(source="fukuchi")
+    motion = cache.motion(fukuchi[0])
+    assert motion.mask.sum() == 16  # the 16 coordinates of the Fukuchi simple model
+    assert not motion.mask[motion.index("lumbar_extension")]
+    assert motion["knee_angle_r"].max() > 1.2  # flexion made positive (swing ~ 100+ deg while running)
+    assert motion.rate == pytest.approx(30.0)
+    hamner = cache.motion(cache.indices(source="hamner")[0])
+    assert hamner["knee_angle_r"].max() > 1.2 and hamner.mask[hamner.index("arm_flex_r")]
+    schreiber = cache.motion(cache.indices(source="schreiber")[0])
+    assert schreiber.mask.all()
+
+
+def test_cached_values_equal_the_resampled_source(cache):
+    index = next(i for i, r in enumerate(cache.records) if r["clip_id"] == "opencap/Subject4/walking1")
+    record = cache.records[index]
+    source = read_motion(DATA_ROOT / record["file"]).resample(30.0)
+    cached = cache.motion(index)
+    shared = [n for n in source.names if n in CANONICAL_COORDINATES]
+    np.testing.assert_allclose(cached.select(shared).values, source.select(shared).values, atol=1e-5)
+    assert record["labels"]["action"] == "walk" and 1.0 < record["labels"]["speed"] < 1.8  # measured, m/s
+    assert record["profile"]["mass"] == 62.6
+
+
+def test_labels_and_profiles(cache):
+    runner = next(r for r in cache.records if r["clip_id"] == "fukuchi/RBDS001/T35")
+    assert runner["labels"]["speed"] == 3.5 and runner["labels"]["action"] == "run"
+    assert runner["profile"]["mass"] == 62 and runner["profile"]["injuries"][0]["location"] == "Right knee"
+
+
+def test_cli_build_on_a_subset_data_root(tmp_path, data_root):
+    """A data root holding only some sources/subjects works and names what it skipped."""
+    root = tmp_path / "root"
+    (root / "fukuchi-running" / "ik" / "T35").mkdir(parents=True)
+    shutil.copy(data_root / "fukuchi-running" / "participantInfo.csv", root / "fukuchi-running")
+    for runner in ("RBDS002", "RBDS010"):
+        shutil.copy(data_root / f"fukuchi-running/ik/T35/{runner}_T35_ik_simple.mot", root / "fukuchi-running/ik/T35")
+    out = tmp_path / "cache"
+    assert main(["data", "build", "--data-root", str(root), "--out", str(out), "--quiet"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["counts"]["clips"] == 2
+    assert any(s.startswith("opencap") for s in manifest["skipped_sources"])
+    assert main(["data", "build", "--data-root", str(tmp_path / "nothing"), "--out", str(out), "--quiet"]) == 2
