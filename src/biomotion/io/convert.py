@@ -1,0 +1,119 @@
+"""Format dispatch by file suffix: read anything biomotion reads, write what the output suffix names.
+
+Used by ``biomotion convert`` and ``biomotion inspect``; the format modules stay independent of each other.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from biomotion.errors import ConfigError
+from biomotion.motion import GroundReaction, Markers, Motion
+
+
+def suffix_of(path: Path) -> str:
+    """Lower-case suffix, with ``.bvh.gz`` kept whole."""
+    name = path.name.lower()
+    return ".bvh.gz" if name.endswith(".bvh.gz") else path.suffix.lower()
+
+
+def read_any(path: str | Path) -> Any:
+    """`Motion`, `GroundReaction`, `Markers`, `Trial` (C3D) or `BVHMotion`, by suffix (and columns for .mot)."""
+    path = Path(path)
+    suffix = suffix_of(path)
+    if suffix in (".mot", ".sto"):
+        from biomotion.io.mot import read_ground_reaction, read_motion, read_storage
+
+        labels = read_storage(path).labels
+        return read_ground_reaction(path) if any(label.endswith("_vx") for label in labels) else read_motion(path)
+    if suffix == ".trc":
+        from biomotion.io.trc import read_trc
+
+        return read_trc(path)
+    if suffix == ".c3d":
+        from biomotion.io.c3d import read_c3d
+
+        return read_c3d(path)
+    if suffix in (".bvh", ".bvh.gz"):
+        from biomotion.io.bvh import read_bvh
+
+        return read_bvh(path)
+    if suffix == ".csv":
+        from biomotion.io.csvfile import read_motion_csv
+
+        return read_motion_csv(path)
+    raise ConfigError(f"{path}: unsupported format {suffix!r} (supported: .mot .sto .trc .c3d .bvh .bvh.gz .csv)")
+
+
+def _markers_of(data: Any) -> Markers | None:
+    if isinstance(data, Markers):
+        return data
+    if hasattr(data, "to_markers"):
+        return data.to_markers()
+    return getattr(data, "markers", None)
+
+
+def convert(source: str | Path, target: str | Path) -> Path:
+    """Read ``source`` and write ``target`` in the format its suffix names; raises ConfigError if impossible."""
+    source, target = Path(source), Path(target)
+    data = read_any(source)
+    suffix = suffix_of(target)
+    if suffix in (".bvh", ".bvh.gz"):
+        if not hasattr(data, "skeleton"):
+            raise ConfigError(f"{source}: only BVH input can be written as BVH (retarget other motion first)")
+        from biomotion.io.bvh import write_bvh
+
+        write_bvh(target, data)
+        return target
+    if suffix in (".mot", ".sto"):
+        from biomotion.io.mot import write_ground_reaction, write_motion
+
+        if isinstance(data, Motion):
+            return write_motion(target, data)
+        forces = data if isinstance(data, GroundReaction) else getattr(data, "forces", None)
+        if forces is not None:
+            return write_ground_reaction(target, forces)
+        raise ConfigError(f"{source}: holds no coordinates or forces to write as {suffix}")
+    if suffix == ".trc":
+        from biomotion.io.trc import write_trc
+
+        markers = _markers_of(data)
+        if markers is None:
+            raise ConfigError(f"{source}: holds no markers or joint positions to write as .trc")
+        return write_trc(target, markers)
+    if suffix == ".csv":
+        from biomotion.io.csvfile import write_markers_csv, write_motion_csv
+
+        if isinstance(data, Motion):
+            return write_motion_csv(target, data)
+        markers = _markers_of(data)
+        if markers is not None:
+            return write_markers_csv(target, markers)
+        raise ConfigError(f"{source}: nothing to write as CSV")
+    raise ConfigError(f"{target}: unsupported output format {suffix!r} (use .mot .sto .trc .bvh .bvh.gz .csv)")
+
+
+def describe(path: str | Path) -> dict[str, Any]:
+    """A short JSON-able summary of a file: kind, frames, rate, duration, channel names."""
+    data = read_any(path)
+    summary: dict[str, Any] = {"file": str(path), "kind": type(data).__name__}
+    series = []
+    if isinstance(data, (Motion, Markers, GroundReaction)):
+        series = [("", data)]
+    elif hasattr(data, "skeleton"):
+        series = [("", data.to_markers())]
+        summary["units_in_file"] = getattr(data, "units", None)
+    else:
+        series = [(name, getattr(data, name)) for name in ("motion", "markers", "forces")
+                  if getattr(data, name, None) is not None]
+    for prefix, item in series:
+        key = f"{prefix}_" if prefix else ""
+        summary[f"{key}frames"] = item.n_frames
+        summary[f"{key}rate_hz"] = round(item.rate, 6) if np.isfinite(item.rate) else None
+        summary[f"{key}start_s"] = float(item.times[0])
+        summary[f"{key}duration_s"] = round(item.duration, 6)
+        summary[f"{key}channels"] = list(item.names)
+    return summary
