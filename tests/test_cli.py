@@ -1,0 +1,60 @@
+"""The `biomotion` command: --help on every verb, one-line errors with exit status 2, convert round trips."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from biomotion.cli import build_parser, main
+from biomotion.io.mot import read_motion
+from biomotion.io.trc import read_trc
+from tests.conftest import data_path
+
+
+def verbs(parser):
+    """Every (sub)command path of the parser, e.g. ['data', 'build']."""
+    paths = []
+    for action in parser._actions:
+        if action.__class__.__name__ == "_SubParsersAction":
+            for name, sub in action.choices.items():
+                paths.append([name])
+                paths += [[name, *rest] for rest in verbs(sub)]
+    return paths
+
+
+def test_every_verb_has_help(capsys):
+    for path in verbs(build_parser()):
+        with pytest.raises(SystemExit) as exit_info:
+            main([*path, "--help"])
+        assert exit_info.value.code == 0
+        out = capsys.readouterr().out
+        assert "usage: biomotion" in out and len(out) > 100, path
+
+
+def test_console_script_runs():
+    result = subprocess.run([sys.executable, "-m", "biomotion.cli", "--help"], capture_output=True, text=True)
+    assert result.returncode == 0 and "VERB" in result.stdout
+
+
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
+    broken = tmp_path / "broken.mot"
+    broken.write_text("hello\n")
+    assert main(["inspect", str(broken)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "broken.mot" in err and "endheader" in err
+
+
+def test_convert_mot_to_csv_and_back(tmp_path):
+    source = data_path("opencap/Subject4/IK/DJ2_ik.mot")
+    assert main(["convert", str(source), str(tmp_path / "dj2.csv")]) == 0
+    assert main(["convert", str(tmp_path / "dj2.csv"), str(tmp_path / "dj2.mot")]) == 0
+    np.testing.assert_allclose(read_motion(tmp_path / "dj2.mot").values, read_motion(source).values, atol=1e-12)
+
+
+def test_convert_bvh_joints_to_trc(tmp_path):
+    source = data_path("bandai-namco/dataset-2/dataset-2_walk_normal_016.bvh.gz")
+    assert main(["convert", str(source), str(tmp_path / "walk.trc")]) == 0
+    markers = read_trc(tmp_path / "walk.trc")
+    assert "Toes_L" in markers.names and markers.rate == pytest.approx(30.0, rel=1e-4)
+    assert 0.7 < np.nanmean(markers["Hips"][:, 1]) < 1.0
