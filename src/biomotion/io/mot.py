@@ -265,7 +265,7 @@ def ground_reaction_labels(name: str) -> tuple[list[str], list[str], list[str]]:
 def write_ground_reaction(path: str | Path, forces: GroundReaction, *, name: str | None = None) -> Path:
     """Write a `GroundReaction` as an OpenSim external-loads ``.mot``.
 
-    A NaN centre of pressure (load too light) is written as 0 with the force it belongs to, which is what
+    A NaN centre of pressure or free moment (load too light) is written as 0 beside the force, which is what
     OpenSim's tools expect; use `write_external_loads_xml` for the matching setup.
     """
     labels: list[str] = []
@@ -273,7 +273,8 @@ def write_ground_reaction(path: str | Path, forces: GroundReaction, *, name: str
     for j, channel in enumerate(forces.names):
         force_labels, point_labels, torque_labels = ground_reaction_labels(channel)
         labels += force_labels + point_labels + torque_labels
-        columns += [forces.force[:, j], np.nan_to_num(forces.cop[:, j], nan=0.0), forces.moment[:, j]]
+        columns += [forces.force[:, j], np.nan_to_num(forces.cop[:, j], nan=0.0),
+                    np.nan_to_num(forces.moment[:, j], nan=0.0)]
     data = np.concatenate(columns, axis=1)
     return write_storage(path, labels, forces.times, data, name=name or "ground_reaction")
 
