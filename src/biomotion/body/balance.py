@@ -1,0 +1,120 @@
+"""Balance and energy from coordinates: body velocities and accelerations, whole-body COM and its derivatives,
+zero-moment point, kinetic and potential energy.
+
+All functions take coordinates ``q``, velocities ``qd`` and accelerations ``qdd`` of shape [..., n_q] (SI) and are
+batched and differentiable. Body velocities are exact time derivatives of the forward kinematics, obtained by
+forward-mode autograd (``torch.func.jvp``) along (qd, qdd), never by finite differences of positions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch.func import jvp
+
+from biomotion.body.kinematics import body_coms, forward_kinematics
+from biomotion.body.model import BodyModel
+
+
+@dataclass(frozen=True)
+class BodyMotion:
+    """Per-body COM position/velocity/acceleration [..., B, 3] and angular velocity/acceleration [..., B, 3]
+    in ground, plus orientations [..., B, 3, 3]."""
+
+    com: torch.Tensor
+    com_velocity: torch.Tensor
+    com_acceleration: torch.Tensor
+    rotations: torch.Tensor
+    angular_velocity: torch.Tensor
+    angular_acceleration: torch.Tensor
+
+
+def _vee(skew: torch.Tensor) -> torch.Tensor:
+    """Vector of the skew-symmetric part of [..., 3, 3] (the ω in ω^ = Ṙ Rᵀ)."""
+    return 0.5 * torch.stack([skew[..., 2, 1] - skew[..., 1, 2], skew[..., 0, 2] - skew[..., 2, 0],
+                              skew[..., 1, 0] - skew[..., 0, 1]], dim=-1)
+
+
+def body_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> BodyMotion:
+    """Velocities and accelerations of every body's COM and frame (Featherstone 2008, Sec. 2.7: v = J(q) q̇,
+    a = J q̈ + J̇ q̇), from nested forward-mode derivatives of the forward kinematics."""
+
+    def pose(qq: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        poses = forward_kinematics(model, qq)
+        return body_coms(model, qq, poses), poses.rotations
+
+    def rates(qq: torch.Tensor, vv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        (_, rotation), (velocity, rotation_rate) = jvp(pose, (qq,), (vv,))
+        return velocity, _vee(rotation_rate @ rotation.transpose(-1, -2))
+
+    com, rotations = pose(q)
+    (velocity, omega), (acceleration, omega_dot) = jvp(rates, (q, qd), (qd, qdd))
+    return BodyMotion(com, velocity, acceleration, rotations, omega, omega_dot)
+
+
+@dataclass(frozen=True)
+class CenterOfMass:
+    """Whole-body COM position, velocity and acceleration [..., 3] in ground (m, m/s, m/s²)."""
+
+    position: torch.Tensor
+    velocity: torch.Tensor
+    acceleration: torch.Tensor
+
+
+def center_of_mass_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
+                          bodies: BodyMotion | None = None) -> CenterOfMass:
+    """Mass-weighted mean of the body COM kinematics (Winter 2009, ch. 4)."""
+    bodies = body_motion(model, q, qd, qdd) if bodies is None else bodies
+    weights = (model.masses / model.total_mass)[:, None]
+    return CenterOfMass((weights * bodies.com).sum(-2), (weights * bodies.com_velocity).sum(-2),
+                        (weights * bodies.com_acceleration).sum(-2))
+
+
+def _world_inertia(model: BodyModel, rotations: torch.Tensor) -> torch.Tensor:
+    return rotations @ model.inertias @ rotations.transpose(-1, -2)
+
+
+def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
+                      ground_height: float = 0.0, bodies: BodyMotion | None = None) -> torch.Tensor:
+    """[..., 3] zero-moment point on the horizontal ground plane y = ``ground_height`` (y up).
+
+    The point where the gravito-inertial wrench of all bodies has no horizontal moment (Vukobratović & Borovac
+    2004; HUMOS uses it as its stability criterion): with F = Σ mᵢ(g − aᵢ) and
+    M_O = Σ rᵢ × mᵢ(g − aᵢ) − Σ Ḣᵢ, where Ḣᵢ = Iᵢω̇ᵢ + ωᵢ × Iᵢωᵢ about each body's COM, the contact wrench
+    (−F, −M_O) has zero horizontal moment about p = (M_z / F_y, h, −M_x / F_y) taken relative to the plane.
+    NaN where the vertical gravito-inertial force vanishes (flight).
+    """
+    bodies = body_motion(model, q, qd, qdd) if bodies is None else bodies
+    masses = model.masses[:, None]
+    gravity = model.gravity.to(q.dtype)
+    force_each = masses * (gravity - bodies.com_acceleration)
+    inertia = _world_inertia(model, bodies.rotations)
+    omega = bodies.angular_velocity
+    spin = (inertia @ bodies.angular_acceleration[..., None]).squeeze(-1) + torch.cross(
+        omega, (inertia @ omega[..., None]).squeeze(-1), dim=-1)
+    plane = bodies.com.new_tensor([0.0, ground_height, 0.0])
+    arm = bodies.com - plane
+    force = force_each.sum(-2)
+    moment = torch.cross(arm, force_each, dim=-1).sum(-2) - spin.sum(-2)
+    contact_force, contact_moment = -force, -moment
+    fy = contact_force[..., 1]
+    fy = torch.where(fy.abs() > 1e-9, fy, torch.full_like(fy, float("nan")))
+    x = contact_moment[..., 2] / fy
+    z = -contact_moment[..., 0] / fy
+    return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1)
+
+
+def mechanical_energy(model: BodyModel, q: torch.Tensor, qd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(kinetic, potential) energy [...] in J: Σ ½ mᵢ|vᵢ|² + ½ ωᵢᵀ Iᵢ ωᵢ and Σ −mᵢ g·rᵢ (zero at the ground).
+
+    PG-BIG's energy-consistency metric is the variance of their sum over a clip.
+    """
+    bodies = body_motion(model, q, qd, torch.zeros_like(qd))
+    inertia = _world_inertia(model, bodies.rotations)
+    omega = bodies.angular_velocity
+    rotational = 0.5 * (omega * (inertia @ omega[..., None]).squeeze(-1)).sum(-1)
+    translational = 0.5 * model.masses * (bodies.com_velocity ** 2).sum(-1)
+    kinetic = (translational + rotational).sum(-1)
+    potential = -(model.masses[:, None] * model.gravity.to(q.dtype) * bodies.com).sum((-1, -2))
+    return kinetic, potential

@@ -1,0 +1,95 @@
+"""COM kinematics, ZMP and energy: OpenSim as the oracle for COM velocity and kinetic energy, hand cases for ZMP."""
+
+import numpy as np
+import pytest
+import torch
+
+from biomotion.body.balance import body_motion, center_of_mass_motion, mechanical_energy, zero_moment_point
+from biomotion.body.kinematics import center_of_mass
+from biomotion.body.model import BodyModel
+from tests.conftest import data_path
+
+RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return BodyModel.from_osim(data_path(RAJAGOPAL))
+
+
+def random_state(model, n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    low, high = model.ranges[:, 0].clamp(-1.0, 1.0), model.ranges[:, 1].clamp(-1.0, 1.0)
+    q = low + (high - low) * torch.rand(n, model.n_q, generator=g, dtype=torch.float64)
+    qd = torch.randn(n, model.n_q, generator=g, dtype=torch.float64)
+    qdd = torch.randn(n, model.n_q, generator=g, dtype=torch.float64)
+    return q, qd, qdd
+
+
+def test_com_velocity_and_kinetic_energy_match_opensim(model):
+    osim = pytest.importorskip("opensim")
+    q, qd, qdd = random_state(model, 3)
+    com = center_of_mass_motion(model, q, qd, qdd)
+    kinetic, _ = mechanical_energy(model, q, qd)
+    omodel = osim.Model(str(data_path(RAJAGOPAL)))
+    state = omodel.initSystem()
+    coordinates = omodel.getCoordinateSet()
+    names = [coordinates.get(i).getName() for i in range(coordinates.getSize())]
+    assert tuple(names) == model.coordinate_names
+    for k in range(3):
+        for i, name in enumerate(names):
+            coordinate = coordinates.get(name)
+            coordinate.setLocked(state, False)
+            coordinate.setValue(state, float(q[k, i]), False)
+            coordinate.setSpeedValue(state, float(qd[k, i]))
+        omodel.realizeVelocity(state)
+        velocity = omodel.calcMassCenterVelocity(state)
+        position = omodel.calcMassCenterPosition(state)
+        np.testing.assert_allclose(com.position[k].numpy(), [position.get(j) for j in range(3)], atol=1e-9)
+        np.testing.assert_allclose(com.velocity[k].numpy(), [velocity.get(j) for j in range(3)], atol=1e-9)
+        expected = omodel.getMatterSubsystem().calcKineticEnergy(state)
+        assert float(kinetic[k]) == pytest.approx(expected, rel=1e-9)
+
+
+def test_accelerations_are_time_derivatives_of_velocities(model):
+    """Central difference of COM velocity along a smooth path q(t) matches the analytic acceleration."""
+    t = torch.linspace(0, 1, 201, dtype=torch.float64)[:, None]
+    q0, a, w = random_state(model, 1, seed=3)
+    q = q0 + 0.2 * torch.sin(3 * t) * a
+    qd = 0.6 * torch.cos(3 * t) * a
+    qdd = -1.8 * torch.sin(3 * t) * a
+    com = center_of_mass_motion(model, q, qd, qdd)
+    dt = float(t[1] - t[0])
+    numeric = (com.velocity[2:] - com.velocity[:-2]) / (2 * dt)
+    assert torch.max(torch.abs(numeric - com.acceleration[1:-1])) < 1e-3
+    positions = center_of_mass(model, q)
+    assert torch.max(torch.abs((positions[2:] - positions[:-2]) / (2 * dt) - com.velocity[1:-1])) < 1e-4
+
+
+def test_zmp_is_com_projection_when_static(model):
+    q = model.default_q()[None]
+    zero = torch.zeros_like(q)
+    zmp = zero_moment_point(model, q, zero, zero)
+    com = center_of_mass(model, q)
+    assert float(zmp[0, 0]) == pytest.approx(float(com[0, 0]), abs=1e-12)
+    assert float(zmp[0, 2]) == pytest.approx(float(com[0, 2]), abs=1e-12)
+    assert float(zmp[0, 1]) == 0.0
+
+
+def test_zmp_shifts_back_under_forward_pelvis_acceleration(model):
+    """Whole body translating with acceleration a along x (no rotation): x_zmp = x_com - y_com * a / g."""
+    q = model.default_q()[None]
+    qd = torch.zeros_like(q)
+    qdd = torch.zeros_like(q)
+    qdd[0, model.coordinate_index("pelvis_tx")] = 2.0
+    zmp = zero_moment_point(model, q, qd, qdd)
+    com = center_of_mass(model, q)
+    expected = float(com[0, 0]) - float(com[0, 1]) * 2.0 / 9.80665
+    assert float(zmp[0, 0]) == pytest.approx(expected, abs=1e-9)
+
+
+def test_potential_energy_is_weight_times_com_height(model):
+    q, qd, _ = random_state(model, 4, seed=5)
+    _, potential = mechanical_energy(model, q, qd)
+    com = center_of_mass(model, q)
+    np.testing.assert_allclose(potential.numpy(), (model.total_mass * 9.80665 * com[:, 1]).numpy(), rtol=1e-12)
