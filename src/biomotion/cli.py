@@ -57,6 +57,36 @@ def _inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _analyze(args: argparse.Namespace) -> int:
+    from biomotion.analysis import analyze, summary, write_analysis
+    from biomotion.body.model import BodyModel
+    from biomotion.io.convert import read_any
+    from biomotion.io.mot import read_ground_reaction, read_motion
+
+    motion = read_motion(args.trial)
+    model = BodyModel.from_osim(args.model)
+    forces = None
+    if args.grf is not None:
+        data = read_any(args.grf)
+        forces = getattr(data, "forces", data)
+        if forces is None:
+            from biomotion.errors import DataFormatError
+
+            raise DataFormatError(args.grf, "holds no force-plate data")
+    result = analyze(motion, model, forces, cutoff_hz=args.cutoff)
+    files = write_analysis(result, args.out)
+    figures = summary(result)
+    print(f"analysed {figures['frames']} frames at {figures['rate_hz']:.0f} Hz on {model.name} "
+          f"({figures['body_mass_kg']:.1f} kg); torques from {figures['torques_from']} ground reaction")
+    if "inferred_vs_measured_vertical" in figures:
+        ours, base = figures["inferred_vs_measured_vertical"], figures["com_baseline_vs_measured_vertical"]
+        print(f"  vertical GRF from kinematics vs plates: R2 {ours['r2']:.3f}, RMSE {ours['rmse_bw']:.3f} BW "
+              f"(COM baseline: R2 {base['r2']:.3f}, RMSE {base['rmse_bw']:.3f} BW)")
+    for role, path in files.items():
+        print(f"  {role:20s} {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="biomotion",
@@ -93,6 +123,20 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("input", type=Path)
     convert.add_argument("output", type=Path)
     convert.set_defaults(run=_convert)
+
+    analyze = verbs.add_parser(
+        "analyze", help="joint torques, ground forces, COM, ZMP and energy of a trial on a model",
+        description="Inverse dynamics of TRIAL (an OpenSim coordinates file) on MODEL: coordinates low-pass "
+                    "filtered (--cutoff, as OpenSim's ID tool), ground reaction inferred from the kinematics "
+                    "alone (always) and, with --grf, the measured plates assigned to the feet and used for the "
+                    "torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
+                    "coordinates_filtered.mot and summary.json into --out.")
+    analyze.add_argument("trial", type=Path, help="coordinates (.mot/.sto), e.g. an IK result")
+    analyze.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim model")
+    analyze.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
+    analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
+    analyze.add_argument("--out", type=Path, required=True, help="output folder")
+    analyze.set_defaults(run=_analyze)
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")
     inspect.add_argument("input", type=Path)

@@ -229,6 +229,20 @@ class Motion(_Series):
         """[n] bool, True for angle columns (see `is_translation`)."""
         return np.array([not is_translation(n) for n in self.names], dtype=bool)
 
+    def derivatives(self) -> tuple[np.ndarray, np.ndarray]:
+        """(velocities, accelerations) [T, n] from an interpolating quintic spline through the values.
+
+        OpenSim's tools differentiate coordinates the same way (quintic GCV splines, Woltring 1986) after their
+        low-pass filter; call `filtered` first for noisy data.
+        """
+        degree = min(5, self.n_frames - 1)
+        degree -= 1 - degree % 2  # odd degrees only (1, 3, 5)
+        if self.n_frames < 2:
+            raise DataFormatError(None, "need at least two frames to differentiate")
+        spline = scipy.interpolate.make_interp_spline(self.times, self.values, k=degree, axis=0)
+        return spline.derivative(1)(self.times), spline.derivative(2)(self.times) if degree > 1 else \
+            np.zeros_like(self.values)
+
     def to_torch(self, dtype=None, device=None):
         """Values as a ``torch.Tensor`` [T, n]."""
         import torch

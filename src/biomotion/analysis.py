@@ -1,0 +1,215 @@
+"""Analysis of one trial on a model: joint torques, ground forces (measured or inferred), COM, ZMP, energy.
+
+`analyze` is a pure function of (motion, model, optional measured forces); `write_analysis` writes its result as
+OpenSim files (torques ``.sto`` with OpenSim's ``<coordinate>_moment|_force`` column names, GRF ``.mot`` with an
+ExternalLoads XML, COM/ZMP ``.sto``) plus a JSON summary. The processing follows OpenSim's inverse dynamics tool:
+coordinates low-pass filtered (default 6 Hz, zero-lag Butterworth), then differentiated with quintic splines.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.body.balance import center_of_mass_motion, body_motion, mechanical_energy, zero_moment_point
+from biomotion.body.contact import ContactSettings, InferredForces, foot_points, infer_ground_reaction
+from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
+from biomotion.body.kinematics import apply_couplers, forward_kinematics, points_in_ground
+from biomotion.body.model import BodyModel
+from biomotion.errors import ModelError
+from biomotion.io.atomic import atomic_write
+from biomotion.io.mot import write_external_loads_xml, write_ground_reaction, write_motion, write_storage
+from biomotion.motion import GroundReaction, Motion
+
+STANDARD_GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class Analysis:
+    """Everything `analyze` computes, on the motion's frames (numpy, SI)."""
+
+    motion: Motion                      # filtered coordinates in model order (couplers applied)
+    torques: np.ndarray                 # [T, n_q] generalized forces with the loads used
+    torques_source: str                 # "measured" or "inferred"
+    inferred: GroundReaction            # per foot, from kinematics only
+    measured: GroundReaction | None     # per foot, from the plates (assigned to feet), on the motion's frames
+    root_residual: np.ndarray           # [T, 6] root generalized force the inferred contact could not supply
+    com: np.ndarray                     # [T, 3]
+    com_velocity: np.ndarray            # [T, 3]
+    com_acceleration: np.ndarray        # [T, 3]
+    zmp: np.ndarray                     # [T, 3] on y = 0
+    kinetic: np.ndarray                 # [T] J
+    potential: np.ndarray               # [T] J
+    model: BodyModel
+
+    @property
+    def body_weight(self) -> float:
+        return float(self.model.total_mass) * STANDARD_GRAVITY
+
+
+def model_motion(motion: Motion, model: BodyModel) -> Motion:
+    """The motion's coordinates in model order; coupled coordinates the file lacks are computed from their
+    coupler, other absent coordinates are an error (naming them)."""
+    dependent = {model.coordinate_names[c.dependent] for c in model.couplers}
+    missing = [n for n in model.coordinate_names if n not in motion.names and n not in dependent
+               and not bool(model.locked[model.coordinate_index(n)])]
+    if missing:
+        raise ModelError(f"the motion lacks model coordinates: {', '.join(missing)}")
+    selected = motion.select(model.coordinate_names)
+    values = torch.tensor(selected.values, dtype=model.dtype)
+    absent = ~torch.tensor(selected.mask)
+    values[:, absent] = model.defaults[absent]
+    values = apply_couplers(model, values)
+    return selected.with_values(values.numpy())
+
+
+def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
+                   threshold: float = 20.0) -> GroundReaction:
+    """Per-foot loads from plate channels: at every frame each loaded plate goes to the foot whose contact
+    points are nearest its centre of pressure (DESIGN.md: plates to feet, per contact, automatically).
+
+    A plate loaded by both feet at once cannot be split and goes to the nearer foot.
+    """
+    points = foot_points(model)
+    on_frames = forces.resample(1.0 / np.median(np.diff(times)), float(times[0]), float(times[-1])) \
+        if forces.n_frames != len(times) or not np.allclose(forces.times, times) else forces
+    positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
+    feet = np.array(points.feet)
+    out_force = np.zeros((len(times), 2, 3))
+    out_moment = np.zeros((len(times), 2, 3))
+    weighted_cop = np.zeros((len(times), 2, 3))
+    for channel in range(on_frames.n_channels):
+        force = on_frames.force[:, channel]
+        cop = on_frames.cop[:, channel]
+        loaded = (np.abs(force[:, 1]) > threshold) & np.isfinite(cop).all(axis=1)
+        distance = np.linalg.norm((positions - np.nan_to_num(cop)[:, None])[..., [0, 2]], axis=-1)
+        nearest_right = distance[:, feet == "r"].min(1) <= distance[:, feet == "l"].min(1)
+        for foot, chosen in ((0, nearest_right), (1, ~nearest_right)):
+            use = loaded & chosen
+            out_force[use, foot] += force[use]
+            out_moment[use, foot] += np.nan_to_num(on_frames.moment[use, channel])
+            weighted_cop[use, foot] += cop[use] * force[use, 1:2]
+    vertical = out_force[..., 1:2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cop = np.where(np.abs(vertical) > threshold, weighted_cop / vertical, np.nan)
+    bodies = tuple(f"calcn_{side}" for side in ("r", "l"))
+    return GroundReaction(times=times, names=("r", "l"), force=out_force, cop=cop, moment=out_moment,
+                          bodies=bodies)
+
+
+def _loads(forces: GroundReaction, dtype: torch.dtype) -> list[ExternalLoad]:
+    return [ExternalLoad(forces.bodies[j] or f"calcn_{forces.names[j]}",
+                         torch.tensor(forces.force[:, j], dtype=dtype),
+                         torch.tensor(np.nan_to_num(forces.cop[:, j]), dtype=dtype),
+                         torch.tensor(np.nan_to_num(forces.moment[:, j]), dtype=dtype))
+            for j in range(forces.n_channels)]
+
+
+def _as_ground_reaction(inferred: InferredForces, times: np.ndarray) -> GroundReaction:
+    return GroundReaction(times=times, names=("r", "l"), force=inferred.foot_force.numpy(),
+                          cop=inferred.foot_cop.numpy(), moment=inferred.foot_moment.numpy(),
+                          bodies=("calcn_r", "calcn_l"))
+
+
+def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = None, *, cutoff_hz: float = 6.0,
+            contact: ContactSettings = ContactSettings()) -> Analysis:
+    """Torques, GRF (inferred always; measured plates assigned to feet when given), COM, ZMP and energy."""
+    coordinates = model_motion(motion, model)
+    if cutoff_hz and coordinates.n_frames > 15:
+        coordinates = coordinates.filtered(cutoff_hz)
+    qd_np, qdd_np = coordinates.derivatives()
+    q, qd, qdd = (torch.tensor(np.ascontiguousarray(a), dtype=model.dtype)
+                  for a in (coordinates.values, qd_np, qdd_np))
+    inferred = infer_ground_reaction(model, q, qd, qdd, contact)
+    measured = None
+    with torch.no_grad():
+        if forces is not None:
+            measured = assign_to_feet(forces, model, q, coordinates.times)
+            torques = inverse_dynamics(model, q, qd, qdd, _loads(measured, model.dtype))
+        else:
+            torques = inferred.torques
+        bodies = body_motion(model, q, qd, qdd)
+        com = center_of_mass_motion(model, q, qd, qdd, bodies)
+        zmp = zero_moment_point(model, q, qd, qdd, bodies=bodies)
+        kinetic, potential = mechanical_energy(model, q, qd)
+    return Analysis(
+        motion=coordinates, torques=torques.numpy(), torques_source="measured" if forces is not None else "inferred",
+        inferred=_as_ground_reaction(inferred, coordinates.times), measured=measured,
+        root_residual=inferred.root_residual.numpy(), com=com.position.numpy(), com_velocity=com.velocity.numpy(),
+        com_acceleration=com.acceleration.numpy(), zmp=zmp.numpy(), kinetic=kinetic.numpy(),
+        potential=potential.numpy(), model=model)
+
+
+def torque_labels(model: BodyModel) -> list[str]:
+    """OpenSim's inverse-dynamics column names: ``<coordinate>_moment`` or ``<coordinate>_force``."""
+    return [f"{name}_{'force' if kind == 'translational' else 'moment'}"
+            for name, kind in zip(model.coordinate_names, model.motion_types)]
+
+
+def vertical_agreement(predicted: np.ndarray, measured: np.ndarray, body_weight: float) -> dict[str, float]:
+    """R² and RMSE (in body weights) of a predicted vertical force against a measured one."""
+    residual = predicted - measured
+    spread = np.sum((measured - measured.mean()) ** 2)
+    return {"r2": float(1.0 - np.sum(residual ** 2) / spread) if spread > 0 else float("nan"),
+            "rmse_bw": float(np.sqrt(np.mean(residual ** 2)) / body_weight)}
+
+
+def summary(result: Analysis) -> dict:
+    """JSON-able figures of an analysis."""
+    weight = result.body_weight
+    inferred_vertical = result.inferred.force[..., 1].sum(1)
+    peaks = {name: float(np.max(np.abs(result.torques[:, i])))
+             for i, name in enumerate(torque_labels(result.model))}
+    out = {
+        "frames": result.motion.n_frames,
+        "rate_hz": result.motion.rate,
+        "duration_s": result.motion.duration,
+        "body_mass_kg": float(result.model.total_mass),
+        "torques_from": result.torques_source,
+        "peak_inferred_vertical_grf_bw": float(inferred_vertical.max() / weight),
+        "mean_abs_root_residual": dict(zip(["moment_1", "moment_2", "moment_3", "force_1", "force_2", "force_3"],
+                                           np.abs(result.root_residual).mean(0).round(3).tolist())),
+        "peak_abs_generalized_force": dict(sorted(peaks.items(), key=lambda kv: -kv[1])[:10]),
+        "com_speed_mean_m_s": float(np.linalg.norm(result.com_velocity[:, [0, 2]], axis=1).mean()),
+        "mechanical_energy_std_j": float(np.std(result.kinetic + result.potential)),
+    }
+    if result.measured is not None:
+        measured_vertical = result.measured.force[..., 1].sum(1)
+        com_estimate = float(result.model.total_mass) * (STANDARD_GRAVITY + result.com_acceleration[:, 1])
+        out["inferred_vs_measured_vertical"] = vertical_agreement(inferred_vertical, measured_vertical, weight)
+        out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate, measured_vertical, weight)
+        out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
+    return out
+
+
+def write_analysis(result: Analysis, out: str | Path) -> dict[str, Path]:
+    """Write the analysis files into ``out``; returns them by role."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    times = result.motion.times
+    files = {
+        "coordinates": write_motion(out / "coordinates_filtered.mot", result.motion),
+        "torques": write_storage(out / "torques.sto", torque_labels(result.model), times, result.torques,
+                                 name=f"Inverse Dynamics ({result.torques_source} ground reaction)"),
+        "grf_inferred": write_ground_reaction(out / "grf_inferred.mot", result.inferred, name="grf_inferred"),
+    }
+    files["grf_inferred_loads"] = write_external_loads_xml(out / "grf_inferred_loads.xml", result.inferred,
+                                                           "grf_inferred.mot")
+    if result.measured is not None:
+        files["grf_measured"] = write_ground_reaction(out / "grf_measured_by_foot.mot", result.measured,
+                                                      name="grf_measured_by_foot")
+        files["grf_measured_loads"] = write_external_loads_xml(out / "grf_measured_loads.xml", result.measured,
+                                                               "grf_measured_by_foot.mot")
+    balance = np.column_stack([result.com, result.com_velocity, result.com_acceleration, result.zmp,
+                               result.kinetic, result.potential])
+    labels = [f"com_{k}_{a}" for k in ("pos", "vel", "acc") for a in "xyz"] + [f"zmp_{a}" for a in "xyz"] + \
+        ["kinetic_energy", "potential_energy"]
+    files["com_zmp"] = write_storage(out / "com_zmp.sto", labels, times, balance, name="COM and ZMP")
+    with atomic_write(out / "summary.json") as handle:
+        json.dump(summary(result), handle, indent=1)
+    files["summary"] = out / "summary.json"
+    return files
