@@ -75,8 +75,8 @@ def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, ti
     A plate loaded by both feet at once cannot be split and goes to the nearer foot.
     """
     points = foot_points(model)
-    on_frames = forces.resample(1.0 / np.median(np.diff(times)), float(times[0]), float(times[-1])) \
-        if forces.n_frames != len(times) or not np.allclose(forces.times, times) else forces
+    same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
+    on_frames = forces if same_clock else forces.at(times)
     positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
     feet = np.array(points.feet)
     out_force = np.zeros((len(times), 2, 3))

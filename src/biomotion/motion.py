@@ -158,6 +158,13 @@ class _Series:
         return replace(self, times=new_times,
                        **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed})
 
+    def at(self, new_times: np.ndarray):
+        """Copy sampled at ``new_times`` (uniform), with the same anti-alias rule as `resample`."""
+        new_times = np.asarray(new_times, dtype=float)
+        rate = _uniform_rate(new_times) if new_times.size > 1 else self.rate
+        return replace(self, times=new_times,
+                       **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed})
+
     def filtered(self, cutoff_hz: float, order: int = 4):
         """Zero-lag Butterworth low-pass of every channel (see `lowpass`)."""
         return replace(self, **{n: lowpass(getattr(self, n), self.rate, cutoff_hz, order) for n in self._timed})

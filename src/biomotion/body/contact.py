@@ -3,8 +3,8 @@
 The pelvis (the free-floating root) has no actuator, so whatever generalized force its six coordinates need to
 follow the motion must come from the ground. `infer_ground_reaction` finds, for every frame at once, non-negative
 friction-bounded forces at a few points under each foot that best produce that root force, while a soft contact
-prior — PhysPT's gate s = σ(−d/δd)·σ(−|v|/δv) on the point's height d and speed |v| (Eq. 4) — makes forces at
-points that are high or moving expensive. The joint torques then follow by inverse dynamics with those loads
+prior — PhysPT's gate s = σ(−d/δd)·σ(−|v|/δv) on the point's height d and speed |v| (Eq. 4; here the
+vertical speed, see `ContactSettings`) — makes forces at points that are high or moving expensive. The joint torques then follow by inverse dynamics with those loads
 (the Euler-Lagrange equations, PhysPT Eq. 2), and the part of the root force left unexplained is reported as
 the per-frame residual.
 
@@ -23,10 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-from torch.func import jvp
-
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
-from biomotion.body.kinematics import forward_kinematics, points_in_ground
+from biomotion.body.kinematics import forward_kinematics, point_jacobians, points_in_ground
 from biomotion.body.model import BodyModel
 from biomotion.errors import ModelError
 
@@ -90,12 +88,17 @@ def root_coordinates(model: BodyModel) -> list[int]:
 
 @dataclass(frozen=True)
 class ContactSettings:
-    """Contact prior and solver settings (heights in m, speeds in m/s)."""
+    """Contact prior and solver settings (heights in m, speeds in m/s).
 
-    height_scale: float = 0.02      # δd: gate falls by e between d = 0 and d = 2 cm above rest
+    The gate's values were chosen on two trials kept out of every evaluation of the inferred forces — Hamner
+    subject01 running at 5 m/s and gait2392 subject01 walking — by a small grid search (docs/results/grf.md);
+    the speed gate uses the vertical speed because a treadmill belt carries the stance foot horizontally.
+    """
+
+    height_scale: float = 0.02      # δd (m)
     height_offset: float = 0.02     # gate centre: 2 cm above the point's resting height
-    speed_scale: float = 0.4        # δv
-    speed_offset: float = 1.0       # gate centre: 1 m/s
+    speed_scale: float = 0.1        # δv (m/s), on the vertical speed
+    speed_offset: float = 0.3       # gate centre: 0.3 m/s vertical speed
     friction: float = 0.8
     prior_weight: float = 1e-3      # weight of the "not in contact" penalty (1/s − 1)·|β|² relative to the fit
     moment_length: float = 1.0      # m: root moments are divided by this to weigh them against root forces
@@ -121,17 +124,11 @@ class InferredForces:
 def _point_kinematics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, points: FootPoints,
                       directions: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Positions [T, K, 3], velocities [T, K, 3] and Jacobian columns [T, K, 3, D] for ``directions``."""
-
-    def position(qq: torch.Tensor) -> torch.Tensor:
-        return points_in_ground(forward_kinematics(model, qq), points.bodies, points.offsets)
-
-    positions, velocities = jvp(position, (q,), (qd,))
-    columns = []
-    for c in directions:
-        tangent = torch.zeros_like(q)
-        tangent[..., c] = 1.0
-        columns.append(jvp(position, (q,), (tangent,))[1])
-    return positions, velocities, torch.stack(columns, dim=-1)
+    poses = forward_kinematics(model, q)
+    positions = points_in_ground(poses, points.bodies, points.offsets)
+    jacobian = point_jacobians(model, q, points.bodies, points.offsets, poses)
+    velocities = (jacobian @ qd[..., None, :, None]).squeeze(-1)
+    return positions, velocities, jacobian[..., directions]
 
 
 def _friction_edges(mu: float, dtype: torch.dtype) -> torch.Tensor:
@@ -163,7 +160,7 @@ def infer_ground_reaction(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, q
         positions, velocities, jacobian = _point_kinematics(model, q, qd, points, roots)
         rest = torch.quantile(positions[..., 1], settings.rest_percentile / 100.0, dim=0)
         height = positions[..., 1] - rest
-        speed = torch.linalg.norm(velocities, dim=-1)
+        speed = velocities[..., 1].abs()  # vertical only: on a treadmill the stance foot moves with the belt
         gate = torch.sigmoid(-(height - settings.height_offset) / settings.height_scale) * torch.sigmoid(
             -(speed - settings.speed_offset) / settings.speed_scale)
         edges = _friction_edges(settings.friction, q.dtype)                # [4, 3]
