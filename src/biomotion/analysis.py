@@ -3,7 +3,8 @@
 `analyze` is a pure function of (motion, model, optional measured forces); `write_analysis` writes its result as
 OpenSim files (torques ``.sto`` with OpenSim's ``<coordinate>_moment|_force`` column names, GRF ``.mot`` with an
 ExternalLoads XML, COM/ZMP ``.sto``) plus a JSON summary. The processing follows OpenSim's inverse dynamics tool:
-coordinates low-pass filtered (default 6 Hz, zero-lag Butterworth), then differentiated with quintic splines.
+coordinates low-pass filtered (default 6 Hz, 3rd-order zero-lag Butterworth after padding half the signal by odd
+reflection), then differentiated with quintic splines.
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ class Analysis:
     zmp: np.ndarray                     # [T, 3] on y = 0
     kinetic: np.ndarray                 # [T] J
     potential: np.ndarray               # [T] J
+    contact_points: np.ndarray          # [T, K, 3] foot contact points of the contact model
+    contact_loaded: np.ndarray          # [T, K] bool, point carries > 10 N of inferred normal force
     model: BodyModel
 
     @property
@@ -85,6 +88,7 @@ def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, ti
     for channel in range(on_frames.n_channels):
         force = on_frames.force[:, channel]
         cop = on_frames.cop[:, channel]
+        force = np.nan_to_num(force)  # no plate data beyond the recording: no load
         loaded = (np.abs(force[:, 1]) > threshold) & np.isfinite(cop).all(axis=1)
         distance = np.linalg.norm((positions - np.nan_to_num(cop)[:, None])[..., [0, 2]], axis=-1)
         nearest_right = distance[:, feet == "r"].min(1) <= distance[:, feet == "l"].min(1)
@@ -120,8 +124,9 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
     """Torques, GRF (inferred always; measured plates assigned to feet when given), COM, ZMP and energy."""
     coordinates = model_motion(motion, model)
     if cutoff_hz and coordinates.n_frames > 15:
-        coordinates = coordinates.filtered(cutoff_hz)
-    qd_np, qdd_np = coordinates.derivatives()
+        coordinates, qd_np, qdd_np = coordinates.smoothed(cutoff_hz)
+    else:
+        qd_np, qdd_np = coordinates.derivatives()
     q, qd, qdd = (torch.tensor(np.ascontiguousarray(a), dtype=model.dtype)
                   for a in (coordinates.values, qd_np, qdd_np))
     inferred = infer_ground_reaction(model, q, qd, qdd, contact)
@@ -141,7 +146,8 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
         inferred=_as_ground_reaction(inferred, coordinates.times), measured=measured,
         root_residual=inferred.root_residual.numpy(), com=com.position.numpy(), com_velocity=com.velocity.numpy(),
         com_acceleration=com.acceleration.numpy(), zmp=zmp.numpy(), kinetic=kinetic.numpy(),
-        potential=potential.numpy(), model=model)
+        potential=potential.numpy(), contact_points=inferred.point_positions.numpy(),
+        contact_loaded=(inferred.point_forces[..., 1] > 10.0).numpy(), model=model)
 
 
 def torque_labels(model: BodyModel) -> list[str]:
@@ -176,6 +182,7 @@ def summary(result: Analysis) -> dict:
         "peak_abs_generalized_force": dict(sorted(peaks.items(), key=lambda kv: -kv[1])[:10]),
         "com_speed_mean_m_s": float(np.linalg.norm(result.com_velocity[:, [0, 2]], axis=1).mean()),
         "mechanical_energy_std_j": float(np.std(result.kinetic + result.potential)),
+        "zmp_inside_support_share": zmp_inside_support(result),
     }
     if result.measured is not None:
         measured_vertical = result.measured.force[..., 1].sum(1)
@@ -183,6 +190,34 @@ def summary(result: Analysis) -> dict:
         out["inferred_vs_measured_vertical"] = vertical_agreement(inferred_vertical, measured_vertical, weight)
         out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate, measured_vertical, weight)
         out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
+    return out
+
+
+def zmp_inside_support(result: Analysis) -> float:
+    """Share of frames with load whose ZMP lies inside the convex hull of the loaded contact points
+    (HUMOS Sec. 3.4 dynamic stability; see `biomotion.metrics.stability`)."""
+    from biomotion.metrics.stability import share_inside_support
+
+    points = torch.tensor(result.contact_points)
+    points = torch.cat([points[..., :1], torch.zeros_like(points[..., 1:2]), points[..., 2:]], dim=-1)
+    share = share_inside_support(torch.tensor(np.nan_to_num(result.zmp)), points,
+                                 contact=torch.tensor(result.contact_loaded), margin=0.01)
+    return float(share)
+
+
+def support_polygons(points: np.ndarray, loaded: np.ndarray) -> np.ndarray:
+    """[T, K, 3] per frame the convex hull of the loaded contact points on the ground (counter-clockwise),
+    padded with NaN."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    out = np.full(points.shape, np.nan)
+    for frame in np.flatnonzero(loaded.sum(1) >= 1):  # output only: a per-frame hull is cheap at K <= 10
+        ground = points[frame, loaded[frame]][:, [0, 2]]
+        try:
+            order = ConvexHull(ground).vertices if len(ground) >= 3 else np.arange(len(ground))
+        except QhullError:  # collinear points: keep them as a segment
+            order = np.argsort(ground[:, 0])
+        out[frame, :len(order)] = np.column_stack([ground[order, 0], np.zeros(len(order)), ground[order, 1]])
     return out
 
 
@@ -204,10 +239,12 @@ def write_analysis(result: Analysis, out: str | Path) -> dict[str, Path]:
                                                       name="grf_measured_by_foot")
         files["grf_measured_loads"] = write_external_loads_xml(out / "grf_measured_loads.xml", result.measured,
                                                                "grf_measured_by_foot.mot")
+    support = support_polygons(result.contact_points, result.contact_loaded)
     balance = np.column_stack([result.com, result.com_velocity, result.com_acceleration, result.zmp,
-                               result.kinetic, result.potential])
-    labels = [f"com_{k}_{a}" for k in ("pos", "vel", "acc") for a in "xyz"] + [f"zmp_{a}" for a in "xyz"] + \
-        ["kinetic_energy", "potential_energy"]
+                               result.kinetic, result.potential, support.reshape(len(times), -1)])
+    labels = ([f"com_{a}" for a in "xyz"] + [f"com_{k}_{a}" for k in ("vel", "acc") for a in "xyz"]
+              + [f"zmp_{a}" for a in "xyz"] + ["kinetic_energy", "potential_energy"]
+              + [f"support_{k}_{a}" for k in range(support.shape[1]) for a in "xyz"])
     files["com_zmp"] = write_storage(out / "com_zmp.sto", labels, times, balance, name="COM and ZMP")
     with atomic_write(out / "summary.json") as handle:
         json.dump(summary(result), handle, indent=1)

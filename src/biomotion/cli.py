@@ -87,6 +87,33 @@ def _analyze(args: argparse.Namespace) -> int:
     return 0
 
 
+def _view(args: argparse.Namespace) -> int:
+    from biomotion.viz.viewer import view_command
+
+    path = view_command(args.motion, model=args.model, grf=args.grf, activations=args.activations,
+                        com_zmp=args.com_zmp, compare=args.compare, out=args.out, compare_mode=args.compare_mode,
+                        geometry=args.geometry or ())
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB); open it in any browser, no network needed")
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from biomotion.validation.run import run_validation
+
+    import shlex
+
+    command = "biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    report = run_validation(args.what, args.data_root, args.json, progress=not args.quiet, md_path=args.md,
+                            command=command)
+    for key, value in report.items():
+        if not isinstance(value, (dict, list)):
+            print(f"  {key}: {value}")
+    for skipped in report.get("skipped", []):
+        print(f"  skipped {skipped}")
+    print(f"report written to {args.json}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="biomotion",
@@ -137,6 +164,35 @@ def build_parser() -> argparse.ArgumentParser:
     analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
     analyze.add_argument("--out", type=Path, required=True, help="output folder")
     analyze.set_defaults(run=_analyze)
+
+    view = verbs.add_parser(
+        "view", help="write a self-contained HTML viewer of a motion (offline, any browser)",
+        description="Animated 3D view of MOTION (.mot with --model, .bvh/.bvh.gz, .trc, .c3d markers) with "
+                    "optional ground reaction arrows, COM/ZMP and support polygon (com_zmp.sto from `analyze`), "
+                    "muscle activations, and a second motion to compare (overlay or side by side).")
+    view.add_argument("motion", type=Path)
+    view.add_argument("--model", type=Path, help=".osim model for an OpenSim coordinates file")
+    view.add_argument("--grf", type=Path, help="ground reaction (.mot or .c3d)")
+    view.add_argument("--activations", type=Path, help="muscle activations (.sto)")
+    view.add_argument("--com-zmp", type=Path, help="COM/ZMP/support file (com_zmp.sto from `analyze`)")
+    view.add_argument("--compare", type=Path, help="a second motion to compare")
+    view.add_argument("--compare-mode", choices=("overlay", "side"), default="overlay")
+    view.add_argument("--geometry", type=Path, action="append", help="extra folder of .vtp meshes (repeatable)")
+    view.add_argument("--out", type=Path, default=Path("viewer.html"), help="HTML file (default: %(default)s)")
+    view.set_defaults(run=_view)
+
+    validate = verbs.add_parser(
+        "validate", help="check biomotion against OpenSim and measured data; JSON report",
+        description="Run the validation checks on whatever data is under --data-root (any folder laid out like "
+                    "../shared/data; absent sources are named and skipped): kinematics = forward kinematics vs "
+                    "OpenSim on every model; dynamics = inverse dynamics vs OpenSim's solver and ID tool, and "
+                    "ground reaction inferred from kinematics vs force plates.")
+    validate.add_argument("what", choices=("kinematics", "dynamics"))
+    validate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    validate.add_argument("--json", type=Path, required=True, help="report file to write")
+    validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")
+    validate.add_argument("--quiet", action="store_true", help="no progress bars")
+    validate.set_defaults(run=_validate)
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")
     inspect.add_argument("input", type=Path)

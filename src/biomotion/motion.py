@@ -35,11 +35,14 @@ def _uniform_rate(times: np.ndarray) -> float:
     return float((times.size - 1) / (times[-1] - times[0]))
 
 
-def lowpass(values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, axis: int = 0) -> np.ndarray:
+def lowpass(values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, axis: int = 0,
+            padlen: int | None = None) -> np.ndarray:
     """Zero-lag Butterworth low-pass (``filtfilt``), the filter biomechanics labs use (Winter 2009, ch. 3).
 
-    ``order`` is the order of the single pass; the zero-lag double pass doubles it. NaN gaps are bridged by linear
-    interpolation for filtering and put back afterwards, so an occluded marker stays occluded.
+    ``order`` is the order of the single pass; the zero-lag double pass doubles it. The ends are extended by odd
+    reflection over ``padlen`` samples (default: scipy's 3 x filter length; OpenSim's tools pad half the signal).
+    NaN gaps are bridged by linear interpolation for filtering and put back afterwards, so an occluded marker
+    stays occluded.
     """
     if not 0 < cutoff_hz < rate / 2:
         raise ValueError(f"cutoff {cutoff_hz} Hz must lie in (0, {rate / 2}) for data sampled at {rate} Hz")
@@ -49,7 +52,8 @@ def lowpass(values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, a
     gaps = ~np.isfinite(flat)
     filled = _bridge_gaps(flat, gaps)
     sos = scipy.signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
-    padlen = min(3 * (2 * len(sos) + 1), flat.shape[0] - 1)
+    padlen = 3 * (2 * len(sos) + 1) if padlen is None else padlen
+    padlen = min(padlen, flat.shape[0] - 2)
     if flat.shape[0] < 2:
         return values.copy()
     out = scipy.signal.sosfiltfilt(sos, filled, axis=0, padlen=max(padlen, 0))
@@ -159,15 +163,22 @@ class _Series:
                        **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed})
 
     def at(self, new_times: np.ndarray):
-        """Copy sampled at ``new_times`` (uniform), with the same anti-alias rule as `resample`."""
+        """Copy sampled at ``new_times`` (uniform), with the same anti-alias rule as `resample`; NaN outside the
+        recorded span."""
         new_times = np.asarray(new_times, dtype=float)
         rate = _uniform_rate(new_times) if new_times.size > 1 else self.rate
-        return replace(self, times=new_times,
-                       **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed})
+        outside = (new_times < self.times[0] - 1e-9) | (new_times > self.times[-1] + 1e-9)
+        arrays = {}
+        for name in self._timed:
+            sampled = _resample(self.times, getattr(self, name), new_times, rate)
+            sampled[outside] = np.nan  # no extrapolation beyond the recording
+            arrays[name] = sampled
+        return replace(self, times=new_times, **arrays)
 
-    def filtered(self, cutoff_hz: float, order: int = 4):
+    def filtered(self, cutoff_hz: float, order: int = 4, padlen: int | None = None):
         """Zero-lag Butterworth low-pass of every channel (see `lowpass`)."""
-        return replace(self, **{n: lowpass(getattr(self, n), self.rate, cutoff_hz, order) for n in self._timed})
+        return replace(self, **{n: lowpass(getattr(self, n), self.rate, cutoff_hz, order, padlen=padlen)
+                                for n in self._timed})
 
 
 @dataclass(frozen=True)
@@ -249,6 +260,28 @@ class Motion(_Series):
         spline = scipy.interpolate.make_interp_spline(self.times, self.values, k=degree, axis=0)
         return spline.derivative(1)(self.times), spline.derivative(2)(self.times) if degree > 1 else \
             np.zeros_like(self.values)
+
+    def smoothed(self, cutoff_hz: float, order: int = 3) -> tuple["Motion", np.ndarray, np.ndarray]:
+        """(filtered motion, velocities, accelerations) the way OpenSim's inverse dynamics tool prepares
+        coordinates: pad half the signal at each end by odd reflection (value and slope kept), zero-lag
+        Butterworth low-pass, quintic spline through the padded filtered signal, then drop the padding — so the
+        derivatives have no spline end effects inside the trial (opensim-core InverseDynamicsTool::run,
+        Signal::Pad, Signal::LowpassIIR)."""
+        n = self.n_frames
+        pad = n // 2
+        if pad < 2:
+            return self, *self.derivatives()
+        x = self.values
+        head = 2.0 * x[0] - x[pad:0:-1]
+        tail = 2.0 * x[-1] - x[-2:-pad - 2:-1]
+        padded = np.concatenate([head, x, tail])
+        step = (self.times[-1] - self.times[0]) / (n - 1)
+        times = self.times[0] + step * np.arange(-pad, n + pad)
+        filtered = lowpass(padded, 1.0 / step, cutoff_hz, order)
+        spline = scipy.interpolate.make_interp_spline(times, filtered, k=5, axis=0)
+        inner = slice(pad, pad + n)
+        return (self.with_values(filtered[inner]), spline.derivative(1)(times[inner]),
+                spline.derivative(2)(times[inner]))
 
     def to_torch(self, dtype=None, device=None):
         """Values as a ``torch.Tensor`` [T, n]."""

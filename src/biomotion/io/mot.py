@@ -215,7 +215,8 @@ def write_motion(path: str | Path, motion: Motion, *, in_degrees: bool = True, n
 _FORCE_COLUMN = re.compile(r"^(?P<prefix>.+)_v(?P<axis>[xyz])$")
 
 
-def _torque_columns(prefix: str, labels: Sequence[str]) -> list[str] | None:
+def torque_columns(prefix: str, labels: Sequence[str]) -> list[str] | None:
+    """The three torque columns of GRF channel ``prefix`` in ``labels`` (any of the namings), or None."""
     candidates = [[f"{prefix}_m{a}" for a in "xyz"],
                   [f"{prefix.replace('force', 'torque')}_{a}" for a in "xyz"],
                   [f"{prefix.replace('force', 'moment')}_{a}" for a in "xyz"]]
@@ -246,7 +247,7 @@ def read_ground_reaction(path: str | Path) -> GroundReaction:
             if missing:
                 raise DataFormatError(path, f"channel {prefix!r} lacks columns {', '.join(missing)}")
             triples[kind] = table.data[:, [labels.index(n) for n in names]]
-        torque = _torque_columns(prefix, labels)
+        torque = torque_columns(prefix, labels)
         force.append(triples["v"])
         cop.append(triples["p"])
         moment.append(np.zeros_like(triples["v"]) if torque is None

@@ -1,0 +1,276 @@
+"""``biomotion validate kinematics|dynamics``: the body model against OpenSim 4.6, and GRF from kinematics against
+force plates.
+
+Figures (keys of the JSON report, issue 3):
+- ``fk_max_err_m``: max body-origin (and marker) error vs OpenSim over random in-range poses of every model found;
+- ``id_solver_max_err_nm``: our inverse dynamics vs OpenSim's InverseDynamicsSolver given identical q, q̇, q̈ and
+  external loads (gait2392 subject01 walk, OpenCap Subject4 trials);
+- ``id_ref_rmse_rel``: end to end (our filtering and differentiation vs OpenSim's InverseDynamicsTool run fresh on
+  the same model, coordinates, GRF and 6 Hz filter): RMSE / peak |moment| per coordinate whose peak > 10 N·m;
+- ``grf_vertical_r2``, ``grf_vertical_rmse_bw``, ``grf_com_baseline_rmse_bw``: vertical GRF inferred from
+  kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners and OpenCap Subject4 trials.
+
+Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK times come from the C3D, OpenCap's
+``_ik.mot`` and ``_grf.mot`` share their time base), so no offset is applied or estimated. Frame rule for the GRF
+comparison: frames where a foot the kinematics put on the ground (lowest contact point within 2 cm of its rest
+height and vertical speed below 0.2 m/s) carries < 20 N on the plates are left out — that foot is off the plates
+(overground walking), so the plate total is incomplete there. The rule uses no fitted quantity.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from biomotion.analysis import analyze, model_motion, torque_labels, vertical_agreement
+from biomotion.body.contact import foot_points
+from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
+from biomotion.body.kinematics import forward_kinematics, marker_positions, points_in_ground
+from biomotion.body.model import BodyModel
+from biomotion.io.c3d import read_c3d_forces
+from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
+    write_external_loads_xml, write_ground_reaction
+from biomotion.motion import GroundReaction
+from biomotion.validation.oracle import Oracle, opensim, random_poses, run_inverse_dynamics_tool
+
+#: Models the issue names, as globs under the data root (whatever subjects are present are used).
+MODEL_GLOBS = (
+    "opensim-models/Models/Rajagopal/Rajagopal2016.osim",
+    "opensim-models/Models/Rajagopal/RajagopalLaiUhlrich2023.osim",
+    "opensim-models/Models/Gait2392_Simbody/subject01.osim",
+    "opensim-models/Pipelines/Gait2392_Simbody/OutputReference/subject01_simbody.osim",
+    "fukuchi-running/*/*_simple.osim",
+    "fukuchi-running/generic-models/*.osim",
+    "opencap/Subject4/Models/*.osim",
+    "Hamner2013/*/*.osim",
+    "SchreiberMoissenet2019/*/*.osim",
+)
+
+GAIT = "opensim-models/Pipelines/Gait2392_Simbody/"
+SUBJECT4 = "opencap/Subject4/"
+#: OpenCap Subject4 plates (opencap/SOURCE.md): 1 = right foot, 2 = left foot, 3 = empty.
+SUBJECT4_PLATES = {"ground_force_1": "calcn_r", "ground_force_2": "calcn_l"}
+
+
+def check_forward_kinematics(data_root: Path, poses_per_model: int = 3, progress: bool = True) -> dict:
+    """Max body-origin and marker error vs OpenSim over random in-range poses of every model present."""
+    paths = [p for pattern in MODEL_GLOBS for p in sorted(data_root.glob(pattern))]
+    rng = np.random.default_rng(0)
+    per_model, worst = {}, 0.0
+    for path in tqdm(paths, desc="FK vs OpenSim", unit="model", disable=not progress):
+        model, oracle = BodyModel.from_osim(path), Oracle(path)
+        q = random_poses(model, rng, poses_per_model)
+        poses = forward_kinematics(model, torch.tensor(q))
+        markers = marker_positions(model, torch.tensor(q), poses)
+        error = 0.0
+        for k in range(poses_per_model):
+            oracle.set(q[k])
+            _, origins = oracle.body_poses()
+            error = max(error, float(np.abs(poses.positions[k].numpy() - origins).max()))
+            if model.marker_names:
+                error = max(error, float(np.abs(markers[k].numpy() - oracle.markers()).max()))
+        per_model[str(path.relative_to(data_root))] = error
+        worst = max(worst, error)
+    return {"fk_max_err_m": worst, "fk_models": len(paths), "fk_per_model_max_err_m": per_model}
+
+
+def _opensim_external_force(osim, storage, channel: str, body: str, labels: tuple[str, ...]):
+    """An OpenSim ExternalForce for a GRF channel, with the torque columns named as in the file."""
+    torque = torque_columns(channel, labels)
+    torque_identifier = torque[0][:-1] if torque else f"{channel.replace('force', 'torque')}_"
+    force = osim.ExternalForce(storage, f"{channel}_v", f"{channel}_p", torque_identifier, body, "ground", "ground")
+    force.setName(f"{channel}_on_{body}")
+    return force
+
+
+def _id_solver_case(model_path: Path, motion_path: Path, grf_path: Path, assignment: dict[str, str],
+                    frames: slice) -> float:
+    """Max |τ_ours − τ_OpenSim| at motion frames that coincide with a GRF sample: identical q, q̇, q̈ (central
+    differences of the IK), and the same plate samples applied as OpenSim ExternalForces from the same file."""
+    model = BodyModel.from_osim(model_path)
+    motion = model_motion(read_motion(motion_path), model)
+    forces = read_ground_reaction(grf_path)
+    q = motion.values
+    dt = float(np.median(np.diff(motion.times)))
+    qd = np.gradient(q, dt, axis=0)
+    qdd = np.gradient(qd, dt, axis=0)
+    candidates = np.arange(len(q))[frames]
+    rows = np.searchsorted(forces.times, motion.times[candidates] - 1e-9)
+    rows = np.clip(rows, 0, forces.n_frames - 1)
+    same = np.abs(forces.times[rows] - motion.times[candidates]) < 1e-6
+    index, rows = candidates[same], rows[same]
+    osim = opensim()
+    storage = osim.Storage(str(grf_path))
+    labels = read_storage(grf_path).labels
+    extra = tuple(_opensim_external_force(osim, storage, name, body, labels) for name, body in assignment.items())
+    oracle = Oracle(model_path, extra)
+    loads = []
+    for name, body in assignment.items():
+        j = forces.names.index(name)
+        loads.append(ExternalLoad(body, torch.tensor(forces.force[rows, j]), torch.tensor(forces.cop[rows, j]),
+                                  torch.tensor(forces.moment[rows, j])))
+    tau = inverse_dynamics(model, torch.tensor(q[index]), torch.tensor(qd[index]), torch.tensor(qdd[index]),
+                           loads).numpy()
+    worst = 0.0
+    for i, k in enumerate(index):
+        oracle.set(q[k], qd[k], time=float(forces.times[rows[i]]))
+        worst = max(worst, float(np.abs(tau[i] - oracle.inverse_dynamics(qdd[k])).max()))
+    return worst
+
+
+def _subject4_trials(data_root: Path) -> list[str]:
+    folder = data_root / SUBJECT4
+    return sorted(p.name.removesuffix("_grf.mot") for p in (folder / "ID").glob("*_grf.mot")
+                  if (folder / "IK" / f"{p.name.removesuffix('_grf.mot')}_ik.mot").exists()
+                  and not p.name.startswith("static"))
+
+
+def check_inverse_dynamics_solver(data_root: Path, progress: bool = True) -> dict:
+    cases = []
+    if (data_root / GAIT / "subject01_walk1_ik.mot").exists():
+        cases.append(("gait2392/subject01_walk1", data_root / GAIT / "OutputReference/subject01_simbody.osim",
+                      data_root / GAIT / "subject01_walk1_ik.mot", data_root / GAIT / "subject01_walk1_grf.mot",
+                      {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
+    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
+    for trial in _subject4_trials(data_root) if model4.exists() else []:
+        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
+                      data_root / SUBJECT4 / f"ID/{trial}_grf.mot", SUBJECT4_PLATES))
+    errors = {}
+    for name, model_path, motion_path, grf_path, assignment in tqdm(cases, desc="ID vs OpenSim solver",
+                                                                    unit="trial", disable=not progress):
+        errors[name] = _id_solver_case(model_path, motion_path, grf_path, assignment, slice(5, -5, 5))
+    return {"id_solver_max_err_nm": max(errors.values()) if errors else None,
+            "id_solver_per_trial_max_err_nm": errors}
+
+
+def _end_to_end_case(model_path: Path, motion_path: Path, forces: GroundReaction, assignment: dict[str, str],
+                     tmp: Path) -> dict:
+    """Our ID pipeline vs OpenSim's InverseDynamicsTool, both from the raw coordinates with a 6 Hz filter."""
+    motion = read_motion(motion_path)
+    start = max(float(motion.times[0]), float(forces.times[0]))
+    end = min(float(motion.times[-1]), float(forces.times[-1]))
+    # both tools filter the whole trial and are compared where the plates recorded
+    forces = forces.assign([assignment.get(name) for name in forces.names]).select(list(assignment))
+    grf_file = write_ground_reaction(tmp / "grf.mot", forces)
+    loads_file = write_external_loads_xml(tmp / "loads.xml", forces, str(grf_file))
+    reference = read_storage(run_inverse_dynamics_tool(model_path, motion_path, loads_file, tmp / "opensim",
+                                                       start, end))
+    model = BodyModel.from_osim(model_path)
+    ours = analyze(motion, model, forces, cutoff_hz=6.0)
+    labels = torque_labels(model)
+    out = {}
+    for i, label in enumerate(labels):
+        if label not in reference.labels:
+            continue
+        expected = reference.data[:, reference.labels.index(label)]
+        got = np.interp(reference.times, ours.motion.times, ours.torques[:, i])
+        peak = float(np.abs(expected).max())
+        if peak > 10.0:
+            out[label] = float(np.sqrt(np.mean((got - expected) ** 2)) / peak)
+    return out
+
+
+def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) -> dict:
+    cases = []
+    if (data_root / GAIT / "subject01_walk1_ik.mot").exists():
+        cases.append(("gait2392/subject01_walk1", data_root / GAIT / "OutputReference/subject01_simbody.osim",
+                      data_root / GAIT / "subject01_walk1_ik.mot",
+                      read_ground_reaction(data_root / GAIT / "subject01_walk1_grf.mot"),
+                      {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
+    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
+    for trial in _subject4_trials(data_root) if model4.exists() else []:
+        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
+                      read_ground_reaction(data_root / SUBJECT4 / f"ID/{trial}_grf.mot"), SUBJECT4_PLATES))
+    per_trial = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, model_path, motion_path, forces, assignment in tqdm(cases, desc="ID vs OpenSim ID tool",
+                                                                      unit="trial", disable=not progress):
+            folder = Path(tmp) / name.replace("/", "_")
+            folder.mkdir()
+            per_trial[name] = _end_to_end_case(model_path, motion_path, forces, assignment, folder)
+    worst = max((v for trial in per_trial.values() for v in trial.values()), default=None)
+    return {"id_ref_rmse_rel": worst, "id_ref_rmse_rel_per_trial": per_trial}
+
+
+def _plate_frames(model: BodyModel, result, rest_tolerance: float = 0.02, speed: float = 0.2) -> np.ndarray:
+    """Frames where every foot the kinematics put on the ground is loaded on the plates (see module doc)."""
+    points = foot_points(model)
+    q = torch.tensor(result.motion.values)
+    positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
+    rest = np.percentile(positions[..., 1], 2.0, axis=0)
+    height = positions[..., 1] - rest
+    vertical_speed = np.abs(np.gradient(positions[..., 1], result.motion.times, axis=0))
+    planted = (height < rest_tolerance) & (vertical_speed < speed)
+    feet = np.array(points.feet)
+    keep = np.ones(len(q), dtype=bool)
+    for j, side in enumerate(("r", "l")):
+        down = planted[:, feet == side].any(axis=1)
+        keep &= ~(down & (result.measured.force[:, j, 1] < 20.0))
+    return keep
+
+
+def _grf_cases(data_root: Path) -> list[tuple[str, Path, Path, object]]:
+    cases = []
+    fukuchi = data_root / "fukuchi-running"
+    for c3d in sorted(fukuchi.glob("c3d/*runT35.c3d")):
+        runner = c3d.name.removesuffix("runT35.c3d")
+        ik = fukuchi / f"ik/T35/{runner}_T35_ik_simple.mot"
+        model = fukuchi / runner / f"{runner}_simple.osim"
+        if ik.exists() and model.exists():
+            cases.append((f"fukuchi/{runner}/T35", model, ik, lambda c=c3d: read_c3d_forces(c)))
+    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
+    for trial in _subject4_trials(data_root) if model4.exists() else []:
+        grf = data_root / SUBJECT4 / f"ID/{trial}_grf.mot"
+        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
+                      lambda g=grf: read_ground_reaction(g)))
+    return cases
+
+
+def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bool = True) -> dict:
+    """Vertical GRF inferred from kinematics vs plates, per trial and pooled over all evaluated frames."""
+    rows, pooled = [], {"ours": [], "base": [], "plates": [], "weight": []}
+    for name, model_path, motion_path, load_forces in tqdm(_grf_cases(data_root), desc="GRF vs plates",
+                                                           unit="trial", disable=not progress):
+        model = BodyModel.from_osim(model_path)
+        motion = read_motion(motion_path)
+        forces = load_forces().slice(motion.times[0] - 0.1, motion.times[-1] + 0.1)
+        started = time.perf_counter()
+        result = analyze(motion, model, forces, cutoff_hz=cutoff_hz)
+        seconds = time.perf_counter() - started
+        keep = _plate_frames(model, result)
+        weight = result.body_weight
+        plates = result.measured.force[keep, :, 1].sum(1)
+        ours = result.inferred.force[keep, :, 1].sum(1)
+        base = float(model.total_mass) * (9.80665 + result.com_acceleration[keep, 1])
+        a, b = vertical_agreement(ours, plates, weight), vertical_agreement(base, plates, weight)
+        rows.append({"trial": name, "frames": int(keep.sum()), "frames_left_out": int((~keep).sum()),
+                     "r2": a["r2"], "rmse_bw": a["rmse_bw"], "baseline_r2": b["r2"], "baseline_rmse_bw": b["rmse_bw"],
+                     "analysis_seconds": seconds})
+        for key, value in (("ours", ours / weight), ("base", base / weight), ("plates", plates / weight)):
+            pooled[key].append(value)
+    if not rows:
+        return {"grf_vertical_r2": None, "grf_vertical_rmse_bw": None, "grf_com_baseline_rmse_bw": None,
+                "grf_trials": []}
+    plates = np.concatenate(pooled["plates"])
+    ours = vertical_agreement(np.concatenate(pooled["ours"]), plates, 1.0)
+    base = vertical_agreement(np.concatenate(pooled["base"]), plates, 1.0)
+    return {"grf_vertical_r2": ours["r2"], "grf_vertical_rmse_bw": ours["rmse_bw"],
+            "grf_com_baseline_r2": base["r2"], "grf_com_baseline_rmse_bw": base["rmse_bw"],
+            "grf_cutoff_hz": cutoff_hz, "grf_frames": int(len(plates)), "grf_trials": rows}
+
+
+def validate_kinematics(data_root: Path, progress: bool = True) -> dict:
+    return check_forward_kinematics(data_root, progress=progress)
+
+
+def validate_dynamics(data_root: Path, progress: bool = True) -> dict:
+    report = {}
+    report.update(check_inverse_dynamics_solver(data_root, progress))
+    report.update(check_inverse_dynamics_end_to_end(data_root, progress))
+    report.update(check_ground_reaction(data_root, progress=progress))
+    return report

@@ -1,0 +1,68 @@
+"""Dispatch of ``biomotion validate WHAT``: run the checks, record what was skipped, write the JSON report."""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from pathlib import Path
+
+from biomotion import __version__
+from biomotion.errors import DataSourceMissing
+from biomotion.io.atomic import atomic_write
+
+#: Sources each check looks for (relative to the data root); absent ones are reported as skipped.
+SOURCES = {
+    "kinematics": ("opensim-models", "fukuchi-running", "opencap/Subject4", "Hamner2013", "SchreiberMoissenet2019"),
+    "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap/Subject4", "fukuchi-running/c3d"),
+}
+
+
+def run_validation(what: str, data_root: Path, json_path: Path, progress: bool = True,
+                   md_path: Path | None = None, command: str = "biomotion validate") -> dict:
+    """Run ``what`` on ``data_root``, write the report to ``json_path`` (and tables to ``md_path``)."""
+    from biomotion.validation import dynamics
+
+    data_root = Path(data_root)
+    if not data_root.is_dir():
+        raise DataSourceMissing(f"data root {data_root} is not a folder")
+    skipped = [f"{s} (not under {data_root})" for s in SOURCES[what] if not (data_root / s).exists()]
+    started = time.perf_counter()
+    checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics}
+    report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
+              "python": platform.python_version(), "skipped": skipped}
+    report.update(checks[what](data_root, progress=progress))
+    report["seconds"] = round(time.perf_counter() - started, 1)
+    with atomic_write(json_path) as handle:
+        json.dump(report, handle, indent=1)
+    if md_path is not None:
+        with atomic_write(md_path) as handle:
+            handle.write(markdown(report, command))
+    return report
+
+
+def markdown(report: dict, command: str) -> str:
+    """Tables of a validation report, for docs/results/."""
+    lines = [f"# Validation: {report['check']}", "", f"Produced by `{command}` (biomotion {report['biomotion']}, "
+             f"{report['seconds']} s). Skipped: {', '.join(report['skipped']) or 'nothing'}.", ""]
+    scalars = [(k, v) for k, v in report.items() if isinstance(v, (int, float)) and k != "seconds"]
+    lines += ["| figure | value |", "|---|---|"] + [f"| `{k}` | {v:.6g} |" for k, v in scalars] + [""]
+    if report.get("grf_trials"):
+        lines += ["## Vertical GRF inferred from kinematics vs force plates", "",
+                  "| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) |",
+                  "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['trial']} | {r['frames']} | {r['frames_left_out']} | {r['r2']:.3f} | {r['rmse_bw']:.3f} | "
+                  f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} |" for r in report["grf_trials"]]
+        lines.append("")
+    if report.get("id_ref_rmse_rel_per_trial"):
+        lines += ["## Inverse dynamics end to end vs OpenSim's InverseDynamicsTool (RMSE / peak, peak > 10 N·m)", "",
+                  "| trial | worst coordinate | RMSE / peak | coordinates over 2 % |", "|---|---|---|---|"]
+        for trial, values in report["id_ref_rmse_rel_per_trial"].items():
+            name, worst = max(values.items(), key=lambda kv: kv[1])
+            over = [k for k, v in values.items() if v > 0.02]
+            lines.append(f"| {trial} | {name} | {worst:.4f} | {', '.join(over) or '–'} |")
+        lines.append("")
+    if report.get("fk_per_model_max_err_m"):
+        lines += ["## Forward kinematics vs OpenSim", "", "| model | max error (m) |", "|---|---|"]
+        lines += [f"| {k} | {v:.2e} |" for k, v in report["fk_per_model_max_err_m"].items()] + [""]
+    return "\n".join(lines)
