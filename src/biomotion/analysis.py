@@ -164,6 +164,24 @@ def vertical_agreement(predicted: np.ndarray, measured: np.ndarray, body_weight:
             "rmse_bw": float(np.sqrt(np.mean(residual ** 2)) / body_weight)}
 
 
+def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 0.2) -> np.ndarray:
+    """[T] bool: frames where every foot the kinematics put on the ground is loaded on the plates.
+
+    A foot is on the ground when one of its contact points is within ``rest_tolerance`` of its resting height
+    with vertical speed below ``speed``; if such a foot carries < 20 N on the plates it stands beside them
+    (overground walking), the plate total is incomplete and the frame is left out of comparisons. No fitted
+    quantity enters the rule.
+    """
+    height = result.contact_points[..., 1] - np.percentile(result.contact_points[..., 1], 2.0, axis=0)
+    vertical_speed = np.abs(np.gradient(result.contact_points[..., 1], result.motion.times, axis=0))
+    planted = (height < rest_tolerance) & (vertical_speed < speed)
+    feet = np.array(foot_points(result.model).feet)
+    keep = np.ones(result.motion.n_frames, dtype=bool)
+    for j, side in enumerate(("r", "l")):
+        keep &= ~(planted[:, feet == side].any(axis=1) & (result.measured.force[:, j, 1] < 20.0))
+    return keep
+
+
 def summary(result: Analysis) -> dict:
     """JSON-able figures of an analysis."""
     weight = result.body_weight
@@ -185,10 +203,14 @@ def summary(result: Analysis) -> dict:
         "zmp_inside_support_share": zmp_inside_support(result),
     }
     if result.measured is not None:
+        keep = plate_frames(result)
         measured_vertical = result.measured.force[..., 1].sum(1)
         com_estimate = float(result.model.total_mass) * (STANDARD_GRAVITY + result.com_acceleration[:, 1])
-        out["inferred_vs_measured_vertical"] = vertical_agreement(inferred_vertical, measured_vertical, weight)
-        out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate, measured_vertical, weight)
+        out["grf_comparison_frames"] = {"used": int(keep.sum()), "left_out_foot_off_plates": int((~keep).sum())}
+        out["inferred_vs_measured_vertical"] = vertical_agreement(inferred_vertical[keep], measured_vertical[keep],
+                                                                  weight)
+        out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate[keep], measured_vertical[keep],
+                                                                      weight)
         out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
     return out
 

@@ -61,7 +61,7 @@ def _analyze(args: argparse.Namespace) -> int:
     from biomotion.analysis import analyze, summary, write_analysis
     from biomotion.body.model import BodyModel
     from biomotion.io.convert import read_any
-    from biomotion.io.mot import read_ground_reaction, read_motion
+    from biomotion.io.mot import read_motion
 
     motion = read_motion(args.trial)
     model = BodyModel.from_osim(args.model)

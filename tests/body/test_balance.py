@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.body.balance import body_motion, center_of_mass_motion, mechanical_energy, zero_moment_point
+from biomotion.body.balance import center_of_mass_motion, mechanical_energy, zero_moment_point
 from biomotion.body.kinematics import center_of_mass
 from biomotion.body.model import BodyModel
 from tests.conftest import data_path

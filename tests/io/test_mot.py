@@ -1,7 +1,5 @@
 """OpenSim .mot/.sto reader and writer on the real files, round trips through OpenSim's own readers, and errors."""
 
-import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +9,6 @@ from hypothesis import strategies as st
 from biomotion.errors import BiomotionWarning, DataFormatError
 from biomotion.io.mot import (read_ground_reaction, read_motion, read_storage, write_ground_reaction,
                               write_motion, write_storage)
-from biomotion.motion import Motion
 from tests.conftest import DATA_ROOT, data_path
 
 

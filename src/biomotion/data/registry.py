@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
-from biomotion.data.sources import SOURCES, ClipSpec, discover_all, forward_speed
+from biomotion.data.sources import SOURCES, discover_all, forward_speed
 from biomotion.errors import BiomotionError, DataFormatError
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion

@@ -27,10 +27,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.analysis import analyze, model_motion, torque_labels, vertical_agreement
-from biomotion.body.contact import foot_points
+from biomotion.analysis import analyze, model_motion, plate_frames, torque_labels, vertical_agreement
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
-from biomotion.body.kinematics import forward_kinematics, marker_positions, points_in_ground
+from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.io.c3d import read_c3d_forces
 from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
@@ -197,23 +196,6 @@ def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) ->
     return {"id_ref_rmse_rel": worst, "id_ref_rmse_rel_per_trial": per_trial}
 
 
-def _plate_frames(model: BodyModel, result, rest_tolerance: float = 0.02, speed: float = 0.2) -> np.ndarray:
-    """Frames where every foot the kinematics put on the ground is loaded on the plates (see module doc)."""
-    points = foot_points(model)
-    q = torch.tensor(result.motion.values)
-    positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
-    rest = np.percentile(positions[..., 1], 2.0, axis=0)
-    height = positions[..., 1] - rest
-    vertical_speed = np.abs(np.gradient(positions[..., 1], result.motion.times, axis=0))
-    planted = (height < rest_tolerance) & (vertical_speed < speed)
-    feet = np.array(points.feet)
-    keep = np.ones(len(q), dtype=bool)
-    for j, side in enumerate(("r", "l")):
-        down = planted[:, feet == side].any(axis=1)
-        keep &= ~(down & (result.measured.force[:, j, 1] < 20.0))
-    return keep
-
-
 def _grf_cases(data_root: Path) -> list[tuple[str, Path, Path, object]]:
     cases = []
     fukuchi = data_root / "fukuchi-running"
@@ -242,7 +224,7 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
         started = time.perf_counter()
         result = analyze(motion, model, forces, cutoff_hz=cutoff_hz)
         seconds = time.perf_counter() - started
-        keep = _plate_frames(model, result)
+        keep = plate_frames(result)
         weight = result.body_weight
         plates = result.measured.force[keep, :, 1].sum(1)
         ours = result.inferred.force[keep, :, 1].sum(1)
