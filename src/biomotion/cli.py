@@ -204,7 +204,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.run(args) or 0)
+        from biomotion.body.kinematics import torch_threads
+
+        # many small batched tensor ops: one intra-op thread per process is fastest (docs/results/dynamics.md)
+        with torch_threads(1):
+            return int(args.run(args) or 0)
     except BiomotionError as error:
         print(f"biomotion: error: {error}", file=sys.stderr)
         return 2

@@ -9,6 +9,13 @@ obtained by differentiating the joint transform X_PB(q) analytically through the
 second derivatives, as Simbody's function-based mobilizer defines them (generalized speeds = coordinate
 rates); the derivatives of the whole result with respect to q, q̇, q̈ come from autograd.
 
+Both algorithms run on every joint at once (`KinematicTree`): with all spatial quantities expressed in ground
+orientation about one point per frame (the root body's origin, which keeps lever arms short), the recursions of
+RBDA Table 5.1 become sums over each body's ancestors (velocities, accelerations) and over its descendants
+(forces, composite inertias), i.e. products with the tree's constant ancestor matrix (RBDA Sec. 5.3, the
+algorithm in ground coordinates), and the number of tensor operations does not grow with the number of bodies.
+`joint_velocity` is the same velocity-product term one joint at a time, in the child body frame.
+
 The generalized forces are the quantity OpenSim's ``InverseDynamicsSolver`` returns: the mobility forces that
 produce the given accelerations with gravity and external loads, ignoring constraints (couplers and locks).
 """
@@ -19,7 +26,8 @@ from dataclasses import dataclass
 
 import torch
 
-from biomotion.body.kinematics import JointTerms, joint_terms, joint_transform, motion_subspace, motion_to_child
+from biomotion.body.kinematics import (JointTerms, KinematicTree, TreePoses, _cross, _mm, _mtv, _mv, _over,
+                                       joint_terms, motion_to_child, to_frames_first, to_frames_last)
 from biomotion.body.model import BodyModel, JointModel
 from biomotion.errors import ModelError
 
@@ -65,10 +73,6 @@ def spatial_inertia(mass: torch.Tensor, com: torch.Tensor, inertia: torch.Tensor
     m = mass[..., None, None]
     eye = torch.eye(3, dtype=com.dtype).expand_as(c)
     return _blocks(inertia + m * (c @ c.transpose(-1, -2)), m * c, m * c.transpose(-1, -2), m * eye)
-
-
-def _mv(matrix: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
-    return (matrix @ vector[..., None]).squeeze(-1)
 
 
 # ---- joint velocity terms ------------------------------------------------------------------------------------
@@ -127,8 +131,53 @@ def joint_velocity(joint: JointModel, q: torch.Tensor, qd: torch.Tensor, hdot: s
 
 # ---- algorithms -----------------------------------------------------------------------------------------------
 
-def _body_inertias(model: BodyModel) -> torch.Tensor:
-    return spatial_inertia(model.masses, model.coms, model.inertias)
+@dataclass(frozen=True)
+class _Motion:
+    """One kinematics pass for the dynamics, frames last and in ground orientation about the reference point
+    ``origin`` [3, N]: poses, coordinate subspace columns [n_q, 6, N] and, given rates, joint velocities v_J
+    and velocity-product terms c_J [B, 6, N]."""
+    tree: KinematicTree
+    poses: TreePoses
+    origin: torch.Tensor
+    subspace: torch.Tensor
+    joint_velocity: torch.Tensor | None = None
+    joint_bias: torch.Tensor | None = None
+
+
+def _tree_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor | None = None, hdot: str = "opensim"
+                 ) -> _Motion:
+    """`motion_subspace`'s S and `joint_velocity`'s v_J and c_J of every joint at once (q, qd [n_q, N]), in
+    ground orientation and shifted from each joint centre M to the reference point O (v_O = v_M + (M - O) x w)."""
+    tree = KinematicTree.of(model, q.dtype)
+    values, slopes, curvatures = tree.axis_values(q)
+    frames = tree.joint_frames(values)
+    poses = tree.poses(frames)
+    axes = tree.ground_axes(poses, frames)
+    origin = poses.positions[tree.reference]
+    arm = axes.centers - origin                                                       # M - O  [B, 3, N]
+    angular, linear = tree.subspace(axes, slopes)
+    subspace = torch.cat([angular, linear + _cross(arm[tree.coordinate_body], angular)], 1)
+    if qd is None:
+        return _Motion(tree, poses, origin, subspace)
+    rates = torch.cat([qd, qd.new_zeros(1, qd.shape[-1])])                            # axes without coordinate: 0
+    rotation_rate = rates[tree.rotation_coordinate]
+    turn = axes.rotation * (slopes[tree.rotation] * rotation_rate)[:, None]           # W_k theta_k'  [A_r, 3, N]
+    omega = _over(tree.rotation_joint, turn)
+    omega_dot = _over(tree.rotation_joint, _cross(_over(tree.frame_rates[hdot], turn), turn) + axes.rotation * (
+        curvatures[tree.rotation] * rotation_rate ** 2)[:, None])
+    translation_rate = rates[tree.translation_coordinate]
+    velocity = _over(tree.translation_joint, axes.translation * (slopes[tree.translation] * translation_rate)[:, None])
+    acceleration = _over(tree.translation_joint, axes.translation * (curvatures[tree.translation]
+                                                                     * translation_rate ** 2)[:, None])
+    joint_velocity = torch.cat([omega, velocity + _cross(arm, omega)], 1)
+    joint_bias = torch.cat([omega_dot, acceleration - _cross(omega, velocity) + _cross(arm, omega_dot)], 1)
+    return _Motion(tree, poses, origin, subspace, joint_velocity, joint_bias)
+
+
+def _cross_motion(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """v x m for motion vectors [..., 6, N] (RBDA eq. 2.31)."""
+    w = v[..., :3, :]
+    return torch.cat([_cross(w, m[..., :3, :]), _cross(w, m[..., 3:, :]) + _cross(v[..., 3:, :], m[..., :3, :])], -2)
 
 
 def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
@@ -142,58 +191,53 @@ def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: t
     coordinate (about 1e-4 N·m at 2 rad/s knee speed in the Rajagopal knee)."""
     if not (q.shape[-1] == qd.shape[-1] == qdd.shape[-1] == model.n_q):
         raise ModelError(f"q, qd, qdd must have {model.n_q} coordinates for model {model.name!r}")
+    if hdot not in ("opensim", "exact"):
+        raise ModelError(f"hdot must be 'opensim' or 'exact', not {hdot!r}")
     q, qd, qdd = torch.broadcast_tensors(q, qd, qdd)
     batch = q.shape[:-1]
-    inertias = _body_inertias(model)
-    g = model.gravity.to(q.dtype) if gravity else q.new_zeros(3)
-    ground_acc = torch.cat([q.new_zeros(3), -g]).expand(*batch, 6)
-    n = model.n_bodies
-    vel: list[torch.Tensor | None] = [None] * n
-    acc: list[torch.Tensor | None] = [None] * n
-    rot: list[torch.Tensor | None] = [None] * n
-    pos: list[torch.Tensor | None] = [None] * n
-    force: list[torch.Tensor | None] = [None] * n
-    subspace: dict[int, torch.Tensor] = {}
-    transform: dict[int, torch.Tensor] = {}
-    for j in model.joint_order:
-        joint = model.joints[j]
-        b, p = joint.child, joint.parent
-        r_pb, p_pb = joint_transform(joint, q)
-        x = motion_transform(r_pb, p_pb)
-        terms = joint_terms(joint, q)
-        s = motion_subspace(joint, q, terms)
-        v_j, c_j = joint_velocity(joint, q, qd, hdot, terms)
-        v_parent = q.new_zeros(*batch, 6) if p < 0 else vel[p]
-        a_parent = ground_acc if p < 0 else acc[p]
-        vel[b] = _mv(x, v_parent) + v_j
-        a = _mv(x, a_parent) + c_j + _mv(cross_motion(vel[b]), v_j)
-        if joint.coordinates:
-            a = a + _mv(s, qdd[..., list(joint.coordinates)])
-        acc[b] = a
-        if p < 0:
-            rot[b], pos[b] = r_pb, p_pb
-        else:
-            rot[b], pos[b] = rot[p] @ r_pb, pos[p] + _mv(rot[p], p_pb)
-        momentum = _mv(inertias[b], vel[b])
-        force[b] = _mv(inertias[b], a) - _mv(cross_motion(vel[b]).transpose(-1, -2), momentum)
-        subspace[j], transform[j] = s, x
+    motion = _tree_motion(model, to_frames_last(q, 1), to_frames_last(qd, 1), hdot)
+    tree, poses, origin = motion.tree, motion.poses, motion.origin
+    # forward: a body's velocity and acceleration are sums over the body and its ancestors
+    velocity = _over(tree.ancestors, motion.joint_velocity)                             # [B, 6, N]
+    local = motion.joint_bias + _over(tree.owned, motion.subspace * to_frames_last(qdd, 1)[:, None]) + \
+        _cross_motion(velocity, motion.joint_velocity)
+    acceleration = _over(tree.ancestors, local)
+    if gravity:  # the ground's fictitious upward acceleration (RBDA Sec. 5.3)
+        acceleration = acceleration - torch.cat([torch.zeros_like(tree.gravity), tree.gravity])
+    # Newton-Euler at each body's centre of mass, inertia in the body frame
+    rotations = poses.rotations
+    com = poses.positions + _mv(rotations, tree.coms) - origin
+    omega, alpha = velocity[:, :3], acceleration[:, :3]
+    com_velocity = velocity[:, 3:] + _cross(omega, com)
+    force = tree.masses * (acceleration[:, 3:] + _cross(alpha, com) + _cross(omega, com_velocity))
+    omega_body, alpha_body = _mtv(rotations, omega), _mtv(rotations, alpha)
+    moment = _mv(rotations, _mv(tree.inertias, alpha_body) + _cross(omega_body, _mv(tree.inertias, omega_body)))
+    wrench = torch.cat([moment + _cross(com, force), force], 1)
+    if loads:
+        wrench = wrench - _load_wrenches(model, loads, origin, batch)
+    # backward: each joint carries the wrenches of its subtree
+    carried = _over(tree.ancestors.T, wrench)
+    return to_frames_first((motion.subspace * carried[tree.coordinate_body]).sum(1), batch)
+
+
+def _load_wrenches(model: BodyModel, loads: tuple[ExternalLoad, ...] | list[ExternalLoad], origin: torch.Tensor,
+                   batch: torch.Size) -> torch.Tensor:
+    """[B, 6, N] the loads as wrenches about the reference point, summed per body."""
+    dtype = origin.dtype
+
+    def frames_last(x: torch.Tensor) -> torch.Tensor:
+        return to_frames_last(torch.broadcast_to(x.to(dtype), (*batch, 3)), 1)
+
+    wrenches = []
     for load in loads:
-        b = model.body_index(load.body)
-        applied = torch.broadcast_to(load.force.to(q.dtype), (*batch, 3))
-        moment = torch.linalg.cross(torch.broadcast_to(load.point.to(q.dtype), (*batch, 3)) - pos[b], applied)
+        force = frames_last(load.force)
+        moment = _cross(frames_last(load.point) - origin, force)
         if load.moment is not None:
-            moment = moment + load.moment.to(q.dtype)
-        rt = rot[b].transpose(-1, -2)
-        force[b] = force[b] - torch.cat([_mv(rt, moment), _mv(rt, applied)], -1)
-    tau = q.new_zeros(*batch, model.n_q)
-    for j in reversed(model.joint_order):
-        joint = model.joints[j]
-        f = force[joint.child]
-        if joint.coordinates:
-            tau[..., list(joint.coordinates)] = _mv(subspace[j].transpose(-1, -2), f)
-        if joint.parent >= 0:
-            force[joint.parent] = force[joint.parent] + _mv(transform[j].transpose(-1, -2), f)
-    return tau
+            moment = moment + frames_last(load.moment)
+        wrenches.append(torch.cat([moment, force]))
+    on_body = torch.zeros(model.n_bodies, len(loads), dtype=dtype)
+    on_body[[model.body_index(load.body) for load in loads], torch.arange(len(loads))] = 1.0
+    return _over(on_body, torch.stack(wrenches))
 
 
 def bias_forces(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, gravity: bool = True,
@@ -203,38 +247,31 @@ def bias_forces(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, gravity: bo
 
 
 def mass_matrix(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
-    """[..., n_q, n_q] joint-space inertia matrix (composite-rigid-body algorithm, RBDA Table 6.2)."""
+    """[..., n_q, n_q] joint-space inertia matrix (composite-rigid-body algorithm, RBDA Table 6.2): entry
+    (i, j) with i's joint an ancestor of (or the same as) j's is S_i^T I^c_j S_j, I^c_j the composite inertia
+    of the subtree below j's joint; zero where neither joint is above the other."""
     if q.shape[-1] != model.n_q:
         raise ModelError(f"q must have {model.n_q} coordinates for model {model.name!r}")
-    batch = q.shape[:-1]
-    inertias = _body_inertias(model)
-    composite = [inertias[b].expand(*batch, 6, 6) for b in range(model.n_bodies)]
-    subspace, transform = {}, {}
-    for j in model.joint_order:
-        joint = model.joints[j]
-        r_pb, p_pb = joint_transform(joint, q)
-        transform[j] = motion_transform(r_pb, p_pb)
-        subspace[j] = motion_subspace(joint, q)
-    joint_of_body = {joint.child: j for j, joint in enumerate(model.joints)}
-    for j in reversed(model.joint_order):
-        joint = model.joints[j]
-        if joint.parent >= 0:
-            x = transform[j]
-            composite[joint.parent] = composite[joint.parent] + x.transpose(-1, -2) @ composite[joint.child] @ x
-    out = q.new_zeros(*batch, model.n_q, model.n_q)
-    for i, joint in enumerate(model.joints):
-        if not joint.coordinates:
-            continue
-        rows = list(joint.coordinates)
-        f = composite[joint.child] @ subspace[i]
-        out[..., torch.tensor(rows)[:, None], torch.tensor(rows)[None, :]] = subspace[i].transpose(-1, -2) @ f
-        k = i
-        while model.joints[k].parent >= 0:
-            f = transform[k].transpose(-1, -2) @ f
-            k = joint_of_body[model.joints[k].parent]
-            cols = list(model.joints[k].coordinates)
-            if cols:
-                block = subspace[k].transpose(-1, -2) @ f  # [..., n_k, n_i]
-                out[..., torch.tensor(cols)[:, None], torch.tensor(rows)[None, :]] = block
-                out[..., torch.tensor(rows)[:, None], torch.tensor(cols)[None, :]] = block.transpose(-1, -2)
-    return out
+    motion = _tree_motion(model, to_frames_last(q, 1))
+    tree, rotations = motion.tree, motion.poses.rotations
+    com = _skew_frames_last(motion.poses.positions + _mv(rotations, tree.coms) - motion.origin)   # [B, 3, 3, N]
+    inertia = _mm(_mm(rotations, tree.inertias), rotations.transpose(1, 2))
+    m = tree.masses[..., None]
+    body = torch.cat([torch.cat([inertia + m * _mm(com, com.transpose(1, 2)), m * com], 2),
+                      torch.cat([m * com.transpose(1, 2), m * tree.eye.expand_as(com)], 2)], 1)  # [B, 6, 6, N]
+    composite = _over(tree.ancestors.T, body)
+    s = motion.subspace                                                                   # [n_q, 6, N]
+    moved = (composite[tree.coordinate_body] * s[:, None]).sum(2)                       # I^c_j S_j  [n_q, 6, N]
+    products = (s[:, None] * moved[None]).sum(2)                                         # S_i . I^c_j S_j
+    weights = tree.ancestor_joint.to(s.dtype)[..., None]
+    upper = products * weights
+    full = upper + upper.transpose(0, 1) + products * tree.same_joint.to(s.dtype)[..., None]
+    return to_frames_first(full, q.shape[:-1])
+
+
+def _skew_frames_last(v: torch.Tensor) -> torch.Tensor:
+    """[..., 3, 3, N] cross-product matrices of [..., 3, N]."""
+    x, y, z = v.unbind(-2)
+    zero = torch.zeros_like(x)
+    return torch.stack([torch.stack([zero, -z, y], -2), torch.stack([z, zero, -x], -2),
+                        torch.stack([-y, x, zero], -2)], -3)

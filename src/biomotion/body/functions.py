@@ -11,11 +11,14 @@ CoordinateCouplerConstraint use), including its behaviour outside the knots:
 - `PiecewiseLinearFunction`, `LinearFunction`, `Constant`, `PolynomialFunction` (highest order first) and
   `MultiplierFunction` (scale times an inner function).
 
-Coefficients are computed once in float64 numpy; evaluation is a gather of the interval's cubic.
+Coefficients are computed once in float64 numpy; evaluation is a gather of the interval's cubic. `FunctionStack`
+evaluates many functions (each on its own argument) in a few tensor operations: the kinematics of every transform
+axis of a model at once.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -23,6 +26,8 @@ import torch
 
 from biomotion.errors import ModelError
 from biomotion.io import osim
+
+_F64 = torch.float64
 
 
 class Function(Protocol):
@@ -170,6 +175,115 @@ def simm_spline_coefficients(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, 
     c[nm1] *= 3.0
     d[nm1] = d[nm2]
     return b, c, d
+
+
+class FunctionStack:
+    """Functions f_k evaluated together, each scaled by s_k: x [K, ...] -> s_k f_k(x[k]) and its first two
+    derivatives, [K, ...] each (row k is function k's argument, any trailing batch shape), differentiable in x
+    and in the scales (tensors keep their autograd graph).
+
+    Affine functions (`Constant`, `Linear`, and `Multiplier` of them) are one multiply-add, splines
+    (`PiecewiseCubic`, possibly under `Multiplier`) one gather of their interval's cubic with the same rule
+    outside the knots, polynomials one Horner pass; any other `Function` is evaluated on its own. The results
+    equal the functions' own `derivatives` up to rounding.
+    """
+
+    def __init__(self, functions: Sequence[Function], scales: Sequence[float | torch.Tensor] | None = None,
+                 dtype: torch.dtype = torch.float64) -> None:
+        scales = [1.0] * len(functions) if scales is None else list(scales)
+        affine, splines, polynomials, others, factors = [], [], [], [], []
+        for k, (function, scale) in enumerate(zip(functions, scales)):
+            while isinstance(function, Multiplier):  # fold the multipliers into one scale per function
+                scale = scale * function.scale
+                function = function.function
+            factors.append(scale if isinstance(scale, torch.Tensor) else torch.tensor(float(scale), dtype=_F64))
+            if isinstance(function, (Constant, Linear)):
+                affine.append((k, 0.0 if isinstance(function, Constant) else function.slope,
+                               function.value if isinstance(function, Constant) else function.intercept))
+            elif isinstance(function, PiecewiseCubic):
+                splines.append((k, function))
+            elif isinstance(function, Polynomial):
+                polynomials.append((k, function.coefficients))
+            else:
+                others.append((k, function))
+        self.size = len(functions)
+        self.scale = torch.stack([f.to(dtype) for f in factors]) if factors else torch.zeros(0, dtype=dtype)
+        self.affine = torch.tensor([k for k, _, _ in affine], dtype=torch.long)
+        self.slope = torch.tensor([a for _, a, _ in affine], dtype=dtype)
+        self.intercept = torch.tensor([b for _, _, b in affine], dtype=dtype)
+        self.splines = torch.tensor([k for k, _ in splines], dtype=torch.long)
+        self._spline_table(dtype, [f for _, f in splines])
+        self.polynomials = torch.tensor([k for k, _ in polynomials], dtype=torch.long)
+        degree = max((len(c) for _, c in polynomials), default=0)
+        self.coefficients = torch.tensor([[0.0] * (degree - len(c)) + list(c) for _, c in polynomials],
+                                         dtype=dtype).reshape(len(polynomials), degree)
+        self.others = others
+        order = torch.cat([self.affine, self.splines, self.polynomials,
+                           torch.tensor([k for k, _ in others], dtype=torch.long)])
+        self.order = torch.argsort(order)  # row of function k in the concatenated groups
+
+    def _spline_table(self, dtype: torch.dtype, splines: list[PiecewiseCubic]) -> None:
+        width = max((int(f.x.numel()) for f in splines), default=2)
+        inner = torch.full((len(splines), max(width - 2, 1)), torch.inf, dtype=dtype)
+        table = torch.zeros(5, len(splines), width, dtype=dtype)  # knots, y, b, c, d
+        for i, f in enumerate(splines):
+            n = int(f.x.numel())
+            inner[i, :n - 2] = f.x[1:-1].to(dtype)
+            for row, values in enumerate((f.x, f.y, f.b, f.c, f.d)):
+                table[row, i, :n] = values.to(dtype)
+        self.inner = inner
+        self.table = table.flatten(1)
+        self.offset = torch.arange(len(splines)) * width
+        ends = [torch.stack([torch.stack([f.x[i], f.y[i], f.b[i]]) for f in splines], -1).to(dtype) if splines
+                else torch.zeros(3, 0, dtype=dtype) for i in (0, -1)]
+        self.first, self.last = ends
+
+    def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(s f, s f', s f'') at ``x`` [K, ...]."""
+        if x.shape[0] != self.size:
+            raise ModelError(f"FunctionStack of {self.size} functions got {x.shape[0]} arguments")
+        trailing = (1,) * (x.dim() - 1)
+        parts = []
+        if len(self.affine):
+            u = x[self.affine]
+            slope = self.slope.to(x.dtype).reshape(-1, *trailing)
+            parts.append((slope * u + self.intercept.to(x.dtype).reshape(-1, *trailing), slope.expand_as(u),
+                          torch.zeros_like(u)))
+        if len(self.splines):
+            parts.append(self._evaluate_splines(x[self.splines]))
+        if len(self.polynomials):
+            u = x[self.polynomials]
+            f, d1, d2 = torch.zeros_like(u), torch.zeros_like(u), torch.zeros_like(u)
+            for c in self.coefficients.to(x.dtype).unbind(-1):  # Horner, as `Polynomial`
+                c = c.reshape(-1, *trailing)
+                d2 = d2 * u + 2.0 * d1
+                d1 = d1 * u + f
+                f = f * u + c
+            parts.append((f, d1, d2))
+        for k, function in self.others:
+            parts.append(tuple(d[None] for d in function.derivatives(x[k])))
+        if not parts:
+            zero = x.new_zeros(x.shape)
+            return zero, zero, zero
+        scale = self.scale.to(x.dtype).reshape(-1, *trailing)
+        return tuple(scale * torch.cat([p[i] for p in parts])[self.order]  # type: ignore[return-value]
+                     for i in range(3))
+
+    def _evaluate_splines(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        trailing = (1,) * (x.dim() - 1)
+        inner = self.inner.to(x.dtype).reshape(self.inner.shape[0], *trailing, -1)
+        k = (x[..., None] >= inner).sum(-1) + self.offset.reshape(-1, *trailing)
+        knot, y, b, c, d = self.table.to(x.dtype)[:, k]
+        dx = x - knot
+        value = y + dx * (b + dx * (c + dx * d))
+        slope = b + dx * (2.0 * c + 3.0 * dx * d)
+        curvature = 2.0 * c + 6.0 * dx * d
+        (x0, y0, b0), (x1, y1, b1) = (e.to(x.dtype).reshape(3, -1, *trailing) for e in (self.first, self.last))
+        below, above = x < x0, x > x1
+        value = torch.where(below, y0 + (x - x0) * b0, torch.where(above, y1 + (x - x1) * b1, value))
+        slope = torch.where(below, b0, torch.where(above, b1, slope))
+        curvature = torch.where(below | above, torch.zeros_like(x), curvature)
+        return value, slope, curvature
 
 
 def build_function(spec: osim.FunctionSpec) -> Function:

@@ -3,14 +3,28 @@
 Every function takes coordinates ``q`` of shape [..., n_q] (any leading batch dims, CoordinateSet order, SI:
 rad and m) and is differentiable with autograd in float32 or float64. Poses follow OpenSim/Simbody: the pose of
 body B in ground is X_GB = X_GP X_PF X_FM(q) X_MB, with X_FM the joint's spatial transform (model.py).
+
+The whole-model functions run on a `KinematicTree`, the model's constants stacked once: every transform axis of
+every joint is evaluated in one pass (`FunctionStack`), every joint transform in one batched product, and the
+tree is composed one depth level at a time, so the number of tensor operations does not grow with the number of
+bodies. The per-joint functions (`joint_motion`, `joint_terms`, `motion_subspace`) are the same formulas one
+joint at a time.
+
+These are many small tensor operations: on a loaded or small machine torch's intra-op threads cost more than they
+give (up to 100x slower at 2 threads than at 1 on a busy 2-core machine, docs/results/dynamics.md); run them
+inside `torch_threads(1)` there, and parallelise over trials instead.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
 
+from biomotion.body.functions import FunctionStack
 from biomotion.body.model import BodyModel, JointModel, axis_angle
 from biomotion.errors import ModelError
 
@@ -54,18 +68,8 @@ def joint_transform(joint: JointModel, q: torch.Tensor) -> tuple[torch.Tensor, t
 def forward_kinematics(model: BodyModel, q: torch.Tensor) -> BodyPoses:
     """Poses of all bodies in ground at coordinates ``q`` [..., n_q]."""
     _check(model, q)
-    rotations: list[torch.Tensor | None] = [None] * model.n_bodies
-    positions: list[torch.Tensor | None] = [None] * model.n_bodies
-    for j in model.joint_order:
-        joint = model.joints[j]
-        r_pb, p_pb = joint_transform(joint, q)
-        if joint.parent < 0:
-            rotations[joint.child], positions[joint.child] = r_pb, p_pb
-        else:
-            r_gp, p_gp = rotations[joint.parent], positions[joint.parent]
-            rotations[joint.child] = r_gp @ r_pb
-            positions[joint.child] = p_gp + (r_gp @ p_pb[..., None]).squeeze(-1)
-    return BodyPoses(torch.stack(rotations, dim=-3), torch.stack(positions, dim=-2))
+    tree = KinematicTree.of(model, q.dtype)
+    return tree.poses(tree.joint_frames(tree.axis_values(to_frames_last(q, 1))[0])).public(q.shape[:-1])
 
 
 def points_in_ground(poses: BodyPoses, bodies: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
@@ -118,45 +122,30 @@ def point_jacobians(model: BodyModel, q: torch.Tensor, bodies: torch.Tensor, off
     """[..., P, 3, n_q] d(point in ground)/dq for points fixed at ``offsets`` [P, 3] in ``bodies`` [P].
 
     Column k is v_k + w_k x (p - o_k), with (w_k, v_k) coordinate k's motion subspace column in ground at the
-    origin o_k of the body its joint moves, for points on that body's subtree (zero elsewhere).
+    origin o_k of its joint's child frame M, for points on the subtree that joint moves (zero elsewhere).
     """
-    poses = forward_kinematics(model, q) if poses is None else poses
-    points = points_in_ground(poses, bodies, offsets)
-    batch = q.shape[:-1]
-    angular = q.new_zeros(*batch, model.n_q, 3)
-    linear = q.new_zeros(*batch, model.n_q, 3)
-    origin = q.new_zeros(*batch, model.n_q, 3)
-    for joint in model.joints:
-        if not joint.coordinates:
-            continue
-        s = motion_subspace(joint, q)  # child frame
-        rotation = poses.rotations[..., joint.child, :, :]
-        cols = list(joint.coordinates)
-        angular[..., cols, :] = (rotation @ s[..., :3, :]).transpose(-1, -2)
-        linear[..., cols, :] = (rotation @ s[..., 3:, :]).transpose(-1, -2)
-        origin[..., cols, :] = poses.positions[..., joint.child, None, :].expand(*batch, len(cols), 3)
-    moves = _subtree_mask(model)[bodies.clamp(min=0)] & (bodies >= 0)[:, None]  # [P, n_q]
-    lever = points[..., :, None, :] - origin[..., None, :, :]                   # [..., P, n_q, 3]
-    columns = linear[..., None, :, :] + torch.linalg.cross(angular[..., None, :, :].expand_as(lever), lever)
-    return (columns * moves[..., None].to(q.dtype)).transpose(-1, -2)
+    _check(model, q)
+    tree = KinematicTree.of(model, q.dtype)
+    values, slopes, _ = tree.axis_values(to_frames_last(q, 1))
+    frames = tree.joint_frames(values)
+    tree_poses = tree.poses(frames) if poses is None else TreePoses(
+        to_frames_last(poses.rotations, 3), to_frames_last(poses.positions, 2))
+    axes = tree.ground_axes(tree_poses, frames)
+    angular, linear = tree.subspace(axes, slopes)                                        # [n_q, 3, N] at M
+    index = bodies.clamp(min=0)
+    offsets = offsets.to(q.dtype)[..., None]
+    points = tree_poses.positions[index] + _mv(tree_poses.rotations[index], offsets)
+    points = torch.where((bodies < 0)[:, None, None], offsets, points)                  # [P, 3, N]
+    lever = points[:, None] - axes.centers[tree.coordinate_body][None]                  # [P, n_q, 3, N]
+    columns = linear + _cross(angular, lever)
+    moves = tree.moves[index] & (bodies >= 0)[:, None]                                  # [P, n_q]
+    columns = columns * moves[..., None, None].to(q.dtype)
+    return to_frames_first(columns.transpose(1, 2), q.shape[:-1])
 
 
 def marker_jacobians(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
     """[..., M, 3, n_q] d(marker positions)/dq."""
     return point_jacobians(model, q, model.marker_bodies, model.marker_offsets)
-
-
-def _subtree_mask(model: BodyModel) -> torch.Tensor:
-    """[B, n_q] True where coordinate k moves body b (k belongs to a joint on b's path to ground)."""
-    mask = torch.zeros(model.n_bodies, model.n_q, dtype=torch.bool)
-    joint_of_child = {j.child: j for j in model.joints}
-    for b in range(model.n_bodies):
-        body = b
-        while body >= 0:
-            joint = joint_of_child[body]
-            mask[b, list(joint.coordinates)] = True
-            body = joint.parent
-    return mask
 
 
 # ---- joint motion subspace -------------------------------------------------------------------------------------
@@ -222,6 +211,306 @@ def motion_subspace(joint: JointModel, q: torch.Tensor, terms: JointTerms | None
                 linear = linear + axis * d1[..., None]
         columns.append(motion_to_child(joint, terms, angular, linear))
     return torch.stack(columns, -1) if columns else q.new_zeros(*q.shape[:-1], 6, 0)
+
+
+# ---- the whole tree at once ------------------------------------------------------------------------------------
+# Layout: frames last. The tree's tensors are [K, ..., N] (K bodies, axes or coordinates; N = all leading batch
+# dims of q flattened), so every 3x3 product is a few element-wise operations along contiguous frames and every
+# sum over the tree is one matrix product; `to_frames_last` and `to_frames_first` convert at the public boundary.
+
+def to_frames_last(x: torch.Tensor, dims: int) -> torch.Tensor:
+    """[..., *item] (``dims`` trailing item dims) -> [*item, N] with N the flattened leading dims."""
+    item = x.shape[x.dim() - dims:]
+    return x.reshape(-1, *item).movedim(0, -1)
+
+
+def to_frames_first(x: torch.Tensor, batch: torch.Size) -> torch.Tensor:
+    """[*item, N] -> [*batch, *item] (contiguous)."""
+    return x.movedim(-1, 0).reshape(*batch, *x.shape[:-1])
+
+
+def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Batched 3x3 products of [..., 3, 3, N] (or constants [..., 3, 3, 1])."""
+    return (a[..., :, :, None, :] * b[..., None, :, :, :]).sum(-3)
+
+
+def _mv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """[..., 3, 3, N] times [..., 3, N]."""
+    return (a * v[..., None, :, :]).sum(-2)
+
+
+def _mtv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """[..., 3, 3, N] transposed times [..., 3, N]."""
+    return (a * v[..., :, None, :]).sum(-3)
+
+
+def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Cross products of [..., 3, N] (by components: several times faster than torch.linalg.cross here)."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    return torch.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -2)
+
+
+def _over(matrix: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``matrix`` [R, K] applied along the first dim of ``x`` [K, ...]: one matrix product."""
+    return (matrix @ x.reshape(x.shape[0], -1)).reshape(matrix.shape[0], *x.shape[1:])
+
+
+@dataclass(frozen=True)
+class JointFrames:
+    """Every joint at once, indexed by its child body, frames last: X_FM(q) (``r_fm`` [B, 3, 3, N], ``p_fm``
+    [B, 3, N]), X_PB(q) (``r_pb``, ``p_pb``), and every rotation axis k in F after the rotations before it,
+    W_k [A_r, 3, N] (`JointTerms.rotation_axes`)."""
+    r_fm: torch.Tensor
+    p_fm: torch.Tensor
+    r_pb: torch.Tensor
+    p_pb: torch.Tensor
+    rotation_axes: torch.Tensor
+
+
+@dataclass(frozen=True)
+class TreePoses:
+    """Body orientations [B, 3, 3, N] and origins [B, 3, N] in ground, frames last."""
+    rotations: torch.Tensor
+    positions: torch.Tensor
+
+    def public(self, batch: torch.Size) -> BodyPoses:
+        return BodyPoses(to_frames_first(self.rotations, batch), to_frames_first(self.positions, batch))
+
+
+@dataclass(frozen=True)
+class GroundAxes:
+    """The moving axes in ground orientation, frames last: rotation axes W_k [A_r, 3, N], translation axes b_m
+    [A_t, 3, N], and the joint centres (origin of each joint's frame M) [B, 3, N]."""
+    rotation: torch.Tensor
+    translation: torch.Tensor
+    centers: torch.Tensor
+
+
+class KinematicTree:
+    """A `BodyModel`'s constants stacked for joint-vectorised kinematics, frames last; bodies and joints share an
+    index (joint ``b`` is the one whose child is body ``b``; model.py guarantees one per body).
+
+    Built once per model and dtype and kept on the model (`of`); a model any of whose tensors requires grad
+    (e.g. differentiable scale factors) gets a fresh one per call, so gradients reach its parameters.
+    """
+
+    def __init__(self, model: BodyModel, dtype: torch.dtype) -> None:
+        n_b, n_q = model.n_bodies, model.n_q
+        joints = [next(j for j in model.joints if j.child == b) for b in range(n_b)]
+        depth: dict[int, int] = {}
+        for j in model.joint_order:
+            joint = model.joints[j]
+            depth[joint.child] = 0 if joint.parent < 0 else depth[joint.parent] + 1
+        levels = [[b for b in range(n_b) if depth[b] == d] for d in range(max(depth.values(), default=-1) + 1)]
+        place = {b: i for level in levels for i, b in enumerate(level)}
+        self.levels = [(torch.tensor(level), torch.tensor([place[joints[b].parent] for b in level]) if d else None)
+                       for d, level in enumerate(levels)]
+        self.assemble = torch.argsort(torch.tensor([b for level in levels for b in level], dtype=torch.long))
+        self.parent = torch.tensor([j.parent if j.parent >= 0 else n_b for j in joints])  # n_b: ground
+        self.reference = levels[0][0] if levels else 0                                      # a root body
+        ancestors = torch.zeros(n_b, n_b, dtype=torch.bool)  # [b, a]: a is b or on its path to ground
+        for b in range(n_b):
+            a = b
+            while a >= 0:
+                ancestors[b, a] = True
+                a = joints[a].parent
+        coordinate_body = torch.zeros(n_q, dtype=torch.long)
+        owned = torch.zeros(n_b, n_q, dtype=torch.bool)      # [b, c]: c is a coordinate of joint b
+        for b, joint in enumerate(joints):
+            coordinate_body[list(joint.coordinates)] = b
+            owned[b, list(joint.coordinates)] = True
+        self.coordinate_body = coordinate_body
+        has_joint = owned.any(0)
+        self.moves = ancestors[:, coordinate_body] & has_joint                           # [B, n_q]
+        both = has_joint[:, None] & has_joint[None, :]
+        same = (coordinate_body[:, None] == coordinate_body[None, :]) & both
+        above = ancestors[coordinate_body][:, coordinate_body].T & both
+        self.same_joint, self.ancestor_joint = same, above & ~same  # [c, c']: c's joint is above c''s
+
+        functions, scales, arguments = [], [], []
+        rotation, translation = [], []  # (axis index, body, rank, unit, coordinate, slot, joint)
+        slots = [[None] * 3 for _ in range(n_b)]
+        for b, joint in enumerate(joints):
+            rank = 0
+            for axis in joint.axes:
+                coordinate = n_q if axis.coordinate is None else axis.coordinate
+                entry = (len(functions), b, rank, axis.axis, coordinate, axis.slot, joint)
+                if axis.rotation:
+                    slots[b][rank] = len(rotation)
+                    rotation.append(entry)
+                    rank += 1
+                else:
+                    translation.append(entry)
+                functions.append(axis.function)
+                scales.append(axis.scale)
+                arguments.append(coordinate)
+        self.functions = FunctionStack(functions, scales, dtype)
+        self.argument = torch.tensor(arguments, dtype=torch.long)      # n_q: the axis has no coordinate
+        n_r = len(rotation)
+        self.slots = torch.tensor([[n_r if s is None else s for s in row] for row in slots], dtype=torch.long)
+
+        def columns(entries: list) -> tuple[torch.Tensor, ...]:
+            index = torch.tensor([e[0] for e in entries], dtype=torch.long)
+            body = torch.tensor([e[1] for e in entries], dtype=torch.long)
+            coordinate = torch.tensor([e[4] for e in entries], dtype=torch.long)
+            units = torch.stack([e[3].to(dtype) for e in entries]) if entries else torch.zeros(0, 3, dtype=dtype)
+            by_joint = torch.zeros(n_b, len(entries), dtype=dtype)            # [b, a]: axis a moves joint b
+            by_joint[body, torch.arange(len(entries))] = 1.0
+            by_coordinate = torch.zeros(n_q, len(entries), dtype=dtype)       # [c, a]: axis a follows c of its joint
+            for a, e in enumerate(entries):
+                if e[4] in e[6].coordinates:
+                    by_coordinate[e[4], a] = 1.0
+            return index, body, coordinate, units[..., None], by_joint, by_coordinate
+
+        (self.rotation, self.rotation_body, self.rotation_coordinate, self.rotation_units, self.rotation_joint,
+         self.rotation_columns) = columns(rotation)
+        (self.translation, self.translation_body, self.translation_coordinate, self.translation_units,
+         self.translation_joint, self.translation_columns) = columns(translation)
+        rank = torch.tensor([e[2] for e in rotation], dtype=torch.long)
+        self.ranked = [torch.nonzero(rank == r).flatten() for r in range(3)]    # rotation axes by rank in joint
+        self.unrank = torch.argsort(torch.cat(self.ranked))
+        self.turns = [None] + [torch.tensor([b for b in range(n_b) if slots[b][r] is not None], dtype=torch.long)
+                               for r in (1, 2)]                                # joints with a 2nd, a 3rd rotation
+        skew = _skew(self.rotation_units[..., 0])
+        self.skew, self.skew2 = skew[..., None], (skew @ skew)[..., None]
+        # which rotation rates carry axis k's frame (see dynamics.joint_velocity): the preceding axes of the
+        # joint ("exact"), or Simbody's rule for CustomJoints ("opensim")
+        exact = torch.zeros(n_r, n_r, dtype=dtype)
+        opensim = torch.zeros(n_r, n_r, dtype=dtype)
+        for k, (_, b, rank, _, _, slot, joint) in enumerate(rotation):
+            simbody = joint.type == "CustomJoint" and bool(joint.coordinates)
+            first = joint.coordinates[0] if joint.coordinates else None
+            third = joint.coordinates[2] if len(joint.coordinates) > 2 else None
+            for m, (_, b2, rank2, _, coordinate2, _, _) in enumerate(rotation):
+                if b2 != b:
+                    continue
+                exact[k, m] = float(rank2 < rank)
+                opensim[k, m] = float(rank2 < rank) if not simbody else float(
+                    (slot == 1 and coordinate2 == first) or (slot == 2 and (third is None or coordinate2 != third)))
+        self.frame_rates = {"exact": exact, "opensim": opensim}
+
+        def stacked(name: str) -> torch.Tensor:
+            return torch.stack([getattr(j, name).to(dtype) for j in joints])[..., None]
+
+        self.r_pf, self.p_pf = stacked("parent_rotation"), stacked("parent_translation")
+        self.p_bm = stacked("child_translation")
+        self.r_mb = stacked("child_rotation").transpose(1, 2)
+        self.p_mb = -_mv(self.r_mb, self.p_bm)
+        self.ancestors = ancestors.to(dtype)
+        self.owned = owned.to(dtype)
+        self.masses = model.masses.to(dtype)[:, None, None]
+        self.coms = model.coms.to(dtype)[..., None]
+        self.inertias = model.inertias.to(dtype)[..., None]
+        self.gravity = model.gravity.to(dtype)[:, None]
+        self.eye = torch.eye(3, dtype=dtype)[..., None]
+
+    @classmethod
+    def of(cls, model: BodyModel, dtype: torch.dtype) -> "KinematicTree":
+        """The model's tree in ``dtype``, cached on the (immutable) model unless it requires grad."""
+        cache = model.__dict__.get("_kinematic_trees")
+        if cache is not None and dtype in cache:
+            return cache[dtype]
+        tree = cls(model, dtype)
+        if not _requires_grad(model):
+            if cache is None:
+                cache = {}
+                object.__setattr__(model, "_kinematic_trees", cache)  # frozen dataclass: a cache, not a field
+            cache[dtype] = tree
+        return tree
+
+    def axis_values(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Amount of every transform axis and its first two derivatives in its coordinate, [A, N] each, from
+        coordinates ``q`` [n_q, N]."""
+        padded = torch.cat([q, q.new_zeros(1, q.shape[-1])])
+        return self.functions.derivatives(padded[self.argument])
+
+    def joint_frames(self, values: torch.Tensor) -> JointFrames:
+        """X_FM and X_PB of every joint from the axis amounts ``values`` [A, N] (products only where a joint has
+        a second or third rotation)."""
+        n = values.shape[-1]
+        angle = values[self.rotation, None, None, :]
+        rotations = self.eye + torch.sin(angle) * self.skew + (1.0 - torch.cos(angle)) * self.skew2  # Rodrigues
+        rotations = torch.cat([rotations, self.eye.expand(3, 3, n)[None]])      # last: identity (no rotation)
+        first = rotations[self.slots[:, 0]]
+        second, third = self.turns[1], self.turns[2]
+        first_two = first.index_put((second,), _mm(first[second], rotations[self.slots[second, 1]]))
+        r_fm = first_two.index_put((third,), _mm(first_two[third], rotations[self.slots[third, 2]]))
+        p_fm = _over(self.translation_joint, values[self.translation, None, :] * self.translation_units)
+        r_pb = _mm(_mm(self.r_pf, r_fm), self.r_mb)
+        p_pb = self.p_pf + _mv(self.r_pf, p_fm + _mv(r_fm, self.p_mb))
+        ranked = self.ranked
+        axes = torch.cat([self.rotation_units[ranked[0]].expand(-1, 3, n),
+                          _mv(first[self.rotation_body[ranked[1]]], self.rotation_units[ranked[1]]),
+                          _mv(first_two[self.rotation_body[ranked[2]]], self.rotation_units[ranked[2]])])
+        return JointFrames(r_fm, p_fm, r_pb, p_pb, axes[self.unrank])
+
+    def poses(self, frames: JointFrames) -> TreePoses:
+        """Compose X_GB = X_GP X_PB down the tree, one depth level at a time."""
+        rotations: list[torch.Tensor] = []
+        positions: list[torch.Tensor] = []
+        for bodies, parents in self.levels:
+            r, p = frames.r_pb[bodies], frames.p_pb[bodies]
+            if parents is not None:
+                r_gp, p_gp = rotations[-1][parents], positions[-1][parents]
+                r, p = _mm(r_gp, r), p_gp + _mv(r_gp, p)
+            rotations.append(r)
+            positions.append(p)
+        return TreePoses(torch.cat(rotations)[self.assemble], torch.cat(positions)[self.assemble])
+
+    def ground_axes(self, poses: TreePoses, frames: JointFrames) -> GroundAxes:
+        """Every moving axis in ground orientation (R_GF W_k, R_GF b_m; R_GF = R_GP R_PF) and the joint centres."""
+        ground = self.eye.expand(3, 3, poses.rotations.shape[-1])[None]
+        r_gf = _mm(torch.cat([poses.rotations, ground])[self.parent], self.r_pf)
+        rotation = _mv(r_gf[self.rotation_body], frames.rotation_axes)
+        translation = _mv(r_gf[self.translation_body], self.translation_units)
+        centers = poses.positions + _mv(poses.rotations, self.p_bm)
+        return GroundAxes(rotation, translation, centers)
+
+    def subspace(self, axes: GroundAxes, slopes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Motion subspace column of every coordinate in ground orientation, about its joint centre: angular and
+        linear parts [n_q, 3, N] (`motion_subspace`'s columns, rotated to ground and taken at M)."""
+        angular = _over(self.rotation_columns, axes.rotation * slopes[self.rotation, None, :])
+        linear = _over(self.translation_columns, axes.translation * slopes[self.translation, None, :])
+        return angular, linear
+
+
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    x, y, z = v.unbind(-1)
+    zero = torch.zeros_like(x)
+    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
+                        torch.stack([-y, x, zero], -1)], -2)
+
+
+def _requires_grad(obj, depth: int = 0) -> bool:
+    """Whether any tensor of a model's kinematic and inertial data (joints, axes, functions) requires grad."""
+    if isinstance(obj, torch.Tensor):
+        return obj.requires_grad
+    if depth > 8:
+        return False
+    if isinstance(obj, (tuple, list)):
+        return any(_requires_grad(o, depth + 1) for o in obj)
+    if isinstance(obj, BodyModel):
+        return _requires_grad((obj.masses, obj.coms, obj.inertias, obj.gravity, obj.joints), depth + 1)
+    if dataclasses.is_dataclass(obj) or hasattr(obj, "__dict__"):
+        return any(_requires_grad(v, depth + 1) for v in vars(obj).values())
+    return False
+
+
+@contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """Run the enclosed code with ``count`` torch intra-op threads, restoring the previous number after.
+
+    The batched kinematics and dynamics are many small operations; on a 2-core or busy machine one thread per
+    process is fastest (docs/results/dynamics.md), and batches of trials scale over processes instead. Changes
+    process-wide state while active: not for use from several Python threads at once.
+    """
+    previous = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _check(model: BodyModel, q: torch.Tensor) -> None:
