@@ -201,7 +201,7 @@ class Motion(_Series):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "times", np.asarray(self.times, dtype=float))
-        object.__setattr__(self, "values", np.asarray(self.values, dtype=float))
+        object.__setattr__(self, "values", np.ascontiguousarray(self.values, dtype=float))
         object.__setattr__(self, "names", tuple(self.names))
         if self.mask is None:
             object.__setattr__(self, "mask", np.ones(len(self.names), dtype=bool))
@@ -301,7 +301,7 @@ class Markers(_Series):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "times", np.asarray(self.times, dtype=float))
-        object.__setattr__(self, "positions", np.asarray(self.positions, dtype=float))
+        object.__setattr__(self, "positions", np.ascontiguousarray(self.positions, dtype=float))
         object.__setattr__(self, "names", tuple(self.names))
         if self.positions.ndim != 3 or self.positions.shape[1:] != (len(self.names), 3):
             raise DataFormatError(None, f"positions shape {self.positions.shape} does not match "
@@ -358,7 +358,7 @@ class GroundReaction(_Series):
         object.__setattr__(self, "times", np.asarray(self.times, dtype=float))
         object.__setattr__(self, "names", tuple(self.names))
         for name in ("force", "cop", "moment"):
-            array = np.asarray(getattr(self, name), dtype=float)
+            array = np.ascontiguousarray(getattr(self, name), dtype=float)
             object.__setattr__(self, name, array)
             if array.ndim != 3 or array.shape[1:] != (len(self.names), 3):
                 raise DataFormatError(None, f"{name} shape {array.shape} does not match [T, {len(self.names)}, 3]")
