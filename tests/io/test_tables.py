@@ -61,3 +61,18 @@ def test_bad_tables(tmp_path):
     implausible.write_text("subject_id,sex,age_years,height_m,mass_kg\ns1,M,30,180,70\n")
     with pytest.raises(DataFormatError, match="height"):
         read_subject_table(implausible)
+
+
+def test_ansur_and_schreiber_source_tables():
+    """anthropometry/SOURCE.md: 4082 men and 1986 women; mean stature 1756 / 1629 mm, mass 85.5 / 67.8 kg."""
+    import numpy as np
+
+    for name, count, stature, mass in (("MALE", 4082, 1.756, 85.5), ("FEMALE", 1986, 1.629, 67.8)):
+        profiles = read_subject_table(data_path(f"anthropometry/ANSUR_II_{name}_Public.csv"))
+        assert len(profiles) == count
+        assert np.mean([p.height for p in profiles.values()]) == pytest.approx(stature, abs=0.002)
+        assert np.mean([p.mass for p in profiles.values()]) == pytest.approx(mass, abs=0.1)
+        assert "trochanterionheight" in next(iter(profiles.values())).extra
+    source = read_subject_table(data_path("SchreiberMoissenet2019/anthropometrics_source.csv"))
+    assert len(source) == 50 and source["2014001"].height == pytest.approx(1.66)
+    assert {p.sex for p in source.values()} == {"M", "F"}  # 'W' in the source means a woman

@@ -5,7 +5,9 @@ Schemas known out of the box (``mapping="auto"`` picks by the header):
   so rows repeat per subject; ``Experience`` is in months; injury as ``InjuryLoc``/``Diagnostic``/``InjuryOnDate``).
 - ``motus``: the movement-screen "Subject Log.xlsx" (Subject ID, Age, Gender, Height (cm), Mass (kg), Level, Sport,
   Injury 1..5).
-- ``simple``: ``subject_id, sex, age_years, height_m, mass_kg`` (the SchreiberMoissenet2019 and Hamner2013 tables).
+- ``simple``: ``subject_id, sex, age_years, height_m, mass_kg`` (the SchreiberMoissenet2019 and Hamner2013 tables);
+- ``schreiber``: the original Schreiber & Moissenet ``anthropometrics_source.csv`` (gender M/W);
+- ``ansur-*``: ANSUR II public release (latin-1, stature in mm, mass in tenths of a kg).
 Other tables can pass their own `ColumnMapping`.
 """
 
@@ -118,7 +120,39 @@ SIMPLE = ColumnMapping(
     signature=("subject_id", "mass_kg"),
 )
 
-MAPPINGS = {m.name: m for m in (FUKUCHI, MOTUS, SIMPLE)}
+SCHREIBER_SOURCE = ColumnMapping(
+    name="schreiber",
+    subject_column="subjectID",
+    fields={"age": ("age", _number), "sex": ("gender", _sex), "height": ("height", _number),
+            "mass": ("mass", _number)},
+    signature=("subjectID", "gender", "age", "height", "mass", "rightLegLength"),
+)
+
+
+def _ansur_id(row: dict[str, Any]) -> str:
+    return str(row.get("subjectid") or row.get("SubjectId"))
+
+
+def _ansur_mapping(id_column: str) -> ColumnMapping:
+    """ANSUR II public release: stature in mm, ``weightkg`` in tenths of a kilogram (anthropometry/SOURCE.md);
+    the 93 body measures stay in ``extra`` (mm) for scaling."""
+    return ColumnMapping(
+        name=f"ansur-{id_column}",
+        subject_column=id_column,
+        fields={"age": ("Age", _number), "sex": ("Gender", _sex),
+                "height": ("stature", lambda v: None if _number(v) is None else _number(v) / 1000.0),
+                "mass": ("weightkg", lambda v: None if _number(v) is None else _number(v) / 10.0),
+                "dominance": ("WritingPreference", lambda v: None if _text(v) is None else
+                              {"Right hand": "R", "Left hand": "L"}.get(_text(v)))},
+        subject_id=_ansur_id,
+        signature=(id_column, "stature", "weightkg", "Gender"),
+    )
+
+
+ANSUR_MALE = _ansur_mapping("subjectid")      # the male file names its id column 'subjectid' ...
+ANSUR_FEMALE = _ansur_mapping("SubjectId")    # ... the female file 'SubjectId'
+
+MAPPINGS = {m.name: m for m in (FUKUCHI, MOTUS, SIMPLE, SCHREIBER_SOURCE, ANSUR_MALE, ANSUR_FEMALE)}
 
 
 def _read_rows(path: Path) -> tuple[list[str], list[dict[str, Any]]]:
