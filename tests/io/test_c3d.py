@@ -148,7 +148,17 @@ def test_axes_rotate_markers_and_forces_alike():
 RATE, RATIO = 100.0, 10
 
 
-def _write(path, *, labels, points, analogs=None, units="mm", plates=(), extra=()):
+def _write(path, **kwargs):
+    """`_write_c3d` in a fresh interpreter: ezc3d's SWIG overloads for parameter values can resolve wrongly once
+    other SWIG-wrapped libraries (opensim) share the process, which made writing fail only in some test orders."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(_write_c3d, path, **kwargs).result()
+
+
+def _write_c3d(path, *, labels, points, analogs=None, units="mm", plates=(), extra=()):
     """A C3D written by ezc3d: points [3, M, T] in ``units``, analogs [C, T * RATIO], plates as parameter dicts."""
     c3d = ezc3d.c3d()
     parameters = c3d["parameters"]
