@@ -71,11 +71,12 @@ def model_motion(motion: Motion, model: BodyModel) -> Motion:
 
 
 def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
-                   threshold: float = 20.0) -> GroundReaction:
+                   threshold: float = 1.0) -> GroundReaction:
     """Per-foot loads from plate channels: at every frame each loaded plate goes to the foot whose contact
     points are nearest its centre of pressure (DESIGN.md: plates to feet, per contact, automatically).
 
-    A plate loaded by both feet at once cannot be split and goes to the nearer foot.
+    A plate loaded by both feet at once cannot be split and goes to the nearer foot. Loads above ``threshold``
+    (N, vertical) with a defined centre of pressure are applied: light loads still move the torques.
     """
     points = foot_points(model)
     same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
@@ -105,6 +106,15 @@ def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, ti
                           bodies=bodies)
 
 
+def loads_on_frames(forces: GroundReaction, times: np.ndarray) -> GroundReaction:
+    """Loads whose bodies are already known (e.g. from an ExternalLoads file), on the motion's frames; no load
+    outside the recording."""
+    same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
+    sampled = forces if same_clock else forces.at(times)
+    return GroundReaction(times=times, names=sampled.names, force=np.nan_to_num(sampled.force), cop=sampled.cop,
+                          moment=np.nan_to_num(sampled.moment), bodies=sampled.bodies)
+
+
 def _loads(forces: GroundReaction, dtype: torch.dtype) -> list[ExternalLoad]:
     return [ExternalLoad(forces.bodies[j] or f"calcn_{forces.names[j]}",
                          torch.tensor(forces.force[:, j], dtype=dtype),
@@ -121,7 +131,8 @@ def _as_ground_reaction(inferred: InferredForces, times: np.ndarray) -> GroundRe
 
 def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = None, *, cutoff_hz: float = 6.0,
             contact: ContactSettings = ContactSettings()) -> Analysis:
-    """Torques, GRF (inferred always; measured plates assigned to feet when given), COM, ZMP and energy."""
+    """Torques, GRF (inferred always; measured plates assigned to feet when given, or applied to the bodies they
+    name when every channel has one), COM, ZMP and energy."""
     coordinates = model_motion(motion, model)
     if cutoff_hz and coordinates.n_frames > 15:
         coordinates, qd_np, qdd_np = coordinates.smoothed(cutoff_hz)
@@ -133,7 +144,8 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
     measured = None
     with torch.no_grad():
         if forces is not None:
-            measured = assign_to_feet(forces, model, q, coordinates.times)
+            measured = (loads_on_frames(forces, coordinates.times) if all(forces.bodies)
+                        else assign_to_feet(forces, model, q, coordinates.times))
             torques = inverse_dynamics(model, q, qd, qdd, _loads(measured, model.dtype))
         else:
             torques = inferred.torques
@@ -177,8 +189,10 @@ def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 
     planted = (height < rest_tolerance) & (vertical_speed < speed)
     feet = np.array(foot_points(result.model).feet)
     keep = np.ones(result.motion.n_frames, dtype=bool)
-    for j, side in enumerate(("r", "l")):
-        keep &= ~(planted[:, feet == side].any(axis=1) & (result.measured.force[:, j, 1] < 20.0))
+    for side in ("r", "l"):
+        channels = [j for j, body in enumerate(result.measured.bodies) if str(body).endswith(f"_{side}")]
+        load = result.measured.force[:, channels, 1].sum(1)
+        keep &= ~(planted[:, feet == side].any(axis=1) & (load < 20.0))
     return keep
 
 
