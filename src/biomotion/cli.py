@@ -186,8 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run the validation checks on whatever data is under --data-root (any folder laid out like "
                     "../shared/data; absent sources are named and skipped): kinematics = forward kinematics vs "
                     "OpenSim on every model; dynamics = inverse dynamics vs OpenSim's solver and ID tool, and "
-                    "ground reaction inferred from kinematics vs force plates.")
-    validate.add_argument("what", choices=("kinematics", "dynamics"))
+                    "ground reaction inferred from kinematics vs force plates; ik = marker IK and scaling vs "
+                    "OpenSim's InverseKinematicsTool and ScaleTool.")
+    validate.add_argument("what", choices=("kinematics", "dynamics", "ik"))
     validate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
     validate.add_argument("--json", type=Path, required=True, help="report file to write")
     validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")

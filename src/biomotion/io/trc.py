@@ -95,7 +95,8 @@ def read_trc(path: str | Path) -> Markers:
 
 
 def write_trc(path: str | Path, markers: Markers, *, units: str = "m", rate: float | None = None) -> Path:
-    """Write `Markers` as a ``.trc`` file OpenSim reads; occluded samples are left empty.
+    """Write `Markers` as a ``.trc`` file OpenSim reads; occluded samples are written as ``NaN`` (OpenSim 4.6
+    rejects rows whose trailing cells are empty).
 
     ``rate`` (Hz) defaults to the markers' own; a single frame has none, so it must then be given.
     """
@@ -117,7 +118,7 @@ def write_trc(path: str | Path, markers: Markers, *, units: str = "m", rate: flo
     values = markers.positions.reshape(markers.n_frames, -1) / UNIT_SCALE[units]
     body = []
     for frame, (time, row) in enumerate(zip(markers.times, values), start=1):
-        cells = ["" if not np.isfinite(v) else repr(float(v)) for v in row]
+        cells = ["NaN" if not np.isfinite(v) else repr(float(v)) for v in row]
         body.append("\t".join([str(frame), repr(float(time)), *cells]))
     with atomic_write(path) as handle:
         handle.write("\n".join(header) + "\n" + "\n".join(body) + "\n")

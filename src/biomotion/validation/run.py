@@ -15,12 +15,15 @@ from biomotion.io.atomic import atomic_write
 SOURCES = {
     "kinematics": ("opensim-models", "fukuchi-running", "opencap/Subject4", "Hamner2013", "SchreiberMoissenet2019"),
     "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap/Subject4", "fukuchi-running/c3d"),
+    "ik": ("opensim-models/Pipelines/Gait2392_Simbody", "opensim-models/Pipelines/Rajagopal", "opencap/Subject4",
+           "fukuchi-running/c3d"),
 }
 
 
 def run_validation(what: str, data_root: Path, json_path: Path, progress: bool = True,
                    md_path: Path | None = None, command: str = "biomotion validate") -> dict:
     """Run ``what`` on ``data_root``, write the report to ``json_path`` (and tables to ``md_path``)."""
+    from biomotion.ik.validate import validate_ik
     from biomotion.validation import dynamics
 
     data_root = Path(data_root)
@@ -28,7 +31,8 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
         raise DataSourceMissing(f"data root {data_root} is not a folder")
     skipped = [f"{s} (not under {data_root})" for s in SOURCES[what] if not (data_root / s).exists()]
     started = time.perf_counter()
-    checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics}
+    checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics,
+              "ik": lambda root, progress: validate_ik(root)}
     report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
               "python": platform.python_version(), "skipped": skipped}
     report.update(checks[what](data_root, progress=progress))

@@ -1,0 +1,164 @@
+"""Marker IK and static scaling, side by side with OpenSim 4.6 on the same trials; writes docs/results/ik.md.
+
+    python benchmarks/ik.py [--data-root ../shared/data] [--repeats 3] [--threads 1] [--out docs/results/ik.md]
+
+IK: for each trial, OpenSim's ``InverseKinematicsTool`` (fresh, same model, marker weights, coordinate tasks and
+frames; logging off) and `biomotion.ik.solve_ik` read the same TRC file and write a .mot; OpenSim's ``run()`` is
+timed once, ours is the best of ``--repeats`` runs, with ``--threads`` torch threads (1 by default: OpenSim's IK
+is single-threaded). Accuracy as in `biomotion.ik.validate.compare`: per-coordinate RMSE between the two solutions
+over all frames (coordinates no tracked marker moves are listed, not scored), marker RMSE of both with the same
+forward kinematics, and the frames where one objective is lower.
+
+Scaling: ScaleTool measurement factors from every Fukuchi runner's static C3D against the shipped ScaleSets, and
+the whole static calibration (factors, marker placement, scaled .osim written) against OpenSim's ScaleTool on
+RBDS001.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import re
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+from biomotion.body.model import BodyModel
+from biomotion.ik import validate
+from biomotion.ik.scaling import scale_static, write_scaled_osim
+from biomotion.ik.setup import read_scale_setup
+from biomotion.io.atomic import atomic_write
+from biomotion.io.trc import read_trc, write_trc
+
+REPO = Path(__file__).resolve().parents[1]
+OPENCAP_TRIALS = ("walking1", "DJ1", "squats1", "STS1")
+RUNNERS = ("RBDS002", "RBDS010")
+
+
+def _cases(root: Path, repeats: int) -> dict[str, dict]:
+    cases = {"gait2392 subject01 walk1": validate.gait2392_case(root, repeats)}
+    for trial in OPENCAP_TRIALS:
+        cases[f"OpenCap Subject4 {trial}"] = validate.opencap_case(root, trial, repeats)
+    for runner in RUNNERS:
+        cases[f"Fukuchi {runner} 3.5 m/s"] = validate.fukuchi_case(root, runner, repeats)
+    cases["Rajagopal walk"] = validate.rajagopal_case(root, repeats)
+    return cases
+
+
+def _opensim_scaletool(root: Path, runner: str, folder: Path) -> float:
+    """OpenSim's ScaleTool on the runner's setup, pointed at the same static markers; seconds of ``run()``."""
+    import opensim
+
+    setup_path = root / validate.FUKUCHI / runner / f"{runner}_scaleSetup_simple.xml"
+    write_trc(folder / "static.trc", validate.fukuchi_markers(root / validate.FUKUCHI / "c3d" / f"{runner}static.c3d"),
+              units="mm")
+    text = setup_path.read_text().replace(f"{runner}\\{runner}static.trc", "static.trc").replace(
+        "..\\model\\Denton2023_LowerLimb_Fukuchi2017.osim",
+        str(root / validate.FUKUCHI / "generic-models" / "Denton2023_LowerLimb_Fukuchi2017.osim"))
+    text = re.sub(r"<output_(model|scale|motion)_file>[^<]*</output_\1_file>",
+                  lambda m: f"<output_{m.group(1)}_file>out_{m.group(1)}_{m.start()}</output_{m.group(1)}_file>", text)
+    (folder / "setup.xml").write_text(text)
+    tool = opensim.ScaleTool(str(folder / "setup.xml"))
+    began = time.perf_counter()
+    if not tool.run():
+        raise RuntimeError("OpenSim's ScaleTool failed")
+    return time.perf_counter() - began
+
+
+def _scaling(root: Path, repeats: int) -> dict:
+    base = root / validate.FUKUCHI
+    runners = sorted(p.name for p in base.iterdir() if (p / f"{p.name}_scaleSetup_simple.xml").exists()
+                     and (base / "c3d" / f"{p.name}static.c3d").exists())
+    errors = validate.scaling_errors(root, runners)
+    runner = "RBDS001"
+    generic_path = base / "generic-models" / "Denton2023_LowerLimb_Fukuchi2017.osim"
+    setup = read_scale_setup(base / runner / f"{runner}_scaleSetup_simple.xml")
+    with tempfile.TemporaryDirectory(prefix="biomotion-bench-scale-") as folder:
+        with validate.quiet_stdout():
+            opensim_seconds = _opensim_scaletool(root, runner, Path(folder))
+        seconds = float("inf")
+        for _ in range(repeats):
+            began = time.perf_counter()
+            static = read_trc(Path(folder) / "static.trc")
+            result = scale_static(BodyModel.from_osim(generic_path), static, setup)
+            write_scaled_osim(generic_path, Path(folder) / "ours.osim", result)
+            seconds = min(seconds, time.perf_counter() - began)
+    return {"runners": len(errors), "max_rel_err": max(errors.values()), "worst": max(errors, key=errors.get),
+            "seconds": seconds, "opensim_seconds": opensim_seconds,
+            "placement_rms": result.placement.ik.rmse}
+
+
+def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> str:
+    lines = [
+        "# Marker IK and static scaling vs OpenSim 4.6",
+        "",
+        f"`python benchmarks/ik.py --repeats {args.repeats} --threads {args.threads}` on {platform.machine()} "
+        f"({platform.processor() or 'CPU'}), torch {torch.__version__}, {args.threads} torch thread(s); OpenSim 4.6 "
+        f"(PyPI) in the same process, logging off. Both read the same TRC file and write a .mot; OpenSim's "
+        f"`InverseKinematicsTool.run()` timed once, ours best of {args.repeats}: reading the TRC, solving and "
+        f"writing the .mot, and in brackets the solve alone (OpenSim's reading cannot be timed apart). Machine "
+        f"shared with other work: wall times, run interleaved.",
+        "",
+        "RMSE columns: worst per-coordinate RMSE between the two solutions over all frames, over coordinates some "
+        "tracked marker moves (deg for rotations, m for translations). Marker RMSE: all visible (frame, marker) "
+        "samples of the tracked markers, both solutions through the same forward kinematics.",
+        "",
+        "| trial | frames | coords | OpenSim s | biomotion s (solve) | speed-up (solve) | RMSE deg | RMSE m "
+        "| marker RMSE m (ours / OpenSim) | frames OpenSim objective lower | coordinates over 2 deg |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---|---:|---|",
+    ]
+    for name, c in cases.items():
+        over = ", ".join(f"{k} {v['rmse']:.1f}" for k, v in c["over_bar"].items()) or "-"
+        lines.append(f"| {name} | {c['frames']} | {c['coordinates']} | {c['opensim_seconds']:.2f} | "
+                     f"{c['seconds']:.3f} ({c['solve_seconds']:.3f}) | {c['ik_speedup_vs_opensim']:.0f}x "
+                     f"({c['solve_speedup_vs_opensim']:.0f}x) | {c['ik_rmse_deg']:.2f} | "
+                     f"{c['ik_rmse_m']:.5f} | {c['ik_marker_rmse_m']:.5f} / {c['opensim_marker_rmse_m']:.5f} | "
+                     f"{c['frames_opensim_objective_lower']} | {over} |")
+    unscored = sorted({n for c in cases.values() for n in c["no_marker_moves"]})
+    lines += [
+        "",
+        f"Not scored (no tracked marker moves them; OpenSim leaves them wherever its optimizer drifts): "
+        f"{', '.join(unscored) or 'none'}.",
+        "",
+        "Coordinates over 2 deg are arm coordinates that few markers see, forearm pronation above all. There "
+        "OpenSim's assembler stops short of the minimum on a nearly flat objective (Rajagopal walk: pro_sup at "
+        "53 deg while the objective keeps falling to the 90 deg clamp, where ours ends); the column 'frames "
+        "OpenSim objective lower' counts the frames where OpenSim found a lower objective than ours.",
+        "",
+        "## Static scaling (Fukuchi runners, Denton 2023 generic model)",
+        "",
+        "| check | value |",
+        "|---|---|",
+        f"| measurement factors vs shipped ScaleSets, {scaling['runners']} runners | max relative error "
+        f"{scaling['max_rel_err']:.2e} ({scaling['worst']}) |",
+        f"| RBDS001 full static calibration (factors, placement IK, scaled .osim written) | "
+        f"{scaling['seconds']:.3f} s vs OpenSim ScaleTool {scaling['opensim_seconds']:.3f} s "
+        f"({scaling['opensim_seconds'] / scaling['seconds']:.0f}x) |",
+        f"| RBDS001 placement marker RMS | {scaling['placement_rms']:.4f} m |",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data-root", default=str(REPO.parent / "shared" / "data"))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", default=str(REPO / "docs" / "results" / "ik.md"))
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    root = Path(args.data_root)
+    cases = _cases(root, args.repeats)
+    scaling = _scaling(root, args.repeats)
+    text = _table(cases, scaling, args)
+    with atomic_write(args.out) as handle:
+        handle.write(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

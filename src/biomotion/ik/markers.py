@@ -1,0 +1,823 @@
+"""Marker inverse kinematics for every frame at once: batched, bounded Levenberg-Marquardt in torch (float64).
+
+The objective per frame is OpenSim's (Delp et al. 2007, IEEE TBME 54:1940; Seth et al. 2018, PLoS Comput Biol
+14:e1006223), as Simbody's Assembler evaluates it (``Markers::calcGoal`` and ``QValue::calcGoal``):
+
+    E(q) = sum_i w_i |x_i(q) - m_i|^2 / (2 sum_i w_i)  +  sum_j w_j (q_j - v_j)^2
+
+over the tracked markers i visible in the frame (NaN samples drop out, and so does their weight) and the
+coordinate tasks j. As in OpenSim, locked coordinates stay at their default value, coordinates driven by a
+CoordinateCouplerConstraint follow their coupler exactly (OpenSim's default ``constraint_weight`` of infinity; a
+finite weight, which makes OpenSim treat the coupler as a soft goal, is not modelled), and only clamped
+coordinates are held within their range. The unknowns z are the remaining (free) coordinates. Iterations stop on
+``tolerance`` (relative change of the objective), not on OpenSim's ``accuracy`` setting.
+
+Solver: Levenberg-Marquardt (Levenberg 1944; Marquardt 1963), every frame an independent problem in one batch
+([T, n] tensors; per-frame damping and acceptance), with a projected active set for the bounds (Bertsekas 1982,
+SIAM J Control Optim 20:221). Derivatives are analytic: each coordinate moves its joint's axes, whose ground twist
+(omega, v) gives d x / d q = omega x x + v for every marker distal to the joint (the spatial Jacobian of
+Featherstone 2008, "Rigid Body Dynamics Algorithms", ch. 4), times the axis function's slope and the chain rule
+through couplers. The Gauss-Newton normal equations are assembled from per-body 6x6 marker sums accumulated down
+the tree, as the composite-rigid-body algorithm accumulates inertias (ibid., ch. 6), so the marker Jacobian is
+never formed: the cost per frame grows with markers + bodies + coordinates^2, not markers x coordinates^2.
+
+Warm start, without a loop over frames: a coarse pass solves frames ``coarse_interval`` seconds apart, each from
+the best of a few root orientations (a multi-start over the root joint alone), then re-solves each from its
+neighbours' solutions and keeps the best; the fine pass starts every frame from the cubic-spline interpolation of
+the coarse solutions; frames left with a clearly higher cost than a neighbour, or off the line between their
+neighbours, are re-solved from the neighbours' solutions (OpenSim's frame-to-frame propagation, done in
+parallel). Unclamped angles are finally unwrapped in time, so a trajectory never jumps by 2 pi.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.interpolate
+import torch
+
+from biomotion.body.functions import Constant, Linear, Multiplier, PiecewiseCubic
+from biomotion.body.model import BodyModel
+from biomotion.errors import DataFormatError, ModelError
+from biomotion.ik.setup import CoordinateTask
+from biomotion.motion import Markers, Motion
+
+_F64 = torch.float64
+_ROOT_ITERATIONS = 10      # iterations of the root-joint multi-start (a start, not a solution)
+_COARSE_ITERATIONS = 30    # coarse pass and neighbour re-solves: starts for the fine pass, not solutions
+_COARSE_TOLERANCE = 1e-6
+_NEIGHBOUR_ITERATIONS = 10   # coarse frames re-solved from their neighbours: enough to see a better basin
+_STEP_TOLERANCE = 1e-6     # rad or m: an accepted step this small ends a frame's iterations
+
+
+# --- kinematics with analytic Jacobians -------------------------------------------------------------------------
+
+def _linear_coefficients(function, scale: float) -> tuple[float, float] | None:
+    """(slope, intercept) of ``scale * function`` when it is affine, else None."""
+    if isinstance(function, Linear):
+        return scale * function.slope, scale * function.intercept
+    if isinstance(function, Constant):
+        return 0.0, scale * function.value
+    if isinstance(function, Multiplier):
+        return _linear_coefficients(function.function, scale * float(function.scale))
+    return None
+
+
+def _spline(function, scale: float) -> tuple[PiecewiseCubic, float] | None:
+    """(piecewise cubic, scale) when ``scale * function`` is a scaled spline, else None."""
+    if isinstance(function, PiecewiseCubic):
+        return function, scale
+    if isinstance(function, Multiplier):
+        return _spline(function.function, scale * float(function.scale))
+    return None
+
+
+def _value_and_slope(function, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """f(x) and f'(x) of one of the model's functions (analytic where the function offers it, else by
+    forward-mode autograd)."""
+    if hasattr(function, "derivatives"):
+        value, slope, _ = function.derivatives(x)
+        return value, slope
+    return torch.func.jvp(function, (x,), (torch.ones_like(x),))
+
+
+class _Splines:
+    """Several scaled piecewise cubics evaluated together: x [T, S] -> values and slopes [T, S].
+
+    Same rule as `biomotion.body.functions.PiecewiseCubic`: the knot interval's cubic inside, linear beyond the
+    end knots with the end slopes."""
+
+    def __init__(self, pieces: Sequence[tuple[PiecewiseCubic, float]]) -> None:
+        width = max(p.x.numel() for p, _ in pieces)
+        inner = torch.full((len(pieces), max(width - 2, 1)), math.inf, dtype=_F64)
+        table = torch.zeros(5, len(pieces), width, dtype=_F64)   # knots, y, b, c, d
+        first, last = [], []
+        for i, (piece, scale) in enumerate(pieces):
+            n = piece.x.numel()
+            inner[i, : max(n - 2, 0)] = piece.x[1:-1].to(_F64)
+            table[0, i, :n] = piece.x.to(_F64)
+            for row, values in enumerate((piece.y, piece.b, piece.c, piece.d), start=1):
+                table[row, i, :n] = scale * values.to(_F64)
+            first.append((float(piece.x[0]), scale * float(piece.y[0]), scale * float(piece.b[0])))
+            last.append((float(piece.x[-1]), scale * float(piece.y[-1]), scale * float(piece.b[-1])))
+        self.inner = inner
+        self.flat = table.flatten(1)
+        self.offset = torch.arange(len(pieces)) * width
+        self.first = torch.tensor(first, dtype=_F64).T
+        self.last = torch.tensor(last, dtype=_F64).T
+
+    def __call__(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        k = (x[..., None] >= self.inner).sum(-1) + self.offset
+        knot, y, b, c, d = self.flat[:, k]
+        dx = x - knot
+        value = y + dx * (b + dx * (c + dx * d))
+        slope = b + dx * (2.0 * c + 3.0 * dx * d)
+        (x0, y0, b0), (x1, y1, b1) = self.first, self.last
+        below, above = x < x0, x > x1
+        value = torch.where(below, y0 + (x - x0) * b0, torch.where(above, y1 + (x - x1) * b1, value))
+        slope = torch.where(below, b0, torch.where(above, b1, slope))
+        return value, slope
+
+
+class _Kinematics:
+    """Marker positions, coordinate twists and Gauss-Newton normal equations of a `BodyModel`, for chosen markers
+    and free coordinates.
+
+    The pass is vectorised over joints: every joint's motion X_FM(q) at once, then the tree composed one depth
+    level at a time. ``joints`` restricts it to a subtree closed under parents (the root joint alone for the
+    multi-start); the markers must sit on bodies that subtree moves.
+    """
+
+    def __init__(self, model: BodyModel, markers: Sequence[int], free: Sequence[int],
+                 joints: Sequence[int] | None = None) -> None:
+        self.n_q = model.n_q
+        free = list(free)
+        self.free = torch.as_tensor(free, dtype=torch.long)
+        self.n_z = len(free)
+        self.defaults = model.defaults.to(_F64)
+        self.couplers = list(model.couplers)
+        # twist columns: the free coordinates, then the coupled ones (chain rule to z afterwards)
+        dependents = [c.dependent for c in self.couplers if c.dependent not in free]
+        self.column_of = {c: k for k, c in enumerate(free + dependents)}
+        chosen = set(model.joint_order if joints is None else joints)
+        order = [j for j in model.joint_order if j in chosen]
+        position = {j: k for k, j in enumerate(order)}
+        joint_of_body = {model.joints[j].child: position[j] for j in order}
+        n_joints = len(order)
+        self.n_joints = n_joints
+        self.parent_joint = torch.tensor([joint_of_body.get(model.joints[j].parent, n_joints) for j in order],
+                                         dtype=torch.long)  # n_joints stands for ground
+        depth: list[int] = []
+        for j in order:
+            parent = joint_of_body.get(model.joints[j].parent)
+            depth.append(0 if parent is None else depth[parent] + 1)
+        levels = [torch.tensor([k for k in range(n_joints) if depth[k] == d], dtype=torch.long)
+                  for d in range(max(depth, default=-1) + 1)]
+        self.levels = [(level, self.parent_joint[level]) for level in levels]
+        self.r_pf = torch.stack([model.joints[j].parent_rotation.to(_F64) for j in order])
+        self.p_pf = torch.stack([model.joints[j].parent_translation.to(_F64) for j in order])
+        self.r_mb = torch.stack([model.joints[j].child_rotation.to(_F64).T for j in order])
+        self.p_mb = -(self.r_mb @ torch.stack([model.joints[j].child_translation.to(_F64) for j in order])[..., None]
+                      )[..., 0]
+
+        # every transform axis: amount = slope * q + intercept, or a spline, or another function of q
+        axes, joint_of_axis, rank, slopes, intercepts, coords = [], [], [], [], [], []
+        rotation_slots = torch.full((n_joints, 3), -1, dtype=torch.long)
+        for k, j in enumerate(order):
+            n_rot = 0
+            for axis in model.joints[j].axes:
+                index = len(axes)
+                axes.append(axis)
+                joint_of_axis.append(k)
+                rank.append(n_rot if axis.rotation else -1)
+                if axis.rotation:
+                    rotation_slots[k, n_rot] = index
+                    n_rot += 1
+                slope, intercept = _linear_coefficients(axis.function, float(axis.scale)) or (0.0, 0.0)
+                slopes.append(slope)
+                intercepts.append(intercept)
+                coords.append(-1 if axis.coordinate is None else axis.coordinate)
+        self.axes = axes
+        self.axis_coord = torch.tensor(coords, dtype=torch.long)
+        self.axis_arg = self.axis_coord.clamp(min=0)
+        self.axis_slope = torch.tensor(slopes, dtype=_F64)
+        self.axis_intercept = torch.tensor(intercepts, dtype=_F64)
+        nonlinear = [a for a, axis in enumerate(axes) if _linear_coefficients(axis.function, 1.0) is None]
+        nonlinear_set = set(nonlinear)
+        splines = [(a, _spline(axes[a].function, float(axes[a].scale))) for a in nonlinear]
+        self.spline_axes = torch.tensor([a for a, piece in splines if piece is not None], dtype=torch.long)
+        self.splines = _Splines([piece for _, piece in splines if piece is not None]) if len(self.spline_axes) \
+            else None
+        self.other_axes = [a for a, piece in splines if piece is None]
+        directions = torch.stack([a.axis.to(_F64) for a in axes]) if axes else torch.zeros(0, 3, dtype=_F64)
+        is_rotation = torch.tensor([a.rotation for a in axes], dtype=torch.bool)
+        # Rodrigues' formula for every rotation axis plus a last zero axis that yields the identity
+        self.rotations = is_rotation.nonzero().squeeze(-1)
+        slot_of = {int(a): k for k, a in enumerate(self.rotations)}
+        k = torch.cat([_skew(directions[self.rotations]), torch.zeros(1, 3, 3, dtype=_F64)])
+        self.skew, self.skew2 = k, k @ k
+        self.rotation_slots = rotation_slots.apply_(lambda a: slot_of.get(a, len(slot_of)))
+        joint_of_axis = torch.tensor(joint_of_axis, dtype=torch.long)
+        rank = torch.tensor(rank, dtype=torch.long)
+        self.trans_all = (~is_rotation).nonzero().squeeze(-1)
+        self.trans_joint_all = joint_of_axis[self.trans_all]
+        self.trans_directions_all = directions[self.trans_all]
+        has_column = torch.tensor([c in self.column_of for c in coords], dtype=torch.bool)
+        self.rot_axes = (is_rotation & has_column).nonzero().squeeze(-1)
+        self.trans_axes = (~is_rotation & has_column).nonzero().squeeze(-1)
+        self.rot_joint = joint_of_axis[self.rot_axes]
+        rot_rank = rank[self.rot_axes]
+        # the k-th rotation of a joint turns about (R_1 .. R_k-1) a, grouped by k
+        self.by_rank = [((rot_rank == k).nonzero().squeeze(-1), self.rot_joint[rot_rank == k],
+                         directions[self.rot_axes][rot_rank == k]) for k in range(3)]
+        self.trans_joint = joint_of_axis[self.trans_axes]
+        self.trans_directions = directions[self.trans_axes][..., None]
+        self.twist_columns = torch.tensor([self.column_of[coords[a]] for a in
+                                           self.rot_axes.tolist() + self.trans_axes.tolist()], dtype=torch.long)
+        self.n_columns = len(self.column_of)
+
+        # markers: the joint slot of their body (n_joints for ground: they move with nothing)
+        self.markers = torch.as_tensor(list(markers), dtype=torch.long)
+        bodies = model.marker_bodies[self.markers].tolist()
+        if any(b >= 0 and b not in joint_of_body for b in bodies):
+            raise ModelError("internal: a marker sits on a body outside the evaluated joints")
+        self.on_ground = torch.tensor([b < 0 for b in bodies], dtype=torch.bool)[:, None]
+        self.marker_joint = torch.tensor([joint_of_body.get(b, 0) for b in bodies], dtype=torch.long)
+        self.marker_slot = torch.tensor([joint_of_body.get(b, n_joints) for b in bodies], dtype=torch.long)
+        self.marker_offsets = model.marker_offsets[self.markers].to(_F64)
+        # each column's joint, and ancestor[c, d]: column c's joint is d's joint or one of its ancestors
+        joint_position = [position.get(model.coordinate_joint[c]) for c in free + dependents]
+        self.column_joint = torch.tensor([j if j is not None else 0 for j in joint_position], dtype=torch.long)
+        chains = []
+        for j in joint_position:
+            chain = set()
+            while j is not None and j < n_joints:
+                chain.add(j)
+                parent = int(self.parent_joint[j])
+                j = parent if parent < n_joints else None
+            chains.append(chain)
+        self.ancestor = torch.tensor([[joint_position[c] is not None and joint_position[c] in chains[d]
+                                       for d in range(len(chains))] for c in range(len(chains))], dtype=torch.bool)
+        # free coordinates that only turn rotation axes with unit slope: a 2 pi change gives the same pose
+        independent = {c.independent for c in self.couplers}
+        self.periodic = torch.tensor([
+            not bool(model.clamped[c]) and c not in independent and any(a.coordinate == c for a in axes)
+            and all(a.rotation and abs(abs(slope) - 1.0) < 1e-12 and i not in nonlinear_set
+                    for i, (a, slope) in enumerate(zip(axes, slopes)) if a.coordinate == c)
+            for c in free], dtype=torch.bool)
+        self.task_base = torch.zeros(self.n_q, self.n_z, dtype=_F64)
+        self.task_base[self.free, torch.arange(self.n_z)] = 1.0
+        self.dependents = dependents
+
+    # coordinates ------------------------------------------------------------------------------------------------
+    def coordinates(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Full q [T, n_q] from free z [T, n_z], and d(coupled coordinates)/dz [T, n_dependents, n_z]."""
+        q = self.defaults.expand(z.shape[0], self.n_q).clone()
+        q[:, self.free] = z
+        coupled = z.new_zeros(z.shape[0], len(self.dependents), self.n_z)
+        for coupler in self.couplers:
+            value, slope = _value_and_slope(coupler.function, q[:, coupler.independent])
+            q[:, coupler.dependent] = coupler.scale_factor * value
+            if coupler.dependent not in self.dependents:
+                continue
+            row = self.dependents.index(coupler.dependent)
+            if coupler.independent in self.dependents:
+                upstream = coupled[:, self.dependents.index(coupler.independent)]
+            else:
+                upstream = self.task_base[coupler.independent].expand(z.shape[0], -1)
+            coupled[:, row] = coupler.scale_factor * slope[:, None] * upstream
+        return q, coupled
+
+    def dq_dz(self, coupled: torch.Tensor) -> torch.Tensor:
+        """[T, n_q, n_z] dq/dz: ones for the free coordinates, the couplers' chain rule for the coupled ones."""
+        out = self.task_base.expand(coupled.shape[0], -1, -1)
+        if self.dependents:
+            out = out.clone()
+            out[:, self.dependents] = coupled
+        return out
+
+    # forward kinematics -----------------------------------------------------------------------------------------
+    def _amounts(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every axis' amount (rad or m) and its slope d amount / d q[coordinate], [T, A] each."""
+        x = q[:, self.axis_arg]
+        amount = self.axis_slope * x + self.axis_intercept
+        slope = self.axis_slope.expand_as(amount)
+        if self.splines is None and not self.other_axes:
+            return amount, slope
+        slope = slope.clone()
+        if self.splines is not None:
+            value, derivative = self.splines(x[:, self.spline_axes])
+            amount[:, self.spline_axes] = value
+            slope[:, self.spline_axes] = derivative
+        for a in self.other_axes:
+            axis = self.axes[a]
+            scale = axis.scale.to(_F64)
+            value, derivative = _value_and_slope(axis.function, x[:, a])
+            amount[:, a] = scale * value
+            slope[:, a] = scale * derivative
+        return amount, slope
+
+    def evaluate(self, z: torch.Tensor, twists: bool = True) -> _Pose:
+        """Markers in ground and, with ``twists``, every column's ground twist at free coordinates z [T, n_z]."""
+        q, coupled = self.coordinates(z)
+        n, n_joints = z.shape[0], self.n_joints
+        amount, slope = self._amounts(q)
+        eye = torch.eye(3, dtype=_F64)
+        angles = torch.nn.functional.pad(amount[:, self.rotations], (0, 1))
+        sin, cos = torch.sin(angles)[..., None, None], torch.cos(angles)[..., None, None]
+        rot = eye + sin * self.skew + (1.0 - cos) * self.skew2
+        r1, r2, r3 = rot[:, self.rotation_slots].unbind(2)   # [T, J, 3, 3] each
+        r12 = r1 @ r2
+        r_fm = r12 @ r3
+        p_fm = z.new_zeros(n, n_joints, 3).index_add_(1, self.trans_joint_all,
+                                                       amount[:, self.trans_all, None] * self.trans_directions_all)
+        # child body in parent body: X_PF X_FM X_MB
+        r_pb = self.r_pf @ r_fm @ self.r_mb
+        p_pb = self.p_pf + (self.r_pf @ (p_fm + (r_fm @ self.p_mb[..., None])[..., 0])[..., None])[..., 0]
+        r_gb = z.new_empty(n, n_joints + 1, 3, 3)
+        r_gb[:, n_joints] = eye
+        p_gb = z.new_zeros(n, n_joints + 1, 3)
+        for level, parents in self.levels:
+            r_gp = r_gb[:, parents]
+            r_gb[:, level] = r_gp @ r_pb[:, level]
+            p_gb[:, level] = p_gb[:, parents] + (r_gp @ p_pb[:, level, :, None])[..., 0]
+        joint = self.marker_joint
+        x = p_gb[:, joint] + (r_gb[:, joint] @ self.marker_offsets[..., None])[..., 0]
+        x = torch.where(self.on_ground, self.marker_offsets, x)
+        if not twists:
+            return _Pose(x, q, coupled, None, None)
+        # ground twist of every axis: rotations about R_GF (R_1..R_k-1) a through the origin of M, translations
+        # along R_GF a; omega x p + v is then the velocity of a point p per unit of the axis amount
+        r_gp, p_gp = r_gb[:, self.parent_joint], p_gb[:, self.parent_joint]
+        r_gf = r_gp @ self.r_pf
+        origin = p_gp + (r_gp @ self.p_pf[..., None])[..., 0] + (r_gf @ p_fm[..., None])[..., 0]
+        local = z.new_empty(n, len(self.rot_axes), 3)
+        for (slots, joints, directions), before in zip(self.by_rank, (None, r1, r12)):
+            local[:, slots] = directions if before is None else (before[:, joints] @ directions[..., None])[..., 0]
+        u = (r_gf[:, self.rot_joint] @ local[..., None])[..., 0]
+        d = (r_gf[:, self.trans_joint] @ self.trans_directions)[..., 0]
+        k_rot, k_trans = slope[:, self.rot_axes, None], slope[:, self.trans_axes, None]
+        omega_axes = torch.cat([k_rot * u, torch.zeros_like(d)], dim=1)
+        velocity_axes = torch.cat([k_rot * torch.linalg.cross(origin[:, self.rot_joint], u, dim=-1), k_trans * d],
+                                  dim=1)
+        omega = z.new_zeros(n, self.n_columns, 3).index_add_(1, self.twist_columns, omega_axes)
+        velocity = z.new_zeros(n, self.n_columns, 3).index_add_(1, self.twist_columns, velocity_axes)
+        return _Pose(x, q, coupled, omega, velocity)
+
+    def normal_equations(self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
+                         ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Gauss-Newton H = J^T W J [T, C, C] and g = J^T W r [T, C] over the columns, without forming J.
+
+        A marker x on body b has d x / d column c = omega_c x x + v_c when c's joint is an ancestor of b (else 0).
+        Summing over markers, each body contributes twist^T G_b twist with the 6x6 G_b = sum_i w_i A_i^T A_i,
+        A_i = [-[x_i]x | I]; and the bodies below a joint add up (the composite inertia trick of Featherstone's
+        CRBA, "Rigid Body Dynamics Algorithms" ch. 6), so H_cd = twist_c^T G~_j twist_d with j the deeper of the
+        two columns' joints when one is the other's ancestor, 0 otherwise.
+        """
+        x = pose.x
+        wx = weights[..., None] * x
+        sums = torch.cat([weights[..., None], wx, (wx[..., :, None] * x[..., None, :]).flatten(-2),
+                          torch.linalg.cross(wx, residuals, dim=-1), weights[..., None] * residuals], dim=-1)
+        n = x.shape[0]
+        composite = x.new_zeros(n, self.n_joints + 1, sums.shape[-1]).index_add_(1, self.marker_slot, sums)
+        for level, parents in reversed(self.levels):
+            composite.index_add_(1, parents, composite[:, level])
+        at = composite[:, self.column_joint]                              # [T, C, 19]
+        w, s1, xx = at[..., 0:1], at[..., 1:4], at[..., 4:13].unflatten(-1, (3, 3))
+        xr, r = at[..., 13:16], at[..., 16:19]
+        omega, velocity = pose.omega, pose.velocity
+        k_omega = xx.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True) * omega - (xx @ omega[..., None])[..., 0]
+        top = k_omega + torch.linalg.cross(s1, velocity, dim=-1)
+        bottom = torch.linalg.cross(omega, s1, dim=-1) + w * velocity
+        products = omega @ top.transpose(1, 2) + velocity @ bottom.transpose(1, 2)   # [c, d]: twist_c . G~_d twist_d
+        hessian = torch.where(self.ancestor, products, torch.where(self.ancestor.T, products.transpose(1, 2),
+                                                                   torch.zeros_like(products)))
+        gradient = (omega * xr).sum(-1) + (velocity * r).sum(-1)
+        return hessian, gradient
+
+
+@dataclass(frozen=True)
+class _Pose:
+    x: torch.Tensor                    # [T, M, 3] markers in ground
+    q: torch.Tensor                    # [T, n_q]
+    coupled: torch.Tensor              # [T, n_dependents, n_z] d(coupled coordinates)/dz
+    omega: torch.Tensor | None         # [T, C, 3] angular part of each column's ground twist
+    velocity: torch.Tensor | None      # [T, C, 3] linear part (velocity of the point at the ground origin)
+
+
+def _skew(v: torch.Tensor) -> torch.Tensor:
+    x, y, z = v.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([torch.stack([o, -z, y], -1), torch.stack([z, o, -x], -1), torch.stack([-y, x, o], -1)], -2)
+
+
+# --- the least-squares problem ----------------------------------------------------------------------------------
+
+@dataclass
+class _Problem:
+    """One batch of frames: observations, weights, coordinate tasks and bounds of the free coordinates."""
+    kinematics: _Kinematics
+    observed: torch.Tensor       # [T, M, 3], zeros where occluded
+    weights: torch.Tensor        # [T, M], zero where occluded
+    task_columns: torch.Tensor   # [K] coordinate index of each task
+    task_weights: torch.Tensor   # [K]
+    task_targets: torch.Tensor   # [T, K]
+    lower: torch.Tensor          # [n_z]
+    upper: torch.Tensor          # [n_z]
+
+    def frames(self, index: torch.Tensor) -> "_Problem":
+        return _Problem(self.kinematics, self.observed[index], self.weights[index], self.task_columns,
+                        self.task_weights, self.task_targets[index], self.lower, self.upper)
+
+    def repeat(self, count: int) -> "_Problem":
+        """The same frames ``count`` times over (for multi-starts), start-major."""
+        return self.frames(torch.arange(self.observed.shape[0]).repeat(count))
+
+    @property
+    def total_weight(self) -> torch.Tensor:
+        return self.weights.sum(-1).clamp(min=1e-300)
+
+    def evaluate(self, z: torch.Tensor, derivatives: bool = True
+                 ) -> tuple[_Pose, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """(pose, S [T], H [T, n_z, n_z], g [T, n_z]) at z: S = W E is OpenSim's objective E times the frame's
+        marker weight W, i.e. half the weighted squared marker residuals plus W sum_j w_j (q_j - v_j)^2; H and g
+        are its Gauss-Newton Hessian and gradient (None without ``derivatives``)."""
+        kin = self.kinematics
+        pose = kin.evaluate(z, derivatives)
+        residuals = (pose.x - self.observed) * (self.weights > 0)[..., None]
+        total = self.total_weight
+        task_error = pose.q[:, self.task_columns] - self.task_targets
+        task_scale = 2.0 * total[:, None] * self.task_weights                       # [T, K]
+        cost = 0.5 * (self.weights * (residuals * residuals).sum(-1)).sum(-1) \
+            + 0.5 * (task_scale * task_error * task_error).sum(-1)
+        if not derivatives:
+            return pose, cost, None, None
+        h, g = kin.normal_equations(pose, self.weights, residuals)
+        n_z = kin.n_z
+        hessian, gradient = h[:, :n_z, :n_z], g[:, :n_z]
+        if kin.dependents:   # chain rule through the couplers: columns = [free | coupled]
+            f = pose.coupled                                                        # [T, D, n_z]
+            cross = h[:, :n_z, n_z:] @ f
+            hessian = hessian + cross + cross.transpose(1, 2) + f.transpose(1, 2) @ h[:, n_z:, n_z:] @ f
+            gradient = gradient + (f.transpose(1, 2) @ g[:, n_z:, None])[..., 0]
+        if len(self.task_columns):
+            rows = kin.dq_dz(pose.coupled)[:, self.task_columns]                    # [T, K, n_z]
+            hessian = hessian + rows.transpose(1, 2) @ (task_scale[..., None] * rows)
+            gradient = gradient + (rows.transpose(1, 2) @ (task_scale * task_error)[..., None])[..., 0]
+        return pose, cost, hessian, gradient
+
+
+def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int, tolerance: float,
+                         damping: float = 1e-3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+    """Minimise every frame's objective from ``z`` [T, n_z] within the bounds.
+
+    Returns (z, objective [T] (OpenSim's), converged [T], iterations). A frame is converged when the Gauss-Newton
+    model predicts, or a step makes, a change of its cost below ``tolerance`` times the cost (plus 1e-15 of the
+    marker weight), when an accepted step moves no coordinate by more than 1e-6 (rad or m), or when no damping
+    makes a step descend.
+    """
+    lower, upper = problem.lower, problem.upper
+    z = torch.maximum(torch.minimum(z, upper), lower)
+    count, n_z = z.shape
+    _, cost, hessian, gradient = problem.evaluate(z)
+    scale = problem.total_weight
+    lam = torch.full((count,), damping, dtype=_F64)
+    done = torch.zeros(count, dtype=torch.bool)
+    eye = torch.eye(n_z, dtype=_F64)
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        active = (~done).nonzero().squeeze(-1)
+        if active.numel() == 0:
+            iterations -= 1
+            break
+        za, cost_a, h, g, lam_a = z[active], cost[active], hessian[active], gradient[active], lam[active]
+        blocked = ((za <= lower + 1e-12) & (g > 0)) | ((za >= upper - 1e-12) & (g < 0))
+        keep = (~blocked).to(_F64)
+        diagonal = h.diagonal(dim1=-2, dim2=-1)
+        damped = (h * keep[:, :, None] * keep[:, None, :]
+                  + torch.diag_embed(lam_a[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True)))
+                                     * keep + (1.0 - keep)))
+        factor, info = torch.linalg.cholesky_ex(damped)
+        if bool((info > 0).any()):  # numerically indefinite: regularise those frames harder
+            bad = info > 0
+            factor[bad] = torch.linalg.cholesky(damped[bad] + eye * (1.0 + diagonal[bad].amax(-1))[:, None, None])
+        step = -torch.cholesky_solve((g * keep)[..., None], factor)[..., 0]
+        # the Gauss-Newton model's predicted decrease: frames that cannot gain more than the tolerance stop here
+        predicted = -(g * step).sum(-1) - 0.5 * (step * (h @ step[..., None])[..., 0]).sum(-1)
+        finished = (predicted <= 0.5 * tolerance * cost_a) & (lam_a < 0.1)   # not after rejections
+        done[active[finished]] = True
+        active, za, cost_a, h, g, lam_a, step = (t[~finished] for t in (active, za, cost_a, h, g, lam_a, step))
+        if active.numel() == 0:
+            break
+        trial = torch.maximum(torch.minimum(za + step, upper), lower)
+        _, cost_new, h_new, g_new = problem.frames(active).evaluate(trial)
+        accept = cost_new <= cost_a
+        small = ((cost_a - cost_new).abs() <= tolerance * cost_a + 1e-15 * scale[active]) | (
+            accept & ((trial - za).abs().amax(-1) <= _STEP_TOLERANCE))
+        z[active] = torch.where(accept[:, None], trial, za)
+        cost[active] = torch.where(accept, cost_new, cost_a)
+        hessian[active] = torch.where(accept[:, None, None], h_new, h)
+        gradient[active] = torch.where(accept[:, None], g_new, g)
+        lam[active] = torch.where(accept, (lam_a / 3.0).clamp(min=1e-12), lam_a * 8.0)
+        done[active] = small | (lam_a > 1e12)
+    return z, cost / scale, done, iterations
+
+
+# --- warm start ----------------------------------------------------------------------------------------------------
+
+def _root_candidates(model: BodyModel, kin: _Kinematics) -> torch.Tensor:
+    """Start values [S, n_root] for the root joint's free coordinates: the defaults, then a quarter or half
+    turn of one rotation at a time (within its range if clamped)."""
+    start = kin.defaults[kin.free]
+    rows = [start]
+    for k, c in enumerate(kin.free.tolist()):
+        if model.motion_types[c] != "rotational":
+            continue
+        low, high = (float(v) for v in model.ranges[c]) if bool(model.clamped[c]) else (-math.inf, math.inf)
+        for turn in (math.pi / 2, -math.pi / 2, math.pi):
+            if low <= float(start[k]) + turn <= high:
+                row = start.clone()
+                row[k] += turn
+                rows.append(row)
+    return torch.stack(rows)
+
+
+def _root_start(model: BodyModel, problem: _Problem, marker_index: Sequence[int], count: int,
+                free: Sequence[int]) -> torch.Tensor:
+    """Initial z [T, n_z]: defaults, with the root joint's free coordinates fitted to the markers on the root
+    body from several orientations (best kept per frame). Defaults alone when the root body carries fewer than
+    three tracked markers."""
+    z0 = model.defaults.to(_F64)[list(free)].expand(count, len(free)).clone()
+    roots = [j for j in model.joint_order if model.joints[j].parent < 0]
+    if not roots:
+        return z0
+    root = max(roots, key=lambda j: sum(int(model.marker_bodies[m]) == model.joints[j].child for m in marker_index))
+    body = model.joints[root].child
+    on_root = [k for k, m in enumerate(marker_index) if int(model.marker_bodies[m]) == body]
+    root_free = [c for c in model.joints[root].coordinates if c in set(free)]
+    if len(on_root) < 3 or not root_free:
+        return z0
+    kin = _Kinematics(model, [marker_index[k] for k in on_root], root_free, joints=[root])
+    candidates = _root_candidates(model, kin)
+    sub = _Problem(kin, problem.observed[:, on_root], problem.weights[:, on_root],
+                   torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=_F64),
+                   problem.task_targets.new_zeros(count, 0), problem.lower[[list(free).index(c) for c in root_free]],
+                   problem.upper[[list(free).index(c) for c in root_free]])
+    starts = candidates.repeat_interleave(count, dim=0)
+    z, cost, _, _ = _levenberg_marquardt(sub.repeat(len(candidates)), starts, _ROOT_ITERATIONS, 1e-6, damping=1e-2)
+    cost = torch.where(torch.isfinite(cost), cost, torch.full_like(cost, math.inf)).reshape(len(candidates), count)
+    z = z.reshape(len(candidates), count, -1)
+    # equal fits (equivalent Euler angles): prefer the one nearest the defaults, as a start from them would give
+    tie = cost <= cost.amin(0) * (1 + 1e-6) + 1e-12
+    distance = ((z - kin.defaults[root_free]) ** 2).sum(-1)
+    best = torch.where(tie, distance, torch.full_like(distance, math.inf)).argmin(0)
+    chosen = z[best, torch.arange(count)]
+    z0[:, [list(free).index(c) for c in root_free]] = chosen
+    return z0
+
+
+def _propagate(problem: _Problem, z: torch.Tensor, cost: torch.Tensor, max_iterations: int, tolerance: float,
+               every_frame: bool = False, rounds: int = 3, ratio: float = 1.5, jump: float = 0.1
+               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Re-solve suspect frames from each neighbour's solution and keep the best: a frame-parallel version of the
+    sequential warm start that keeps OpenSim's IK on one branch of the solutions.
+
+    Suspect are frames whose cost exceeds ``ratio`` times a neighbour's or that leave the line between their
+    neighbours by more than ``jump`` (rad or m) in some coordinate; repeats while it helps. With ``every_frame``
+    (the coarse pass, whose frames are far apart) the first round re-solves all frames, later ones only those
+    whose cost stands out.
+    """
+    count = z.shape[0]
+    if count < 2:
+        return z, cost
+    for round_ in range(rounds):
+        if every_frame and round_ == 0:
+            suspect = torch.arange(count)
+        else:
+            neighbour_cost = torch.minimum(torch.cat([cost[:1], cost[:-1]]), torch.cat([cost[1:], cost[-1:]]))
+            midpoint = 0.5 * (torch.cat([z[:1], z[:-1]]) + torch.cat([z[1:], z[-1:]]))
+            off_line = ((z - midpoint).abs().amax(-1) > jump) & (not every_frame)   # coarse: far apart
+            off_line[[0, -1]] = False
+            suspect = ((cost > ratio * neighbour_cost + 1e-12) | off_line).nonzero().squeeze(-1)
+        if suspect.numel() == 0:
+            break
+        left, right = (suspect - 1).clamp(min=0), (suspect + 1).clamp(max=count - 1)
+        from_left, from_right = suspect[left != suspect], suspect[right != suspect]
+        starts = torch.cat([left[left != suspect], right[right != suspect]])
+        frames = torch.cat([from_left, from_right])
+        z_try, cost_try, _, _ = _levenberg_marquardt(problem.frames(frames), z[starts].clone(), max_iterations,
+                                                     tolerance)
+        improved = False
+        for part in (slice(0, len(from_left)), slice(len(from_left), None)):   # each side holds a frame once
+            target = frames[part]
+            better = cost_try[part] < cost[target] * (1 - 1e-9)
+            z[target[better]] = z_try[part][better]
+            cost[target[better]] = cost_try[part][better]
+            improved |= bool(better.any())
+        if not improved:
+            break
+    return z, cost
+
+
+# --- public API ----------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class IKResult:
+    """Marker IK of a trial.
+
+    Attributes:
+        motion: every model coordinate (CoordinateSet order, SI units) at the solved frames.
+        marker_names: the tracked markers (in the model and the data, weight > 0).
+        weights: [M] their weights.
+        errors: [T, M] distance between model and experimental marker (m), NaN where occluded.
+        cost: [T] OpenSim's IK objective at the solution.
+        converged: [T] whether the solver met its tolerance.
+        iterations: solver iterations of the final pass.
+    """
+    motion: Motion
+    marker_names: tuple[str, ...]
+    weights: np.ndarray
+    errors: np.ndarray
+    cost: np.ndarray
+    converged: np.ndarray
+    iterations: int
+
+    def rms(self) -> np.ndarray:
+        """[T] marker error RMS per frame over the visible tracked markers (what OpenSim's IK tool logs)."""
+        with np.errstate(invalid="ignore"):
+            return np.sqrt(np.nanmean(self.errors ** 2, axis=1))
+
+    def max_error(self) -> np.ndarray:
+        """[T] largest marker error per frame."""
+        return np.nanmax(self.errors, axis=1)
+
+    @property
+    def rmse(self) -> float:
+        """Marker RMS error over every visible (frame, marker) sample (m)."""
+        return float(np.sqrt(np.nanmean(self.errors ** 2)))
+
+
+def within(markers: Markers, time_range: tuple[float, float]) -> Markers:
+    """The frames with ``start <= t <= end``; a `DataFormatError` naming the field when there is none."""
+    start, end = time_range
+    if not np.any((markers.times >= start - 1e-9) & (markers.times <= end + 1e-9)):
+        raise DataFormatError(None, f"no marker frame within time range {start}-{end} s (the markers span "
+                                    f"{markers.times[0]}-{markers.times[-1]} s)", field="time_range")
+    return markers.slice(start, end)
+
+
+def tracked_markers(model: BodyModel, markers: Markers, weights: Mapping[str, float] | None
+                    ) -> tuple[list[int], list[int], np.ndarray]:
+    """(model marker indices, data marker indices, weights) of the markers IK tracks: in the model and in the
+    data with a positive weight; ``weights=None`` tracks every such marker with weight 1."""
+    data = {name: i for i, name in enumerate(markers.names)}
+    model_index, data_index, w = [], [], []
+    for m, name in enumerate(model.marker_names):
+        weight = 1.0 if weights is None else float(weights.get(name, 0.0))
+        if name in data and weight > 0:
+            model_index.append(m)
+            data_index.append(data[name])
+            w.append(weight)
+    return model_index, data_index, np.asarray(w, dtype=float)
+
+
+def _task_targets(model: BodyModel, tasks: Sequence[CoordinateTask], times: np.ndarray,
+                  coordinate_data: Motion | None) -> tuple[list[int], list[float], np.ndarray]:
+    columns, weights, targets = [], [], []
+    for task in tasks:
+        if task.weight <= 0:
+            continue
+        c = model.coordinate_index(task.name)
+        if task.value_type == "default_value":
+            target = np.full(times.shape, float(model.defaults[c]))
+        elif task.value_type == "manual_value":
+            target = np.full(times.shape, task.value)
+        else:
+            if coordinate_data is None or task.name not in coordinate_data.names:
+                raise DataFormatError(None, f"coordinate task {task.name!r} takes its value from a coordinates "
+                                            f"file, but no coordinate data with that column was given",
+                                      field=task.name)
+            target = np.interp(times, coordinate_data.times, coordinate_data[task.name])
+        columns.append(c)
+        weights.append(task.weight)
+        targets.append(target)
+    stacked = np.stack(targets, axis=1) if targets else np.zeros((times.size, 0))
+    return columns, weights, stacked
+
+
+def free_coordinates(model: BodyModel) -> list[int]:
+    """Coordinates IK solves for: neither locked nor driven by a coupler."""
+    dependent = {c.dependent for c in model.couplers}
+    return [c for c in range(model.n_q) if not bool(model.locked[c]) and c not in dependent]
+
+
+@dataclass(frozen=True)
+class _Setup:
+    model: BodyModel
+    markers: Markers
+    problem: _Problem
+    free: list[int]
+    model_index: list[int]
+    weights: np.ndarray
+    positions: torch.Tensor   # [T, M, 3] with NaN
+
+
+def _setup(model: BodyModel, markers: Markers, weights: Mapping[str, float] | None,
+           coordinate_tasks: Sequence[CoordinateTask], coordinate_data: Motion | None,
+           time_range: tuple[float, float] | None) -> _Setup:
+    model = model.to(_F64)
+    if time_range is not None:
+        markers = within(markers, time_range)
+    model_index, data_index, w = tracked_markers(model, markers, weights)
+    if not model_index:
+        raise DataFormatError(None, "no marker is both in the model and tracked in the data (check names and "
+                                    "weights)", field="markers")
+    free = free_coordinates(model)
+    if not free:
+        raise ModelError(f"model {model.name!r} has no free coordinate to solve for")
+    positions = torch.as_tensor(markers.positions[:, data_index], dtype=_F64)
+    visible = torch.isfinite(positions).all(-1)
+    observed = torch.where(visible[..., None], positions, torch.zeros_like(positions))
+    columns, task_w, targets = _task_targets(model, coordinate_tasks, markers.times, coordinate_data)
+    clamped = model.clamped[free]
+    infinite = torch.full((len(free),), math.inf, dtype=_F64)
+    lower = torch.where(clamped, model.ranges[free, 0].to(_F64), -infinite)
+    upper = torch.where(clamped, model.ranges[free, 1].to(_F64), infinite)
+    problem = _Problem(_Kinematics(model, model_index, free), observed, torch.as_tensor(w, dtype=_F64) * visible,
+                       torch.tensor(columns, dtype=torch.long), torch.tensor(task_w, dtype=_F64),
+                       torch.as_tensor(targets, dtype=_F64), lower, upper)
+    return _Setup(model, markers, problem, free, model_index, w, positions)
+
+
+def _result(setup: _Setup, z: torch.Tensor, converged: torch.Tensor, iterations: int) -> IKResult:
+    pose, cost, _, _ = setup.problem.evaluate(z, derivatives=False)
+    errors = torch.linalg.vector_norm(pose.x - setup.positions, dim=-1).numpy()
+    motion = Motion(times=setup.markers.times, names=setup.model.coordinate_names, values=pose.q.numpy())
+    return IKResult(motion, tuple(setup.model.marker_names[m] for m in setup.model_index), setup.weights, errors,
+                    (cost / setup.problem.total_weight).numpy(), converged.numpy(), iterations)
+
+
+def solve_ik(model: BodyModel, markers: Markers, *, weights: Mapping[str, float] | None = None,
+             coordinate_tasks: Sequence[CoordinateTask] = (), coordinate_data: Motion | None = None,
+             time_range: tuple[float, float] | None = None, tolerance: float = 1e-8, max_iterations: int = 100,
+             coarse_interval: float = 0.1, initial: Motion | None = None) -> IKResult:
+    """Marker IK of every frame of ``markers`` (within ``time_range``) on ``model``.
+
+    Args:
+        weights: marker name -> weight (an IK setup's `IKSetup.marker_weights`); markers not named are not
+            tracked. None tracks every model marker present in the data with weight 1.
+        coordinate_tasks: coordinate tasks (`IKSetup.coordinate_tasks`); ``from_file`` ones read
+            ``coordinate_data``.
+        time_range: (start, end) seconds, inclusive, as OpenSim's ``time_range``; default all frames.
+        tolerance: relative change of a frame's objective at which its iterations stop.
+        coarse_interval: spacing (s) of the coarse warm-start pass.
+        initial: a starting motion (any coordinate names; missing ones start at defaults) instead of the
+            warm-start passes.
+    """
+    setup = _setup(model, markers, weights, coordinate_tasks, coordinate_data, time_range)
+    problem, free, count = setup.problem, setup.free, setup.markers.n_frames
+    if initial is not None:
+        z = _start_from(setup, initial)
+    else:
+        stride = max(1, int(round(coarse_interval * setup.markers.rate))) if count > 1 else 1
+        coarse = torch.unique(torch.cat([torch.arange(0, count, stride), torch.tensor([count - 1])]))
+        sub = problem.frames(coarse)
+        z_coarse = _root_start(setup.model, sub, setup.model_index, len(coarse), free)
+        z_coarse, cost_coarse, _, _ = _levenberg_marquardt(sub, z_coarse, _COARSE_ITERATIONS, _COARSE_TOLERANCE,
+                                                           damping=1e-2)
+        z_coarse, _ = _propagate(sub, z_coarse, cost_coarse, _NEIGHBOUR_ITERATIONS, _COARSE_TOLERANCE,
+                                 every_frame=True)
+        z = _interpolate(coarse, z_coarse, count)
+    z, cost, converged, iterations = _levenberg_marquardt(problem, z, max_iterations, tolerance)
+    z, _ = _propagate(problem, z, cost, min(max_iterations, _COARSE_ITERATIONS), tolerance)
+    return _result(setup, _unwrap(z, problem.kinematics.periodic, setup.model.defaults[free]), converged, iterations)
+
+
+def _unwrap(z: torch.Tensor, periodic: torch.Tensor, defaults: torch.Tensor) -> torch.Tensor:
+    """Remove 2 pi jumps between frames from the periodic coordinates (same poses), and bring each such
+    trajectory's mean within pi of the coordinate's default."""
+    if not bool(periodic.any()):
+        return z
+    columns = periodic.nonzero().squeeze(-1)
+    angles = torch.as_tensor(np.unwrap(z[:, columns].numpy(), axis=0), dtype=_F64)
+    turns = torch.round((angles.mean(0) - defaults[columns].to(_F64)) / (2 * math.pi))
+    z = z.clone()
+    z[:, columns] = angles - 2 * math.pi * turns
+    return z
+
+
+def evaluate_ik(model: BodyModel, markers: Markers, motion: Motion, *, weights: Mapping[str, float] | None = None,
+                coordinate_tasks: Sequence[CoordinateTask] = (), coordinate_data: Motion | None = None,
+                time_range: tuple[float, float] | None = None) -> IKResult:
+    """The IK objective and marker errors of a given ``motion`` (e.g. another solver's), without solving.
+
+    The motion's free coordinates are interpolated at the marker times; locked coordinates are taken at their
+    defaults and coupled ones from their couplers, as `solve_ik` would have them.
+    """
+    setup = _setup(model, markers, weights, coordinate_tasks, coordinate_data, time_range)
+    count = setup.markers.n_frames
+    return _result(setup, _start_from(setup, motion), torch.zeros(count, dtype=torch.bool), 0)
+
+
+def _start_from(setup: _Setup, motion: Motion) -> torch.Tensor:
+    start = motion.select(setup.model.coordinate_names)
+    values = [np.interp(setup.markers.times, start.times, start.values[:, c]) if start.mask[c]
+              else np.full(setup.markers.n_frames, float(setup.model.defaults[c])) for c in setup.free]
+    return torch.as_tensor(np.stack(values, axis=1), dtype=_F64)
+
+
+def _interpolate(frames: torch.Tensor, values: torch.Tensor, count: int) -> torch.Tensor:
+    """Cubic-spline interpolation [count, n] of ``values`` [K, n] known at increasing frame indices ``frames``
+    (linear with fewer than four known frames)."""
+    if frames.numel() == 1:
+        return values.expand(count, -1).clone()
+    t = np.arange(count, dtype=float)
+    known = frames.numpy().astype(float)
+    if frames.numel() < 4:
+        out = np.stack([np.interp(t, known, column) for column in values.numpy().T], axis=1)
+    else:
+        out = scipy.interpolate.CubicSpline(known, values.numpy(), axis=0)(t)
+    return torch.as_tensor(out, dtype=_F64)
