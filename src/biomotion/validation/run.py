@@ -32,7 +32,7 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
     skipped = [f"{s} (not under {data_root})" for s in SOURCES[what] if not (data_root / s).exists()]
     started = time.perf_counter()
     checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics,
-              "ik": lambda root, progress: validate_ik(root)}
+              "ik": lambda root, progress: validate_ik(root, opencap_trials=("all",), runners=10**6)}
     report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
               "python": platform.python_version(), "skipped": skipped}
     report.update(checks[what](data_root, progress=progress))
