@@ -36,6 +36,11 @@ def test_walking_torques_with_plates_assigned_to_feet(tmp_path, subject4):
         assert (tmp_path / name).stat().st_size > 1000
     grf = read_ground_reaction(tmp_path / "grf_inferred.mot")
     assert grf.names == ("ground_force_r", "ground_force_l")
+    osim = pytest.importorskip("opensim")
+    for name in ("torques.sto", "com_zmp.sto", "grf_inferred.mot", "coordinates_filtered.mot"):
+        assert osim.TimeSeriesTable(str(tmp_path / name)).getNumRows() == figures["frames"]
+    loads = osim.ExternalLoads(str(tmp_path / "grf_inferred_loads.xml"), True)
+    assert loads.getSize() == 2 and loads.get(0).get_applied_to_body() == "calcn_r"
 
 
 def test_drop_jump_grf_from_kinematics_beats_the_com_estimate(subject4):

@@ -187,8 +187,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "../shared/data; absent sources are named and skipped): kinematics = forward kinematics vs "
                     "OpenSim on every model; dynamics = inverse dynamics vs OpenSim's solver and ID tool, and "
                     "ground reaction inferred from kinematics vs force plates; ik = marker IK and scaling vs "
-                    "OpenSim's InverseKinematicsTool and ScaleTool.")
-    validate.add_argument("what", choices=("kinematics", "dynamics", "ik"))
+                    "OpenSim's InverseKinematicsTool and ScaleTool; muscles = moment arms and static "
+                    "optimization vs OpenSim.")
+    validate.add_argument("what", choices=("kinematics", "dynamics", "ik", "muscles"))
     validate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
     validate.add_argument("--json", type=Path, required=True, help="report file to write")
     validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")

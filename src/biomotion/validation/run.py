@@ -15,6 +15,7 @@ from biomotion.io.atomic import atomic_write
 SOURCES = {
     "kinematics": ("opensim-models", "fukuchi-running", "opencap/Subject4", "Hamner2013", "SchreiberMoissenet2019"),
     "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap/Subject4", "fukuchi-running/c3d"),
+    "muscles": ("opensim-models/Models/Rajagopal", "opensim-models/Pipelines/Gait2392_Simbody"),
     "ik": ("opensim-models/Pipelines/Gait2392_Simbody", "opensim-models/Pipelines/Rajagopal", "opencap/Subject4",
            "fukuchi-running/c3d"),
 }
@@ -24,6 +25,7 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
                    md_path: Path | None = None, command: str = "biomotion validate") -> dict:
     """Run ``what`` on ``data_root``, write the report to ``json_path`` (and tables to ``md_path``)."""
     from biomotion.ik.validate import validate_ik
+    from biomotion.muscles.validation import validate_muscles
     from biomotion.validation import dynamics
 
     data_root = Path(data_root)
@@ -32,7 +34,8 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
     skipped = [f"{s} (not under {data_root})" for s in SOURCES[what] if not (data_root / s).exists()]
     started = time.perf_counter()
     checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics,
-              "ik": lambda root, progress: validate_ik(root, opencap_trials=("all",), runners=10**6)}
+              "ik": lambda root, progress: validate_ik(root, opencap_trials=("all",), runners=10**6),
+              "muscles": lambda root, progress: validate_muscles(root)}
     report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
               "python": platform.python_version(), "skipped": skipped}
     report.update(checks[what](data_root, progress=progress))

@@ -1,0 +1,194 @@
+"""Static optimization, batched over frames: muscle activations that reproduce inverse-dynamics torques.
+
+Per frame (Crowninshield & Brand 1981, J Biomech 14:793; Anderson & Pandy 2001, J Biomech Eng 123:381; OpenSim's
+``StaticOptimization``):
+
+    minimise   sum_m a_m^p + sum_c x_c^p                       (p = 2: squared, p = 3: cubed activations)
+    subject to sum_m r_cm(q) F_m(q, qdot) a_m + R_c x_c = tau_c  for every balanced coordinate c
+               a_min <= a_m <= a_max,   -x_max <= x_c <= x_max
+
+with F_m the muscle force at full activation (force-length-velocity and pennation of the model's muscle type,
+rigid tendon, `biomotion.muscles.properties.max_active_force`) and x_c the control of a reserve actuator of optimal
+force R_c on coordinate c. As in OpenSim, passive fibre forces are not part of the balance (OpenSim overrides each
+muscle's whole force with a F_m), and reserves are penalised like muscles.
+
+The per-frame problem is convex with a separable objective, so it is solved in the dual (Lagrange multipliers
+lambda, one per balanced coordinate; Bertsekas 1999, "Nonlinear Programming", 6.1): for given lambda the minimiser
+of each actuator's term is w_i = clip(sign(s_i) (|s_i|/p)^(1/(p-1)), lo_i, hi_i) with s = B^T lambda, and the
+concave dual is maximised by a semismooth Newton method with a backtracking line search (Qi & Sun 1993,
+Math Program 58:353). All frames are solved together: one batched [T, C, C] linear solve per iteration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from biomotion.errors import ModelError
+from biomotion.muscles.geometry import MusclePaths
+from biomotion.muscles.properties import MuscleParameters, max_active_force
+
+
+@dataclass(frozen=True)
+class StaticOptimizationResult:
+    """Per-frame solution. ``residual`` = achieved - requested torque; ``converged`` frames meet the tolerance
+    (a frame that cannot be balanced within the bounds does not converge and keeps its last iterate)."""
+    activations: torch.Tensor       # [T, M]
+    muscle_forces: torch.Tensor     # [T, M] N along the tendon
+    reserve_controls: torch.Tensor  # [T, C]
+    reserve_torques: torch.Tensor   # [T, C] N·m or N
+    residual: torch.Tensor          # [T, C]
+    converged: torch.Tensor         # [T] bool
+    iterations: int
+    coordinate_names: tuple[str, ...] = ()
+    muscle_names: tuple[str, ...] = ()
+
+    def reserve_usage(self) -> dict[str, dict[str, float]]:
+        """Per coordinate: RMS and max |reserve torque| and the fraction of frames it is above 1 N·m (or N)."""
+        usage = {}
+        for j, name in enumerate(self.coordinate_names or range(self.reserve_torques.shape[-1])):
+            column = self.reserve_torques[:, j].abs()
+            usage[str(name)] = {"rms": float(column.pow(2).mean().sqrt()), "max": float(column.max()),
+                                "frames_over_1": float((column > 1).double().mean())}
+        return usage
+
+
+def _actuator_response(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, exponent: float,
+                       max_slope: float = 1e8) -> tuple[torch.Tensor, torch.Tensor]:
+    """argmin_{lower <= w <= upper} |w|^p - s w and its derivative with respect to s."""
+    if exponent == 2:
+        free = s / 2
+        slope = torch.full_like(s, 0.5)
+    else:
+        k = 1 / (exponent - 1)
+        magnitude = (s.abs() / exponent).clamp(min=1e-300)
+        free = torch.sign(s) * magnitude ** k
+        slope = (k / exponent * magnitude ** (k - 1)).clamp(max=max_slope)
+    inside = (free > lower) & (free < upper)
+    return torch.minimum(torch.maximum(free, lower), upper), torch.where(inside, slope, torch.zeros_like(slope))
+
+
+def _apply(b: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Batched B w: [T, C, N] x [T, N] -> [T, C] (a multiply-sum beats batched mat-vec products on CPU)."""
+    return (b * w[:, None, :]).sum(-1)
+
+
+def _apply_transposed(b: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """Batched B^T lambda: [T, C, N] x [T, C] -> [T, N]."""
+    return (b * lam[:, :, None]).sum(-2)
+
+
+def _dual_value(lam: torch.Tensor, w: torch.Tensor, s: torch.Tensor, tau: torch.Tensor, exponent: float
+                ) -> torch.Tensor:
+    return (lam * tau).sum(-1) + (w.abs() ** exponent - s * w).sum(-1)
+
+
+def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tensor, torques: torch.Tensor,
+                              reserve_optimal_force: torch.Tensor, *, exponent: float = 2.0,
+                              activation_bounds: tuple[torch.Tensor | float, torch.Tensor | float] = (0.01, 1.0),
+                              reserve_bound: float = 1.0, tolerance: float = 1e-8, max_iterations: int = 100
+                              ) -> StaticOptimizationResult:
+    """Solve the static-optimization problem of every frame at once.
+
+    moment_arms [T, M, C] (m), max_forces [T, M] (N, force at full activation), torques [T, C] (N·m or N),
+    reserve_optimal_force [C] (0 = no reserve on that coordinate); ``tolerance`` is on the torque balance in
+    N·m. Every coordinate needs at least one actuator (a muscle or a reserve).
+    """
+    if exponent <= 1:
+        raise ModelError(f"static optimization needs an exponent > 1, got {exponent}")
+    t, m, c = moment_arms.shape
+    if max_forces.shape != (t, m) or torques.shape != (t, c) or reserve_optimal_force.shape != (c,):
+        raise ModelError(f"static optimization: shapes moment_arms {tuple(moment_arms.shape)}, max_forces "
+                         f"{tuple(max_forces.shape)}, torques {tuple(torques.shape)}, reserves "
+                         f"{tuple(reserve_optimal_force.shape)} do not agree")
+    dtype = torques.dtype
+    muscle_columns = moment_arms.transpose(-1, -2) * max_forces[:, None, :]            # [T, C, M]
+    reserve_columns = torch.diag_embed(reserve_optimal_force.to(dtype)).expand(t, c, c)
+    b = torch.cat([muscle_columns, reserve_columns], -1)                                 # [T, C, M + C]
+    if bool(((b.abs().amax(-1)) == 0).any()):
+        raise ModelError("static optimization: a coordinate has neither a muscle nor a reserve acting on it")
+    lo_a, hi_a = (torch.as_tensor(v, dtype=dtype).expand(m) for v in activation_bounds)
+    lower = torch.cat([lo_a, torch.full((c,), -reserve_bound, dtype=dtype)])
+    upper = torch.cat([hi_a, torch.full((c,), reserve_bound, dtype=dtype)])
+    scale = b.abs().amax((-1, -2))                                                      # [T] N·m
+    eye = torch.eye(c, dtype=dtype)
+    damping = torch.full((t,), 1e-3, dtype=dtype)
+
+    lam = torques.new_zeros(t, c)
+    s = lam.new_zeros(t, m + c)
+    w, slope = _actuator_response(s, lower, upper, exponent)
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):
+        gradient = torques - _apply(b, w)                                  # dual ascent direction
+        imbalance = gradient.abs().amax(-1)
+        active = imbalance > tolerance
+        if not bool(active.any()):
+            break
+        # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
+        mu = damping * scale * imbalance + 1e-12 * scale ** 2
+        hessian = (b * slope[:, None, :]) @ b.transpose(-1, -2) + mu[:, None, None] * eye
+        step = torch.linalg.solve(hessian, gradient)
+        value = _dual_value(lam, w, s, torques, exponent)
+        slope_along = (gradient * step).sum(-1)
+        alpha = torch.ones(t, dtype=dtype)
+        accepted = torch.zeros(t, dtype=torch.bool)
+        new = (lam, s, w, slope)
+        for _ in range(30):  # backtracking on the concave dual; frames accept independently
+            trial = lam + alpha[:, None] * step
+            s_trial = _apply_transposed(b, trial)
+            w_trial, slope_trial = _actuator_response(s_trial, lower, upper, exponent)
+            gain = _dual_value(trial, w_trial, s_trial, torques, exponent) >= value + 1e-4 * alpha * slope_along
+            # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
+            drop = (torques - _apply(b, w_trial)).abs().amax(-1) <= 0.5 * imbalance
+            take = (gain | drop) & ~accepted & active
+            new = tuple(torch.where(take.view(-1, *([1] * (x.dim() - 1))), y, x)
+                        for x, y in zip(new, (trial, s_trial, w_trial, slope_trial)))
+            accepted = accepted | take
+            if bool(accepted[active].all()):
+                break
+            alpha = torch.where(accepted, alpha, alpha / 2)
+        lam, s, w, slope = new
+        full = accepted & (alpha == 1)
+        damping = torch.where(accepted, torch.where(full, damping / 3, damping), damping * 10).clamp(1e-9, 1e6)
+    residual = _apply(b, w) - torques
+    activations, controls = w[:, :m], w[:, m:]
+    return StaticOptimizationResult(activations, activations * max_forces, controls,
+                                    controls * reserve_optimal_force.to(dtype), residual,
+                                    residual.abs().amax(-1) <= tolerance * 10, iterations)
+
+
+def optimize_activations(paths: MusclePaths, muscles: MuscleParameters, q: torch.Tensor, qdot: torch.Tensor,
+                        torques: torch.Tensor, coordinates: tuple[str, ...] | list[str],
+                        reserves: dict[str, float] | float = 0.0, *, exponent: float = 2.0,
+                        reserve_bound: float = 1.0, tolerance: float = 1e-8, max_iterations: int = 100
+                        ) -> StaticOptimizationResult:
+    """Activations of ``paths``' muscles that balance ``torques`` [T, len(coordinates)] on ``coordinates``.
+
+    q, qdot [T, n_q] in the order of ``paths.coordinate_names`` (rad, rad/s, m, m/s); ``reserves``: optimal
+    force per coordinate name (a dict; missing names get none) or one value for all; reserve controls are bounded
+    by ``reserve_bound``. Muscle forces per unit activation come from `max_active_force`.
+    """
+    if q.shape != qdot.shape or q.shape[:-1] != torques.shape[:-1] or torques.shape[-1] != len(coordinates):
+        raise ModelError(f"static optimization: q {tuple(q.shape)}, qdot {tuple(qdot.shape)}, torques "
+                         f"{tuple(torques.shape)} for {len(coordinates)} coordinates do not agree")
+    muscles = muscles.select(paths.muscle_names)
+    lengths, arms = paths.lengths_and_moment_arms(q)
+    speeds = -(arms @ qdot[..., None])[..., 0]
+    forces = max_active_force(muscles, lengths, speeds)
+    columns = paths.select(coordinates)
+    if isinstance(reserves, dict):
+        unknown = set(reserves) - set(coordinates)
+        if unknown:
+            raise ModelError(f"reserves for coordinates that are not balanced: {sorted(unknown)}")
+        optimal = torch.tensor([float(reserves.get(n, 0.0)) for n in coordinates], dtype=q.dtype)
+    else:
+        optimal = torch.full((len(coordinates),), float(reserves), dtype=q.dtype)
+    result = solve_static_optimization(arms[..., columns], forces, torques, optimal, exponent=exponent,
+                                       activation_bounds=(muscles.min_control.to(q.dtype),
+                                                          muscles.max_control.to(q.dtype)),
+                                       reserve_bound=reserve_bound, tolerance=tolerance,
+                                       max_iterations=max_iterations)
+    return StaticOptimizationResult(result.activations, result.muscle_forces, result.reserve_controls,
+                                    result.reserve_torques, result.residual, result.converged, result.iterations,
+                                    tuple(coordinates), paths.muscle_names)

@@ -1,0 +1,77 @@
+"""Batched static optimization: exact against a reference QP solver, and against OpenSim 4.6's StaticOptimization."""
+
+import numpy as np
+import pytest
+import torch
+
+from biomotion.errors import ModelError
+from biomotion.muscles.static_optimization import solve_static_optimization
+from tests.conftest import data_path
+
+
+def _feasible_problem(frames=20, muscles=30, coordinates=6, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    arms = 0.04 * torch.randn(frames, muscles, coordinates, generator=g, dtype=torch.float64)
+    arms = arms * (torch.rand(frames, muscles, coordinates, generator=g, dtype=torch.float64) < 0.4)
+    forces = 200 + 1500 * torch.rand(frames, muscles, generator=g, dtype=torch.float64)
+    truth = 0.6 * torch.rand(frames, muscles, generator=g, dtype=torch.float64)
+    torques = torch.einsum("tmc,tm->tc", arms, forces * truth)
+    return arms, forces, torques, torch.ones(coordinates, dtype=torch.float64)
+
+
+def test_squared_activations_match_a_reference_qp_solver():
+    cvxopt = pytest.importorskip("cvxopt")
+    arms, forces, torques, reserves = _feasible_problem()
+    result = solve_static_optimization(arms, forces, torques, reserves, exponent=2)
+    assert bool(result.converged.all()) and float(result.residual.abs().max()) < 1e-7
+    cvxopt.solvers.options.update(show_progress=False, abstol=1e-12, reltol=1e-12, feastol=1e-12)
+    t, m, c = arms.shape
+    for k in range(t):
+        b = torch.cat([arms[k].T * forces[k], torch.diag(reserves)], 1).numpy()
+        n = b.shape[1]
+        bounds = np.concatenate([np.ones(n), np.r_[-0.01 * np.ones(m), np.ones(c)]])
+        solution = cvxopt.solvers.qp(cvxopt.matrix(2 * np.eye(n)), cvxopt.matrix(np.zeros(n)),
+                                     cvxopt.matrix(np.vstack([np.eye(n), -np.eye(n)])), cvxopt.matrix(bounds),
+                                     cvxopt.matrix(b), cvxopt.matrix(torques[k].numpy()))
+        x = np.array(solution["x"]).ravel()
+        np.testing.assert_allclose(result.activations[k].numpy(), x[:m], atol=1e-6)
+        np.testing.assert_allclose(result.reserve_controls[k].numpy(), x[m:], atol=1e-6)
+
+
+def test_cubed_activations_satisfy_the_kkt_conditions():
+    arms, forces, torques, reserves = _feasible_problem(seed=1)
+    result = solve_static_optimization(arms, forces, torques, reserves, exponent=3)
+    assert bool(result.converged.all())
+    a = result.activations
+    # stationarity: 3 a^2 = (B^T lambda)_m for free muscles, so a^2 / F_m lies in the span of the moment-arm
+    # columns; check by least squares that the free muscles' 3 a^2 is reproduced by some lambda
+    for k in range(4):
+        free = (a[k] > 0.0101) & (a[k] < 0.999)
+        columns = (arms[k] * forces[k][:, None])[free]                 # [free, C]
+        lam = torch.linalg.lstsq(columns, 3 * a[k][free] ** 2).solution
+        torch.testing.assert_close(columns @ lam, 3 * a[k][free] ** 2, rtol=0, atol=1e-6)
+
+
+def test_bad_shapes_and_unactuated_coordinates_are_refused():
+    arms, forces, torques, reserves = _feasible_problem(frames=2)
+    with pytest.raises(ModelError, match="shapes"):
+        solve_static_optimization(arms, forces[:, :3], torques, reserves)
+    arms[..., 0] = 0
+    with pytest.raises(ModelError, match="neither a muscle nor a reserve"):
+        solve_static_optimization(arms, forces, torques, reserves * torch.tensor([0.0, 1, 1, 1, 1, 1]))
+
+
+def test_matches_opensim_static_optimization_on_a_gait_window():
+    pytest.importorskip("opensim")
+    from biomotion.muscles.validation import gait_static_optimization, opensim_gait_static_optimization, r_squared
+
+    root = data_path("opensim-models/Pipelines/Gait2392_Simbody").parents[2]
+    reference = opensim_gait_static_optimization(root, 0.9, 1.15)
+    result, _ = gait_static_optimization(root, reference)
+    assert len(reference.times) == 16 and bool(result.converged.all())
+    ours = result.activations.numpy()[:, [result.muscle_names.index(m) for m in reference.muscle_names]]
+    error = np.abs(ours - reference.activations)
+    varying = reference.activations.std(0) > 0.02
+    r2 = r_squared(ours[:, varying], reference.activations[:, varying])
+    assert error.max() < 0.05, reference.muscle_names[int(error.max(0).argmax())]
+    assert r2.mean() > 0.95
