@@ -114,6 +114,24 @@ def _validate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _eval(args: argparse.Namespace) -> int:
+    from biomotion.errors import ConfigError
+    from biomotion.evaluation.harness import eval_command, reference_command
+
+    if args.mode == "reference":
+        if args.json is None or args.md is None:
+            raise ConfigError("eval reference needs --json FILE and --md FILE")
+        reference_command(args.data_root, args.md, args.json, physics=not args.no_physics)
+    else:
+        if not args.pred or args.json is None or args.md is None:
+            raise ConfigError("eval needs --pred PATH..., --json FILE and --md FILE")
+        single = lambda paths: paths[0] if paths and len(paths) == 1 else paths  # noqa: E731 - a folder or files
+        eval_command(single(args.pred), single(args.ref), args.data_root, args.json, args.md,
+                     plots_dir=args.plots, physics=args.physics)
+    print(f"wrote {args.json} and {args.md}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="biomotion",
@@ -195,6 +213,24 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")
     validate.add_argument("--quiet", action="store_true", help="no progress bars")
     validate.set_defaults(run=_validate)
+
+    evaluate = verbs.add_parser(
+        "eval", help="score motion with the metrics of the four papers (JSON, Markdown table, plots)",
+        description="`biomotion eval --pred PATH... [--ref PATH...]` scores predicted motion (OpenSim .mot files, "
+                    "a BVH folder, or a dataset cache) and, with --ref, compares it with reference motion "
+                    "(PG-BIG Table 2 / PhysPT Table 1 layout). `biomotion eval reference` scores every source of "
+                    "the dataset registry under --data-root per source and action: the Reference column.")
+    evaluate.add_argument("mode", nargs="?", choices=("reference",), help="score the real data (reference table)")
+    evaluate.add_argument("--pred", nargs="+", type=Path, help="predicted motion: files or one folder")
+    evaluate.add_argument("--ref", nargs="+", type=Path, help="reference motion: files or one folder")
+    evaluate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    evaluate.add_argument("--json", type=Path, help="JSON report to write")
+    evaluate.add_argument("--md", type=Path, help="Markdown table to write")
+    evaluate.add_argument("--plots", type=Path, help="folder for per-clip distribution plots")
+    evaluate.add_argument("--physics", action="store_true",
+                          help="also full-body energy and ZMP-in-support (slower)")
+    evaluate.add_argument("--no-physics", action="store_true", help="reference: skip the slower physics metrics")
+    evaluate.set_defaults(run=_eval)
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")
     inspect.add_argument("input", type=Path)

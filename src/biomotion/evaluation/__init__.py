@@ -1,0 +1,12 @@
+"""Evaluation harness: every applicable metric on generated and real clips, tables, plots and reference values
+(GitHub issue 6; the metrics themselves live in `biomotion.metrics`)."""
+
+from biomotion.evaluation.clips import ClipSet, load_clip_set
+from biomotion.evaluation.harness import (
+    eval_command,
+    evaluate,
+    reference_command,
+    reference_metrics,
+)
+
+__all__ = ["ClipSet", "eval_command", "evaluate", "load_clip_set", "reference_command", "reference_metrics"]
