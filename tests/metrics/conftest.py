@@ -8,25 +8,13 @@ import numpy as np
 import pytest
 import torch
 
+from biomotion.evaluation.clips import TRUNK_FRACTION, WINTER_SEGMENTS
 from tests.conftest import data_path
 
 WALKS = "bandai-namco/dataset-2"
 N_WALKS = 10
 FOOT_JOINTS = ("Toes_L", "Toes_R", "Foot_L", "Foot_R")
 
-# Winter (2009) "Biomechanics and Motor Control of Human Movement", 4th ed., Table 4.1: segment mass fractions and
-# COM position from the proximal joint, as (proximal, distal, mass fraction, COM fraction). The BVH has no finger
-# or head-top points, so hands and head+neck sit at their joint.
-WINTER_SEGMENTS = (
-    ("Hand_L", "Hand_L", 0.006, 0.0), ("Hand_R", "Hand_R", 0.006, 0.0),
-    ("LowerArm_L", "Hand_L", 0.016, 0.430), ("LowerArm_R", "Hand_R", 0.016, 0.430),
-    ("UpperArm_L", "LowerArm_L", 0.028, 0.436), ("UpperArm_R", "LowerArm_R", 0.028, 0.436),
-    ("Foot_L", "Toes_L", 0.0145, 0.5), ("Foot_R", "Toes_R", 0.0145, 0.5),
-    ("LowerLeg_L", "Foot_L", 0.0465, 0.433), ("LowerLeg_R", "Foot_R", 0.0465, 0.433),
-    ("UpperLeg_L", "LowerLeg_L", 0.100, 0.433), ("UpperLeg_R", "LowerLeg_R", 0.100, 0.433),
-    ("Head", "Head", 0.081, 0.0),
-)
-TRUNK_FRACTION = 0.497  # greater trochanter to glenohumeral joint, COM at 0.50
 
 
 @dataclass(frozen=True)
