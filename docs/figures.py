@@ -4,21 +4,25 @@
 
 Joint angles (OpenCap walking1 against walking2/4), inferred vs measured GRF and the COM/ZMP path come from
 `biomotion.analysis.analyze`; the activation heatmap shows OpenSim's stored CMC excitations of gait2392 subject01
-with the Rajagopal walk's EMG envelopes; the metric panel shows knee range and peak GRF over OpenCap walking trials.
+with the Rajagopal walk's EMG envelopes; the metric panel shows knee range and peak GRF over OpenCap walking trials;
+the viewer screenshot is `biomotion view` of walking1 at frame 60 in headless Chromium.
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 
-from biomotion.analysis import analyze, support_polygons
+from biomotion.analysis import analyze, support_polygons, write_analysis
 from biomotion.body.model import BodyModel
 from biomotion.io.mot import read_ground_reaction, read_motion
 from biomotion.motion import lowpass
+from biomotion.viz.browser import Page
+from biomotion.viz.viewer import view_command
 from biomotion.viz.plots import (contact_cycles, normalize_cycles, plot_activations, plot_balance,
                                  plot_ground_reaction, plot_joint_angles, plot_metric_distributions)
 
@@ -76,6 +80,16 @@ def main() -> None:
                              for t in trials]
     plot_metric_distributions({"knee flexion range (deg)": knee_range, "peak vertical GRF (N)": peak_force},
                               out / "plot_metrics")
+    scratch = Path(tempfile.mkdtemp())
+    balance = write_analysis(result, scratch)["com_zmp"]
+    viewer = view_command(subject4 / "IK/walking1_ik.mot", model=subject4 / "Models/optimized_scale_and_markers.osim",
+                          grf=subject4 / "ID/walking1_grf.mot", com_zmp=balance, out=scratch / "viewer.html",
+                          geometry=(root / "opensim-models/Geometry", root / "opensim-models/Models/Rajagopal/Geometry"))
+    with Page(1200, 700) as page:  # headless Chromium, as in the viewer's browser tests
+        page.open(viewer)
+        page.evaluate("window.viewer.ready")
+        page.evaluate("window.viewer.setFrame(60)")
+        (out / "viewer_walking.png").write_bytes(page.screenshot())
     print(f"figures written to {out}")
 
 
