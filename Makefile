@@ -30,11 +30,8 @@ SUBJECT4 := $(DATA)/opencap/Subject4
 demo: $(STAMP)
 	$(BIN)/biomotion analyze $(SUBJECT4)/IK/walking1_ik.mot \
 	    --model $(SUBJECT4)/Models/optimized_scale_and_markers.osim \
-	    --grf $(SUBJECT4)/ID/walking1_grf.mot --out demo-output/walking1
-	$(BIN)/biomotion view $(SUBJECT4)/IK/walking1_ik.mot --model $(SUBJECT4)/Models/optimized_scale_and_markers.osim \
-	    --grf $(SUBJECT4)/ID/walking1_grf.mot --com-zmp demo-output/walking1/com_zmp.sto \
-	    --geometry $(DATA)/opensim-models/Geometry --geometry $(DATA)/opensim-models/Models/Rajagopal/Geometry \
-	    --out demo-output/walking1/viewer.html
+	    --grf $(SUBJECT4)/ID/walking1_grf.mot --out demo-output/walking1 \
+	    --geometry $(DATA)/opensim-models/Geometry --geometry $(DATA)/opensim-models/Models/Rajagopal/Geometry
 	@echo "demo outputs written to demo-output/walking1 (open viewer.html in a browser)"
 
 test: $(STAMP) browser

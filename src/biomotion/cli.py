@@ -57,6 +57,23 @@ def _inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _analysis_figures(args: argparse.Namespace, result, files: dict) -> dict:
+    """The viewer and the plots `analyze` writes by default (issue 8: analysis commands write them)."""
+    from biomotion.analysis import support_polygons
+    from biomotion.viz.plots import plot_balance, plot_ground_reaction, plot_joint_angles
+    from biomotion.viz.viewer import view_command
+
+    out = {"viewer": view_command(args.trial, model=args.model, grf=args.grf, com_zmp=files["com_zmp"],
+                                  out=args.out / "viewer.html", geometry=args.geometry or ())}
+    out["plot_joint_angles"] = plot_joint_angles(result.motion, args.out / "joint_angles")[0]
+    reaction = result.measured if result.measured is not None else result.inferred
+    out["plot_grf"] = plot_ground_reaction(reaction, args.out / "grf", body_weight=result.body_weight,
+                                           inferred=result.inferred if result.measured is not None else None)[0]
+    out["plot_balance"] = plot_balance(result.com, result.zmp, args.out / "balance",
+                                       support=support_polygons(result.contact_points, result.contact_loaded))[0]
+    return out
+
+
 def _analyze(args: argparse.Namespace) -> int:
     from biomotion.analysis import analyze, summary, write_analysis
     from biomotion.body.model import BodyModel
@@ -75,6 +92,8 @@ def _analyze(args: argparse.Namespace) -> int:
             raise DataFormatError(args.grf, "holds no force-plate data")
     result = analyze(motion, model, forces, cutoff_hz=args.cutoff)
     files = write_analysis(result, args.out)
+    if not args.no_figures:
+        files.update(_analysis_figures(args, result, files))
     figures = summary(result)
     print(f"analysed {figures['frames']} frames at {figures['rate_hz']:.0f} Hz on {model.name} "
           f"({figures['body_mass_kg']:.1f} kg); torques from {figures['torques_from']} ground reaction")
@@ -175,12 +194,16 @@ def build_parser() -> argparse.ArgumentParser:
                     "filtered (--cutoff, as OpenSim's ID tool), ground reaction inferred from the kinematics "
                     "alone (always) and, with --grf, the measured plates assigned to the feet and used for the "
                     "torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
-                    "coordinates_filtered.mot and summary.json into --out.")
+                    "coordinates_filtered.mot, summary.json, viewer.html and plots (joint angles, GRF, COM/ZMP) "
+                    "into --out.")
     analyze.add_argument("trial", type=Path, help="coordinates (.mot/.sto), e.g. an IK result")
     analyze.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim model")
     analyze.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
     analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
     analyze.add_argument("--out", type=Path, required=True, help="output folder")
+    analyze.add_argument("--geometry", type=Path, action="append",
+                         help="extra folder of .vtp bone meshes for the viewer (repeatable)")
+    analyze.add_argument("--no-figures", action="store_true", help="skip viewer.html and the PNG/SVG plots")
     analyze.set_defaults(run=_analyze)
 
     view = verbs.add_parser(
