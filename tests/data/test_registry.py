@@ -88,3 +88,15 @@ def test_cli_build_on_a_subset_data_root(tmp_path, data_root):
     assert manifest["counts"]["clips"] == 2
     assert any(s.startswith("opencap") for s in manifest["skipped_sources"])
     assert main(["data", "build", "--data-root", str(tmp_path / "nothing"), "--out", str(out), "--quiet"]) == 2
+
+
+def test_percentile_bounds_are_stored_with_the_cache(cache):
+    from biomotion.metrics.bounds import PercentileBounds
+
+    assert cache.manifest["bounds"]["coordinate_speeds"] == "bounds_coordinate_speeds.json"
+    speeds = PercentileBounds.load(cache.folder / "bounds_coordinate_speeds.json")
+    knee = speeds.names.index("knee_angle_r")
+    assert speeds.low[knee] < -3.0 and speeds.high[knee] > 3.0  # running knee flexion speeds exceed 3 rad/s
+    angles = PercentileBounds.load(cache.folder / "bounds_coordinates.json")
+    hip = angles.names.index("hip_flexion_r")
+    assert -0.6 < angles.low[hip] < 0.0 < 0.4 < angles.high[hip] < 1.6   # rad: extension to flexion in gait

@@ -3,6 +3,8 @@
 Layout of a cache folder:
 - ``clips.safetensors``: ``values`` [N_frames_total, 39] float32 (SI units, canonical coordinates, all clips
   concatenated) and ``masks`` [N_clips, 39] uint8.
+- ``bounds_coordinates.json``, ``bounds_coordinate_speeds.json``: 5th/95th percentiles over the training split
+  (`biomotion.metrics.bounds.PercentileBounds`), shared by the plausibility metrics and the generator's guidance.
 - ``manifest.json``: rate, coordinate names, one record per clip (id, source, subject, split, labels, profile,
   offset and length into ``values``, start time, source file relative to the data root), counts per source,
   subject, action and split, sources skipped, and the build settings.
@@ -113,8 +115,10 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     tmp = out / f".{ARRAYS}.tmp"
     save_file(arrays, str(tmp))
     tmp.replace(out / ARRAYS)
+    bounds = _write_bounds(out, chunks, masks, records, rate)
     manifest = {
         "format": "biomotion-dataset-cache/1",
+        "bounds": bounds,
         "rate_hz": rate,
         "coordinates": list(CANONICAL_COORDINATES),
         "units": "rad for rotations, m for pelvis_tx/ty/tz; OpenSim ground frame (y up)",
@@ -127,6 +131,25 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     with atomic_write(out / MANIFEST) as handle:
         json.dump(manifest, handle, indent=1)
     return manifest
+
+
+def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], records: list[ClipRecord],
+                  rate: float) -> dict[str, str]:
+    """5th/95th percentile bounds of coordinates and coordinate speeds over the training split's clips
+    (PG-BIG Sec. 3.3, Table 1: the guidance and plausibility metrics share them); written beside the cache."""
+    from biomotion.metrics.bounds import PercentileBounds
+
+    train = [i for i, r in enumerate(records) if r.split == "train"] or list(range(len(records)))
+    values = np.concatenate([chunks[i] for i in train])
+    speeds = np.concatenate([np.gradient(chunks[i], 1.0 / rate, axis=0) if len(chunks[i]) > 1
+                             else np.full_like(chunks[i], np.nan) for i in train])
+    mask = np.concatenate([np.broadcast_to(masks[i].astype(bool), chunks[i].shape) for i in train])
+    files = {}
+    for name, array, unit in (("coordinates", values, "rad or m"), ("coordinate_speeds", speeds, "rad/s or m/s")):
+        bounds = PercentileBounds.from_samples(array, CANONICAL_COORDINATES, mask=mask, quantity=name, unit=unit)
+        bounds.save(out / f"bounds_{name}.json")
+        files[name] = f"bounds_{name}.json"
+    return files
 
 
 def _counts(records: list[ClipRecord]) -> dict:
