@@ -151,6 +151,23 @@ def _eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _retarget(args: argparse.Namespace) -> int:
+    from biomotion.body.model import BodyModel
+    from biomotion.ik.retarget import marker_files, retarget
+    from biomotion.ik.setup import read_ik_setup
+
+    weights = read_ik_setup(args.setup).marker_weights if args.setup else None
+    summaries = retarget(marker_files(args.input), BodyModel.from_osim(args.model), args.out, weights=weights,
+                         filter_hz=args.filter, progress=not args.quiet)
+    failed = [s for s in summaries if s.error]
+    for summary in summaries:
+        state = f"FAILED: {summary.error}" if summary.error else \
+            f"{summary.frames} frames, marker RMS {100 * summary.rms_error_m:.2f} cm, max {100 * summary.max_error_m:.2f} cm"
+        print(f"  {summary.trial}: {state}")
+    print(f"{len(summaries) - len(failed)} of {len(summaries)} trials retargeted -> {args.out} (summary.csv)")
+    return 2 if failed and len(failed) == len(summaries) else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="biomotion",
@@ -236,6 +253,21 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")
     validate.add_argument("--quiet", action="store_true", help="no progress bars")
     validate.set_defaults(run=_validate)
+
+    retarget = verbs.add_parser(
+        "retarget", help="marker trials (.trc, .c3d; a file or a folder) -> model coordinates (.mot) by batched IK",
+        description="Inverse kinematics of every frame at once on MODEL (weighted least squares, coordinate ranges, "
+                    "locked and coupled coordinates, occluded markers skipped per frame). Writes <trial>.mot per "
+                    "trial and summary.csv (marker RMS and max error, frames dropped); keeps going past a bad "
+                    "trial. Marker weights come from an OpenSim IK setup (--setup) or are 1 for every model "
+                    "marker found in the data.")
+    retarget.add_argument("input", type=Path, help="a .trc/.c3d file or a folder of them")
+    retarget.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim (with markers)")
+    retarget.add_argument("--setup", type=Path, help="OpenSim IK setup XML to take marker weights from")
+    retarget.add_argument("--filter", type=float, help="low-pass the markers first (Hz)")
+    retarget.add_argument("--out", type=Path, required=True, help="output folder")
+    retarget.add_argument("--quiet", action="store_true", help="no progress bar")
+    retarget.set_defaults(run=_retarget)
 
     evaluate = verbs.add_parser(
         "eval", help="score motion with the metrics of the four papers (JSON, Markdown table, plots)",
