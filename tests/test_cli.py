@@ -58,3 +58,10 @@ def test_convert_bvh_joints_to_trc(tmp_path):
     markers = read_trc(tmp_path / "walk.trc")
     assert "Toes_L" in markers.names and markers.rate == pytest.approx(30.0, rel=1e-4)
     assert 0.7 < np.nanmean(markers["Hips"][:, 1]) < 1.0
+
+
+def test_analyze_points_marker_input_to_retarget(tmp_path, capsys):
+    trc = data_path("opencap/Subject4/MarkerData/walking1.trc")
+    model = data_path("opencap/Subject4/Models/optimized_scale_and_markers.osim")
+    assert main(["analyze", str(trc), "--model", str(model), "--out", str(tmp_path)]) == 2
+    assert "biomotion retarget" in capsys.readouterr().err

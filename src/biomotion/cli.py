@@ -80,6 +80,11 @@ def _analyze(args: argparse.Namespace) -> int:
     from biomotion.io.convert import read_any
     from biomotion.io.mot import read_motion
 
+    if args.trial.suffix.lower() in (".trc", ".c3d", ".bvh", ".gz"):
+        from biomotion.errors import ConfigError
+
+        raise ConfigError(f"{args.trial}: analyze takes model coordinates (.mot/.sto); turn markers into coordinates "
+                          f"first with `biomotion retarget {args.trial} --model {args.model} --out DIR`")
     motion = read_motion(args.trial)
     model = BodyModel.from_osim(args.model)
     forces = None
