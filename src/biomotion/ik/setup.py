@@ -21,9 +21,9 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from xml.parsers import expat
 
 from biomotion.errors import DataFormatError
+from biomotion.io.xml import parse_with_lines
 
 UNASSIGNED = ("", "unassigned")
 
@@ -35,36 +35,7 @@ class _Xml:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.lines: dict[int, int] = {}
-        parser = expat.ParserCreate()
-        stack: list[ET.Element] = []
-        roots: list[ET.Element] = []
-
-        def start(tag: str, attrs: dict[str, str]) -> None:
-            elem = ET.Element(tag, attrs) if not stack else ET.SubElement(stack[-1], tag, attrs)
-            self.lines[id(elem)] = parser.CurrentLineNumber
-            if not stack:
-                roots.append(elem)
-            stack.append(elem)
-
-        def text(data: str) -> None:
-            if stack:
-                stack[-1].text = (stack[-1].text or "") + data
-
-        parser.StartElementHandler = start
-        parser.EndElementHandler = lambda tag: stack.pop()
-        parser.CharacterDataHandler = text
-        try:
-            with open(path, "rb") as handle:
-                parser.ParseFile(handle)
-        except OSError as error:
-            raise DataFormatError(path, f"cannot read: {error.strerror}") from None
-        except expat.ExpatError as error:
-            raise DataFormatError(path, f"not well-formed XML: {expat.ErrorString(error.code)}",
-                                  line=error.lineno) from None
-        if not roots:
-            raise DataFormatError(path, "empty XML document", line=1)
-        self.root = roots[0]
+        self.root, self.lines = parse_with_lines(path)
 
     def error(self, elem: ET.Element, message: str, field: str | None = None) -> DataFormatError:
         return DataFormatError(self.path, message, line=self.lines.get(id(elem)), field=field)

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import posixpath
 import xml.etree.ElementTree as ET
-from xml.parsers import expat
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Union
 
 from biomotion.errors import DataFormatError, ModelError
+from biomotion.io.xml import parse_with_lines
 
 Vec3 = tuple[float, float, float]
 
@@ -223,38 +223,10 @@ class _Doc:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.lines: dict[ET.Element, int] = {}
-        parser = expat.ParserCreate()
-        stack: list[ET.Element] = []
-        roots: list[ET.Element] = []
-
-        def start(tag: str, attrs: dict[str, str]) -> None:
-            elem = ET.Element(tag, attrs) if not stack else ET.SubElement(stack[-1], tag, attrs)
-            self.lines[elem] = parser.CurrentLineNumber
-            if not stack:
-                roots.append(elem)
-            stack.append(elem)
-
-        def end(tag: str) -> None:
-            stack.pop()
-
-        def text(data: str) -> None:
-            if stack:
-                stack[-1].text = (stack[-1].text or "") + data
-
-        parser.StartElementHandler, parser.EndElementHandler, parser.CharacterDataHandler = start, end, text
-        try:
-            with open(path, "rb") as handle:
-                parser.ParseFile(handle)
-        except expat.ExpatError as exc:
-            raise DataFormatError(path, f"not well-formed XML: {expat.ErrorString(exc.code)}",
-                                  line=exc.lineno) from exc
-        if not roots:
-            raise DataFormatError(path, "empty XML document", line=1)
-        self.root = roots[0]
+        self.root, self.lines = parse_with_lines(path)
 
     def line(self, elem: ET.Element) -> int | None:
-        return self.lines.get(elem)
+        return self.lines.get(id(elem))
 
     def model_error(self, elem: ET.Element, message: str) -> ModelError:
         line = self.line(elem)
