@@ -30,6 +30,15 @@ def _data_build(args: argparse.Namespace) -> int:
     print(f"  splits: {counts['per_split']}")
     for skipped in manifest["skipped_sources"]:
         print(f"  skipped {skipped}")
+    if args.report:
+        import shlex
+
+        from biomotion.data.registry import manifest_markdown
+        from biomotion.io.atomic import atomic_write
+
+        with atomic_write(args.report) as handle:
+            handle.write(manifest_markdown(manifest, "biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:])))
+        print(f"  counts written to {args.report}")
     return 0
 
 
@@ -195,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--out", type=Path, required=True, help="cache folder to write")
     build.add_argument("--rate", type=float, default=30.0, help="common rate in Hz (default: %(default)s)")
     build.add_argument("--source", action="append", help="only this source (repeatable); default: all present")
+    build.add_argument("--report", type=Path, help="also write the counts as a Markdown table (docs/results/)")
     build.add_argument("--quiet", action="store_true", help="no progress bar")
     build.set_defaults(run=_data_build)
     sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")

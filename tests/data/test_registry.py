@@ -100,3 +100,12 @@ def test_percentile_bounds_are_stored_with_the_cache(cache):
     angles = PercentileBounds.load(cache.folder / "bounds_coordinates.json")
     hip = angles.names.index("hip_flexion_r")
     assert -0.6 < angles.low[hip] < 0.0 < 0.4 < angles.high[hip] < 1.6   # rad: extension to flexion in gait
+
+
+def test_report_writes_the_counts(tmp_path, data_root):
+    report = tmp_path / "dataset.md"
+    assert main(["data", "build", "--data-root", str(data_root), "--out", str(tmp_path / "c"), "--quiet",
+                 "--report", str(report)]) == 0
+    text = report.read_text()
+    runners = {p.name.split("_")[0] for p in DATA_ROOT.glob("fukuchi-running/ik/T*/*_ik_simple.mot")}
+    assert f"| fukuchi | {3 * len(runners)} | {len(runners)} |" in text

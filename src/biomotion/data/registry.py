@@ -166,6 +166,21 @@ def _counts(records: list[ClipRecord]) -> dict:
     }
 
 
+def manifest_markdown(manifest: dict, command: str) -> str:
+    """Counts of a built cache as Markdown: per source, per action, per split."""
+    counts = manifest["counts"]
+    lines = [f"# Dataset cache: {counts['clips']} clips, {counts['frames']} frames at {manifest['rate_hz']:g} Hz", "",
+             f"Produced by `{command}` in {manifest['build_seconds']} s. Split rule: {manifest['split_rule']}. "
+             f"Skipped: {', '.join(manifest['skipped_sources']) or 'nothing'}.", "",
+             "| source | clips | subjects |", "|---|---|---|"]
+    lines += [f"| {s} | {n} | {counts['subjects_per_source'][s]} |" for s, n in counts["per_source"].items()]
+    lines += ["", "| source/action | clips |", "|---|---|"]
+    lines += [f"| {a} | {n} |" for a, n in counts["per_action"].items()]
+    lines += ["", "| split | clips | subjects |", "|---|---|---|"]
+    lines += [f"| {s} | {n} | {counts['subjects_per_split'].get(s, 0)} |" for s, n in counts["per_split"].items()]
+    return "\n".join(lines) + "\n"
+
+
 class DatasetCache:
     """Read access to a built cache: clips as `Motion` (canonical coordinates, masks), filtered by split/source."""
 
