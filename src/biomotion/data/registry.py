@@ -27,6 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.data.placement import place_clip
 from biomotion.data.sources import SOURCES, discover_all, forward_speed
 from biomotion.errors import BiomotionError, DataFormatError
 from biomotion.io.atomic import atomic_write
@@ -74,6 +75,17 @@ def _relative(path: Path, root: Path) -> str:
         return path.name
 
 
+PLACEMENT_MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
+
+
+def _placement_model(data_root: Path):
+    """The canonical model used to put clips on the floor, or None when the data root lacks it."""
+    from biomotion.body.model import BodyModel
+
+    path = data_root / PLACEMENT_MODEL
+    return BodyModel.from_osim(path) if path.exists() else None
+
+
 def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT_RATE,
                 sources: Iterable[str] | None = None, progress: bool = True) -> dict:
     """Build the cache in ``out`` from every source present under ``data_root``; returns the manifest.
@@ -87,6 +99,7 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     specs, skipped = discover_all(data_root, sources)
     if not specs:
         raise BiomotionError(f"no clips found under {data_root}; skipped: {'; '.join(skipped) or 'none'}")
+    model = _placement_model(data_root)
     chunks: list[np.ndarray] = []
     masks: list[np.ndarray] = []
     records: list[ClipRecord] = []
@@ -98,6 +111,9 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
         if source.overground and labels.speed is None and labels.action in ("walk", "run"):
             labels = replace(labels, speed=round(forward_speed(motion), 3))
         clip = motion.resample(rate) if abs(motion.rate - rate) > 1e-6 else motion
+        if model is not None:
+            clip = place_clip(clip, model, height=spec.profile.height,
+                              treadmill_speed=labels.speed if source.treadmill else None)
         if not np.all(np.isfinite(clip.values[:, clip.mask])):
             raise DataFormatError(spec.path, "non-finite coordinate values after resampling")
         chunks.append(clip.values.astype(np.float32))
@@ -122,6 +138,9 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
         "rate_hz": rate,
         "coordinates": list(CANONICAL_COORDINATES),
         "units": "rad for rotations, m for pelvis_tx/ty/tz; OpenSim ground frame (y up)",
+        "placement": ("pelvis translations at the generic 1.70 m size, treadmill made overground, start at the "
+                      "origin, feet on y = 0 (biomotion.data.placement)" if model is not None else
+                      f"none: {PLACEMENT_MODEL} absent from the data root, translations as recorded"),
         "split_rule": "sha256(source/subject) -> train 70 %, val 15 %, test 15 %, by subject",
         "counts": _counts(records),
         "skipped_sources": skipped,

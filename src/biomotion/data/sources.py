@@ -45,6 +45,7 @@ class Source:
     load_motion: Callable[[ClipSpec], Motion]
     description: str = ""
     overground: bool = False  # locomotion speed can be measured from the pelvis path (not on a treadmill)
+    treadmill: bool = False  # locomotion on a treadmill at the label's speed (`biomotion.data.placement`)
 
     def present(self, data_root: Path) -> bool:
         return (data_root / self.folder).is_dir()
@@ -103,7 +104,8 @@ def _fukuchi_discover(root: Path) -> list[ClipSpec]:
 FUKUCHI = register_source(Source(
     name="fukuchi", folder="fukuchi-running", discover=_fukuchi_discover,
     load_motion=lambda spec: to_canonical(read_motion(spec.path), knee_flipped=True),
-    description="Fukuchi 2017 treadmill running, OpenSim IK at 2.5/3.5/4.5 m/s (16 lower-body coordinates)"))
+    description="Fukuchi 2017 treadmill running, OpenSim IK at 2.5/3.5/4.5 m/s (16 lower-body coordinates)",
+    treadmill=True))
 
 
 # --- OpenCap Subject4: IK/<trial>_ik.mot ------------------------------------------------------------------------
@@ -171,7 +173,8 @@ def _hamner_load(spec: ClipSpec) -> Motion:
 
 HAMNER = register_source(Source(
     name="hamner", folder="Hamner2013", discover=_hamner_discover, load_motion=_hamner_load,
-    description="Hamner & Delp 2013 treadmill running at 2-5 m/s, full body with arms (37 coordinates)"))
+    description="Hamner & Delp 2013 treadmill running at 2-5 m/s, full body with arms (37 coordinates)",
+    treadmill=True))
 
 
 # --- Schreiber & Moissenet 2019 walking: <subject>/C{4,5}_xx_ik.mot ---------------------------------------------

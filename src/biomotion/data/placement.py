@@ -1,0 +1,58 @@
+"""Put every cached clip in one frame: generic body size, on the floor, overground, starting at the origin.
+
+Sources differ in ways that are not motion: labs put the floor at different heights (the Fukuchi treadmill belt is
+about 10 cm above its lab origin), treadmill runs stay in place while the belt carries the stance foot backwards,
+clips start anywhere in the room, and pelvis translations grow with the subject's size. A generator trained on the
+raw mixture would have to learn all of that as noise. Each clip's pelvis translations (only those; rotations are
+untouched) are therefore:
+
+1. scaled to the generic body: x (GENERIC_HEIGHT / height) when the subject's height is known (the Rajagopal 2016
+   model represents a 1.70 m adult, Rajagopal et al. 2016 Sec. II), so the generator scales them back for a person;
+2. made overground for treadmill clips: the belt speed times time is added along +x (the walking direction of
+   the Fukuchi and Hamner labs: without it the stance foot moves at minus the belt speed, measured in
+   ``tests/data/test_placement.py``), so the stance foot rests on the floor as it does overground;
+3. started at the origin: pelvis_tx and pelvis_tz of the first frame are 0;
+4. put on the floor: pelvis_ty is lowered so the 5th percentile over frames of the lowest foot contact point
+   (`biomotion.body.contact.foot_points` on the canonical model) is at y = 0, the absolute ground the contact
+   metrics use (PG-BIG Sec. 4.2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from biomotion.motion import Motion
+
+GENERIC_HEIGHT = 1.70  # m, the adult the Rajagopal 2016 model represents
+GROUND_PERCENTILE = 5.0
+
+
+def lowest_foot_heights(model, q: np.ndarray) -> np.ndarray:
+    """[T] height of the lowest foot contact point per frame for canonical coordinates q [T, n] (all present)."""
+    from biomotion.body.contact import foot_points
+    from biomotion.body.kinematics import forward_kinematics, points_in_ground
+
+    feet = foot_points(model)
+    with torch.no_grad():
+        poses = forward_kinematics(model, torch.from_numpy(q).to(model.dtype))
+        return points_in_ground(poses, feet.bodies, feet.offsets)[..., 1].amin(-1).numpy()
+
+
+def place_clip(motion: Motion, model, *, height: float | None, treadmill_speed: float | None) -> Motion:
+    """The clip with its pelvis translations placed as the module docstring says (canonical coordinates)."""
+    names = motion.names
+    if not all(n in names for n in ("pelvis_tx", "pelvis_ty", "pelvis_tz")):
+        return motion
+    values = motion.values.astype(np.float64, copy=True)
+    tx, ty, tz = (names.index(n) for n in ("pelvis_tx", "pelvis_ty", "pelvis_tz"))
+    if not motion.mask[[tx, ty, tz]].all():
+        return motion
+    if height is not None:
+        values[:, [tx, ty, tz]] *= GENERIC_HEIGHT / height
+    if treadmill_speed is not None:
+        values[:, tx] += treadmill_speed * (motion.times - motion.times[0])
+    values[:, [tx, tz]] -= values[:1, [tx, tz]]
+    full = np.where(motion.mask[None, :], values, model.defaults.numpy()[None, :])
+    values[:, ty] -= np.percentile(lowest_foot_heights(model, full), GROUND_PERCENTILE)
+    return motion.with_values(values.astype(motion.values.dtype))
