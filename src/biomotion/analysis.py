@@ -257,8 +257,9 @@ def support_polygons(points: np.ndarray, loaded: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_analysis(result: Analysis, out: str | Path) -> dict[str, Path]:
-    """Write the analysis files into ``out``; returns them by role."""
+def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_inferred.mot") -> dict[str, Path]:
+    """Write the analysis files into ``out`` (the inferred ground reaction as ``grf_file``, its ExternalLoads XML
+    beside it); returns them by role."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     times = result.motion.times
@@ -266,10 +267,10 @@ def write_analysis(result: Analysis, out: str | Path) -> dict[str, Path]:
         "coordinates": write_motion(out / "coordinates_filtered.mot", result.motion),
         "torques": write_storage(out / "torques.sto", torque_labels(result.model), times, result.torques,
                                  name=f"Inverse Dynamics ({result.torques_source} ground reaction)"),
-        "grf_inferred": write_ground_reaction(out / "grf_inferred.mot", result.inferred, name="grf_inferred"),
+        "grf_inferred": write_ground_reaction(out / grf_file, result.inferred, name=Path(grf_file).stem),
     }
-    files["grf_inferred_loads"] = write_external_loads_xml(out / "grf_inferred_loads.xml", result.inferred,
-                                                           "grf_inferred.mot")
+    files["grf_inferred_loads"] = write_external_loads_xml(out / f"{Path(grf_file).stem}_loads.xml", result.inferred,
+                                                           grf_file)
     if result.measured is not None:
         files["grf_measured"] = write_ground_reaction(out / "grf_measured_by_foot.mot", result.measured,
                                                       name="grf_measured_by_foot")

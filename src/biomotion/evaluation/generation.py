@@ -1,0 +1,347 @@
+"""`biomotion eval generation`: PG-BIG Tables 2-3 for our generator on subjects it never saw, plus the identity
+probe and the profile-manipulation study (Sec. 4.3-4.5, App. B.1).
+
+Protocol (few-shot, unseen subjects). The subjects of ``--data-root`` that the shipped generator was not trained
+on are evaluated (with the shared data that is the val and test splits; a folder of new people in the same layout
+makes every subject unseen). For each clip of such a subject, the *target*, the generator receives the subject's
+profile, the subject's *other* clips as references (e.g. the runs at the two other speeds) and the target's action
+label, and generates a clip as long as the target (at most ``max_seconds``). Variants, all from the same seed:
+
+- ``reference``: the real target clips;
+- ``full``: profile + references, with guidance (PG-BIG);
+- ``no_guidance``: the same sample before guidance (w/o Guidance);
+- ``no_personalization``: profile and references dropped, with guidance (w/o Personalization);
+- ``population``: the action-only prior trained with ``--population`` (same tokens), no guidance: a
+  population-level baseline of the T2M-GPT kind.
+
+Every variant is scored with the per-clip metrics of `biomotion eval` on the canonical model (contact, jerk,
+energy, joint range, ZMP in support), the paired fidelity metrics against the target (MJE, DTW fidelity, W2),
+and the share of frames x muscles whose surrogate activation leaves the training 5-95 % band (muscle-limit
+violations, PG-BIG Table 1's activation bounds). Identity probe: a logistic regression on pooled tokenizer
+latents, trained on the real *reference* clips of the unseen subjects, tested on the real targets and on each
+variant's generated targets (chance = 1 / subjects).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.errors import BiomotionError
+from biomotion.generation.actions import ActionRequest
+from biomotion.motion import Motion
+
+VARIANTS = ("reference", "full", "no_guidance", "no_personalization", "population")
+LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_guidance": "w/o Guidance",
+          "no_personalization": "w/o Personalization", "population": "Population (T2M-GPT-kind)"}
+
+
+@dataclass
+class Target:
+    """One evaluated clip: cache index, subject key, its real motion, its references' motions."""
+
+    index: int
+    subject: str
+    motion: Motion
+    references: list[Motion]
+
+
+def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float) -> list[Target]:
+    """Every clip of every subject not in ``train_subjects``, cut to ``max_seconds``, with its subject's other
+    clips as references."""
+    seen = set(train_subjects)
+    by_subject: dict[str, list[int]] = {}
+    for i, r in enumerate(cache.records):
+        key = f"{r['source']}/{r['subject']}"
+        if key not in seen and r["n_frames"] >= 8:
+            by_subject.setdefault(key, []).append(i)
+    targets = []
+    limit = int(round(max_seconds * cache.rate))
+    for subject, indices in by_subject.items():
+        for i in indices:
+            motion = cache.motion(i)
+            if motion.n_frames > limit:
+                motion = motion.frames(slice(0, limit))
+            targets.append(Target(i, subject, motion, [cache.motion(j) for j in indices if j != i]))
+    return targets
+
+
+def _request(cache, index: int) -> ActionRequest:
+    labels = cache.records[index]["labels"]
+    return ActionRequest(labels["action"], labels.get("style"), labels.get("speed"), labels.get("text") or "")
+
+
+def _motion(q: torch.Tensor, rate: float) -> Motion:
+    values = q.detach().double().numpy()
+    return Motion(times=np.arange(len(values)) / rate, values=values, names=CANONICAL_COORDINATES)
+
+
+def generate_variants(targets: list[Target], cache, generator, population, *, seed: int = 0,
+                      progress: bool = True) -> dict[str, list[Motion]]:
+    """The motions of every variant, aligned with ``targets``."""
+    out: dict[str, list[Motion]] = {v: [] for v in VARIANTS}
+    for k, t in enumerate(tqdm(targets, desc="generating", unit="clip", disable=not progress)):
+        request = _request(cache, t.index)
+        seconds = t.motion.n_frames / generator.rate
+        profile = cache.profile(t.index)
+        full = generator.generate(request, profile=profile, references=t.references, seconds=seconds, seed=seed + k)
+        generic = generator.generate(request, seconds=seconds, seed=seed + k, personalised=False)
+        baseline = population.generate(request, seconds=seconds, seed=seed + k, guidance=False)
+        out["reference"].append(t.motion)
+        out["full"].append(_motion(full.q[0], generator.rate))
+        out["no_guidance"].append(_motion(full.unguided[0], generator.rate))
+        out["no_personalization"].append(_motion(generic.q[0], generator.rate))
+        out["population"].append(_motion(baseline.q[0], generator.rate))
+    return out
+
+
+@torch.no_grad()
+def muscle_violation_share(motions: list[Motion], surrogate) -> list[float]:
+    """Per clip, the share of frames x muscles whose surrogate activation is outside the training 5-95 % band."""
+    shares = []
+    for m in motions:
+        q = torch.tensor(np.where(m.mask[None], m.values, 0.0), dtype=torch.float32)[None]
+        a = surrogate(q, torch.from_numpy(m.mask.copy())[None])
+        outside = (a > surrogate.high) | (a < surrogate.low)
+        shares.append(float(outside.float().mean()))
+    return shares
+
+
+@torch.no_grad()
+def embedding(tokenizer, motion: Motion) -> np.ndarray:
+    """Mean and std over time of the tokenizer's pre-quantisation latents (the probe's clip embedding)."""
+    n = motion.n_frames // 4 * 4
+    q = torch.tensor(np.where(motion.mask[None], motion.values[:n], 0.0), dtype=torch.float32)[None]
+    z = tokenizer.encode_continuous(q, torch.from_numpy(motion.mask.copy())[None])[0]
+    return torch.cat([z.mean(0), z.std(0)]).double().numpy()
+
+
+def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list[Motion]]) -> dict:
+    """Identity-probe accuracy per variant: trained on the real references, tested on each variant's targets."""
+    from biomotion.metrics.probes import IdentityProbe
+
+    train_x, train_y = [], []
+    for t in targets:
+        for r in t.references:
+            train_x.append(embedding(tokenizer, r))
+            train_y.append(t.subject)
+    subjects = sorted({t.subject for t in targets})
+    if len(subjects) < 2 or not train_x:
+        return {"skipped": "needs at least two unseen subjects with reference clips"}
+    result = {"subjects": len(subjects), "chance": 1.0 / len(subjects), "train_clips": len(train_x)}
+    keep = [k for k, t in enumerate(targets) if t.references]
+    for variant, motions in variants.items():
+        probe = IdentityProbe(("logistic_regression",))
+        probe.update(np.stack(train_x), np.array(train_y), train=True)
+        probe.update(np.stack([embedding(tokenizer, motions[k]) for k in keep]),
+                     np.array([targets[k].subject for k in keep]), train=False)
+        result[variant] = probe.compute()["logistic_regression"].accuracy
+    return result
+
+
+def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str]) -> dict:
+    """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits."""
+    from biomotion.evaluation.clips import CoordinateClip, coordinate_set
+    from biomotion.evaluation.harness import _record, score_pairs, summarize_set, MetricSpec
+
+    reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
+                               model, rate, derivatives=True)
+    muscle = MetricSpec("muscle_violations", "Muscle-limit violations", "%", 100.0, "↓", None)
+    table = {}
+    for variant, motions in variants.items():
+        clips = coordinate_set([CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate,
+                               derivatives=True)
+        records = summarize_set(clips, model, physics=True)
+        records[muscle.key] = _record(muscle, torch.tensor(muscle_violation_share(motions, surrogate)))
+        if variant != "reference":
+            records.update(score_pairs(clips, reference)[1])
+        table[variant] = records
+    return table
+
+
+def _mean(table: dict, variant: str, key: str) -> float:
+    value = table[variant].get(key, {}).get("mean")
+    return math.nan if value is None else value
+
+
+def done_when(table: dict, identity: dict, manipulation: dict | None) -> dict[str, bool | None]:
+    """Issue 7's bars, each True/False (None where it could not be measured)."""
+    m = lambda v, k: _mean(table, v, k)  # noqa: E731
+    fid = "fidelity"
+    checks = {
+        "fidelity_full_beats_no_personalization": m("full", fid) < m("no_personalization", fid),
+        "fidelity_full_beats_population": m("full", fid) < m("population", fid),
+    }
+    for key in ("penetration", "floating", "foot_contact_velocity", "muscle_violations"):
+        checks[f"{key}_full_beats_no_guidance"] = m("full", key) < m("no_guidance", key)
+    for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity"):
+        checks[f"{key}_full_no_worse_than_reference"] = m("full", key) <= m("reference", key)
+    checks["jerk_within_2x_reference"] = m("full", "jerk") <= 2 * m("reference", "jerk")
+    checks["zmp_in_support_at_least_90"] = m("full", "zmp_in_support") >= 90.0
+    if "full" in identity:
+        checks["identity_within_5_points_of_real"] = abs(identity["full"] - identity["reference"]) <= 0.05
+    else:
+        checks["identity_within_5_points_of_real"] = None
+    if manipulation is not None:
+        checks["manipulation_moves_every_field_as_documented"] = all(
+            row["as_documented"] for row in manipulation["fields"].values())
+    return checks
+
+
+def markdown(report: dict) -> str:
+    """The report as Markdown: Table 2/3 layout, identity probe, manipulation, bars."""
+    table = report["table"]
+    keys = [k for k in table["full"] if k != "diversity"] + ["diversity"]
+    head = "| Metric | " + " | ".join(LABELS[v] for v in VARIANTS) + " |\n|---|" + "---|" * len(VARIANTS) + "\n"
+    rows = []
+    for key in keys:
+        cells = []
+        label = unit = ""
+        for v in VARIANTS:
+            r = table[v].get(key)
+            if r is None:
+                cells.append("–")
+                continue
+            label, unit, better = r["label"], r["unit"], r["better"]
+            cells.append("–" if r["mean"] is None else f"{r['mean']:.3g} ± {r['std']:.2g}" if r.get("std") is not None
+                         else f"{r['mean']:.3g}")
+        rows.append(f"| {label} ({unit}) | " + " | ".join(cells) + " |")
+    ident = report["identity"]
+    lines = [f"# Generation evaluation\n\nCommand: `{report['command']}`\n",
+             f"{report['targets']} target clips of {report['subjects']} unseen subjects; seed {report['seed']}.\n",
+             head + "\n".join(rows) + "\n"]
+    if "full" in ident:
+        lines.append("## Identity probe (logistic regression on pooled tokenizer latents)\n\n"
+                     f"{ident['subjects']} subjects (chance {ident['chance']:.2f}), trained on "
+                     f"{ident['train_clips']} real reference clips.\n\n| Variant | accuracy |\n|---|---|\n"
+                     + "".join(f"| {LABELS[v]} | {ident[v]:.2f} |\n" for v in VARIANTS) + "\n")
+    if report.get("manipulation"):
+        man = report["manipulation"]
+        lines.append(f"## Profile manipulation ({man['action']}, {man['samples']} samples per profile)\n\n"
+                     "| Field | change | measure | low value | high value | expected | as documented |\n"
+                     "|---|---|---|---|---|---|---|\n" + "".join(
+                         f"| {f} | {r['change']} | {r['measure']} | {r['low']:.4g} | {r['high']:.4g} | "
+                         f"{r['expected']} | {'yes' if r['as_documented'] else 'no'} |\n"
+                         for f, r in man["fields"].items()) + "\n")
+    lines.append("## Bars (issue 7)\n\n| Bar | met |\n|---|---|\n" + "".join(
+        f"| {k} | {'–' if v is None else 'yes' if v else 'no'} |\n" for k, v in report["bars"].items()))
+    return "\n".join(lines)
+
+
+# --- profile manipulation (PG-BIG Sec. 4.5) ----------------------------------------------------------------------
+
+def stride_period(q: np.ndarray, rate: float, column: str = "knee_angle_r") -> float:
+    """Stride period (s): lag of the highest autocorrelation of one knee angle between 0.4 and 1.6 s."""
+    x = q[:, CANONICAL_COORDINATES.index(column)]
+    x = x - x.mean()
+    lags = np.arange(int(0.4 * rate), min(int(1.6 * rate), len(x) - 2))
+    if len(lags) == 0:
+        return math.nan
+    corr = np.array([np.dot(x[:-lag], x[lag:]) / (len(x) - lag) for lag in lags])
+    return float(lags[np.argmax(corr)] / rate)
+
+
+def kinematic_measures(q: np.ndarray, rate: float) -> dict[str, float]:
+    """Measures a profile change may move, from canonical coordinates [T, 39] (generic size): knee flexion range
+    (deg, each side), hip flexion range (deg), stride frequency (Hz), stride length (m, pelvis speed x period) and
+    vertical pelvis excursion (m, 95th - 5th percentile of pelvis_ty)."""
+    col = lambda n: q[:, CANONICAL_COORDINATES.index(n)]  # noqa: E731
+    rom = lambda n: float(np.degrees(np.percentile(col(n), 97.5) - np.percentile(col(n), 2.5)))  # noqa: E731
+    period = stride_period(q, rate)
+    speed = float(np.hypot(col("pelvis_tx")[-1] - col("pelvis_tx")[0], col("pelvis_tz")[-1] - col("pelvis_tz")[0])
+                  / ((len(q) - 1) / rate))
+    return {"knee_rom_r": rom("knee_angle_r"), "knee_rom_l": rom("knee_angle_l"),
+            "hip_rom": (rom("hip_flexion_r") + rom("hip_flexion_l")) / 2, "stride_frequency": 1 / period,
+            "stride_length": speed * period,
+            "pelvis_excursion": float(np.percentile(col("pelvis_ty"), 95) - np.percentile(col("pelvis_ty"), 5))}
+
+
+#: (field, low profile change, high profile change, measure, expected sign of high - low, source of the expectation)
+MANIPULATIONS = (
+    ("age", {"age": 25.0}, {"age": 65.0}, "knee_rom_r", -1,
+     "older runners flex the knee less (Fukuchi & Duarte 2008, J Sports Sci 26:1447)"),
+    ("level", {"level": "recreational"}, {"level": "elite"}, "pelvis_excursion", -1,
+     "better runners oscillate less vertically (Folland et al. 2017, MSSE 49:1412)"),
+    ("experience", {"experience_years": 1.0}, {"experience_years": 20.0}, "pelvis_excursion", -1,
+     "as level (Folland et al. 2017)"),
+    ("injury", {"injuries": ()}, {"injuries": ({"location": "Left knee", "diagnosis": "ACL reconstruction"},)},
+     "knee_rom_l", -1, "less knee flexion on the reconstructed side when running (Pairot-de-Fontenay et al. 2019, "
+     "Sports Med 49:1411)"),
+)
+
+
+def manipulation_study(generator, base: dict, action: ActionRequest, *, samples: int = 8, seconds: float = 4.0,
+                       seed: int = 0) -> dict:
+    """Vary one profile field at a time with the action fixed; measure the kinematics of ``samples`` clips per
+    profile (the same seeds for both values) and compare the change with the documented direction."""
+    from biomotion.profile import Profile
+
+    fields = {}
+    for name, low, high, measure, sign, source in MANIPULATIONS:
+        means = []
+        for change in (low, high):
+            profile = Profile.from_dict({**base, **change, "injuries": list(change.get("injuries",
+                                                                                          base.get("injuries", ())))})
+            out = generator.generate(action, profile=profile, seconds=seconds, samples=samples, seed=seed)
+            values = [kinematic_measures(q, generator.rate)[measure] for q in out.q.detach().double().numpy()]
+            means.append(float(np.nanmean(values)))
+        delta = means[1] - means[0]
+        fields[name] = {"change": f"{_describe(low)} -> {_describe(high)}", "measure": measure, "low": means[0],
+                        "high": means[1], "delta": delta, "expected": "decrease" if sign < 0 else "increase",
+                        "as_documented": bool(np.sign(delta) == sign), "source": source}
+    return {"action": action.text or action.action, "samples": samples, "seconds": seconds, "base": base,
+            "fields": fields}
+
+
+def _describe(change: dict) -> str:
+    (key, value), = change.items()
+    if key == "injuries":
+        return "no injury" if not value else ", ".join(f"{i['location']} {i['diagnosis']}" for i in value)
+    return f"{key} {value}"
+
+
+# --- the command -------------------------------------------------------------------------------------------------
+
+MANIPULATION_BASE = {"age": 35.0, "sex": "M", "height": 1.76, "mass": 72.0, "sport": "running",
+                     "level": "competitive", "experience_years": 8.0, "injuries": []}
+
+
+def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str | Path | None = None, *,
+                    checkpoints: str | Path | None = None, max_seconds: float = 6.0, seed: int = 0,
+                    manipulation_samples: int = 8, progress: bool = True, command: str = "") -> dict:
+    """Run the whole evaluation on ``data_root``'s unseen subjects; write the JSON (and Markdown) report."""
+    from biomotion.evaluation.clips import body_model, build_temporary_cache
+    from biomotion.evaluation.harness import write_json, write_text
+    from biomotion.generation.pipeline import CHECKPOINTS, Generator
+
+    checkpoints = Path(checkpoints or CHECKPOINTS)
+    generator = Generator.load(data_root, checkpoints)
+    population = Generator.load(data_root, checkpoints, population=True, surrogate=False)
+    handle, cache = build_temporary_cache(data_root)
+    with handle:
+        targets = unseen_targets(cache, generator.bundle.train_subjects, max_seconds)
+        if not targets:
+            raise BiomotionError(f"no unseen subject under {data_root}: every subject there was in the training set")
+        variants = generate_variants(targets, cache, generator, population, seed=seed, progress=progress)
+        names = [cache.records[t.index]["clip_id"] for t in targets]
+        model = body_model(data_root)
+        table = score_variants(variants, model, generator.surrogate, generator.rate, names)
+        identity = identity_accuracy(generator.tokenizer, targets, variants)
+    manipulation = None
+    if manipulation_samples > 0:
+        run = generator.bundle.vocabulary.parse("run at 3.5 m/s")
+        manipulation = manipulation_study(generator, MANIPULATION_BASE, run, samples=manipulation_samples, seed=seed)
+    report = {"command": command, "seed": seed, "targets": len(targets),
+              "subjects": len({t.subject for t in targets}), "clips": names, "table": table, "identity": identity,
+              "manipulation": manipulation, "bars": done_when(table, identity, manipulation)}
+    write_json(json_path, report)
+    if md_path is not None:
+        write_text(md_path, markdown(report))
+    return report

@@ -1,0 +1,138 @@
+"""What a trained generator ships in one safetensors file: prior weights, action vocabulary, guidance bounds.
+
+The guidance bounds are PG-BIG Table 1's statistical limits, measured on the training split per action (a run's
+COM speed has nothing in common with a squat's): the 95th percentile of each coordinate's |dq/dt| and the
+5th/95th percentiles of COM speed and COM acceleration magnitude. Actions with too few frames fall back to the
+bounds over all actions (key ``"*"``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.errors import ModelError
+from biomotion.generation.actions import ActionVocabulary
+from biomotion.models.prior import PriorConfig, ProfileActionPrior
+
+FORMAT = "biomotion-generator/1"
+ALL_ACTIONS = "*"
+MIN_FRAMES = 30  # fewer frames of an action than this: use the all-action bounds
+
+
+@dataclass(frozen=True)
+class GuidanceBounds:
+    """Percentile bounds of one action: ``speed_high`` [39] (rad/s or m/s, NaN where never observed),
+    ``com_speed`` (low, high) m/s, ``com_acceleration`` (low, high) m/s^2, and the frames behind them."""
+
+    speed_high: tuple[float, ...]
+    com_speed: tuple[float, float]
+    com_acceleration: tuple[float, float]
+    frames: int
+
+    def to_dict(self) -> dict:
+        return {"speed_high": [None if not np.isfinite(v) else v for v in self.speed_high],
+                "com_speed": list(self.com_speed), "com_acceleration": list(self.com_acceleration),
+                "frames": self.frames}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> GuidanceBounds:
+        return cls(tuple(float("nan") if v is None else float(v) for v in d["speed_high"]),
+                   tuple(d["com_speed"]), tuple(d["com_acceleration"]), int(d["frames"]))
+
+
+def _bounds(speeds: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray]) -> GuidanceBounds:
+    s = np.concatenate(speeds)
+    with np.errstate(all="ignore"):
+        high = np.array([np.nanpercentile(col, 95) if np.isfinite(col).any() else np.nan for col in s.T])
+    v, a = np.concatenate(com_v), np.concatenate(com_a)
+    return GuidanceBounds(tuple(float(x) for x in high), (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
+                          (float(np.percentile(a, 5)), float(np.percentile(a, 95))), len(v))
+
+
+@torch.no_grad()
+def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
+    """Per-action `GuidanceBounds` over the clips ``indices`` of ``cache`` (forward differences at the cache rate;
+    COM from the canonical ``body`` model, absent coordinates at the model default)."""
+    from biomotion.body.kinematics import center_of_mass
+
+    rate = cache.rate
+    defaults = body.defaults.numpy()
+    groups: dict[str, tuple[list, list, list]] = {}
+    for i in indices:
+        record = cache.records[i]
+        q = np.asarray(cache.values[record["offset"]: record["offset"] + record["n_frames"]], dtype=np.float64)
+        if len(q) < 3:
+            continue
+        mask = cache.masks[i]
+        speed = np.abs(np.diff(q, axis=0)) * rate
+        speed[:, ~mask] = np.nan
+        full = np.where(mask[None], q, defaults[None])
+        com = center_of_mass(body, torch.from_numpy(full).to(body.dtype)).numpy()
+        v = np.diff(com, axis=0) * rate
+        a = np.diff(v, axis=0) * rate
+        for key in (record["labels"]["action"], ALL_ACTIONS):
+            bucket = groups.setdefault(key, ([], [], []))
+            bucket[0].append(speed)
+            bucket[1].append(np.linalg.norm(v, axis=-1))
+            bucket[2].append(np.linalg.norm(a, axis=-1))
+    return {k: _bounds(*g) for k, g in groups.items() if k == ALL_ACTIONS or sum(map(len, g[1])) >= MIN_FRAMES}
+
+
+class GeneratorBundle:
+    """A trained prior with its vocabulary and guidance bounds (saved together, loaded together)."""
+
+    def __init__(self, prior: ProfileActionPrior, vocabulary: ActionVocabulary, bounds: dict[str, GuidanceBounds],
+                 tokenizer_sha256: str = "", train_subjects: tuple[str, ...] = ()) -> None:
+        self.prior, self.vocabulary, self.bounds = prior, vocabulary, bounds
+        self.tokenizer_sha256 = tokenizer_sha256
+        #: "source/subject" of every training clip's subject: anyone else is unseen (`biomotion eval generation`)
+        self.train_subjects = tuple(train_subjects)
+
+    def bounds_for(self, action: str) -> GuidanceBounds:
+        """The action's bounds, or the all-action bounds when the action had too few training frames."""
+        return self.bounds.get(action, self.bounds[ALL_ACTIONS])
+
+    def speed_high(self, action: str) -> torch.Tensor:
+        """[39] upper speed bound; coordinates never observed for the action take the all-action bound."""
+        own = torch.tensor(self.bounds_for(action).speed_high)
+        fallback = torch.tensor(self.bounds[ALL_ACTIONS].speed_high)
+        return torch.where(torch.isfinite(own), own, fallback).nan_to_num(float("inf"))
+
+    def save(self, path: str | Path) -> None:
+        from safetensors.torch import save
+
+        from biomotion.io.atomic import atomic_write
+
+        state = {k: v.detach().contiguous().cpu() for k, v in self.prior.state_dict().items()}
+        metadata = {"format": FORMAT, "config": json.dumps(self.prior.config.to_dict()),
+                    "vocabulary": json.dumps(self.vocabulary.to_dict()),
+                    "bounds": json.dumps({k: b.to_dict() for k, b in self.bounds.items()}),
+                    "coordinates": json.dumps(list(CANONICAL_COORDINATES)),
+                    "tokenizer_sha256": self.tokenizer_sha256,
+                    "train_subjects": json.dumps(list(self.train_subjects))}
+        with atomic_write(path, "wb") as handle:
+            handle.write(save(state, metadata=metadata))
+
+    @classmethod
+    def load(cls, path: str | Path) -> GeneratorBundle:
+        from safetensors import safe_open
+        from safetensors.torch import load_file
+
+        path = Path(path)
+        if not path.exists():
+            raise ModelError(f"generator weights not found: {path}")
+        with safe_open(str(path), framework="pt") as handle:
+            meta = handle.metadata() or {}
+        if meta.get("format") != FORMAT:
+            raise ModelError(f"{path}: not a biomotion generator ({FORMAT}); format is {meta.get('format')!r}")
+        prior = ProfileActionPrior(PriorConfig.from_dict(json.loads(meta["config"])))
+        prior.load_state_dict(load_file(str(path)))
+        bounds = {k: GuidanceBounds.from_dict(v) for k, v in json.loads(meta["bounds"]).items()}
+        return cls(prior.eval(), ActionVocabulary.from_dict(json.loads(meta["vocabulary"])), bounds,
+                   meta.get("tokenizer_sha256", ""), tuple(json.loads(meta.get("train_subjects", "[]"))))

@@ -1,0 +1,85 @@
+"""`biomotion generate`: read the person and the request, generate, write the outputs.
+
+A profile file is YAML or JSON with `biomotion.profile.Profile` fields (``age``, ``sex``, ``height`` m,
+``mass`` kg, ``sport``, ``level``, ``experience_years``, ``injuries`` as a list of ``{location, diagnosis, date}``);
+absent fields are masked by the generator. A subject table is any table `biomotion.io.tables` reads (Fukuchi,
+Motus, Schreiber, simple CSV).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from collections.abc import Sequence
+from pathlib import Path
+
+from biomotion.errors import ConfigError, DataFormatError
+from biomotion.profile import Profile
+
+
+def read_profile(path: str | Path) -> Profile:
+    """A `Profile` from a YAML or JSON file; errors name the file and the field."""
+    import yaml
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"profile file not found: {path}") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
+                              line=None if mark is None else mark.line + 1) from None
+    if not isinstance(data, dict):
+        raise DataFormatError(path, "a profile file holds a mapping of profile fields (age, sex, height, ...)")
+    try:
+        return Profile.from_dict(data)
+    except (TypeError, ValueError) as error:
+        raise DataFormatError(path, f"invalid profile: {error}") from None
+
+
+def subject_profile(table: str | Path, subject_id: str) -> Profile:
+    """The row ``subject_id`` of a subject table."""
+    from biomotion.io.tables import read_subject_table
+
+    profiles = read_subject_table(table)
+    if subject_id not in profiles:
+        shown = ", ".join(sorted(profiles)[:10])
+        raise ConfigError(f"{table}: no subject {subject_id!r} (the table has {len(profiles)}: {shown} ...)")
+    return profiles[subject_id]
+
+
+def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
+                     profile_file: Path | None = None, subject_table: Path | None = None,
+                     subject_id: str | None = None, references: Sequence[Path] = (), seconds: float = 3.0,
+                     seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
+                     figures: bool = True, command: str = "") -> dict:
+    """Run the whole request; returns a summary (files per sample, timings, the action understood)."""
+    from biomotion.evaluation.clips import MODEL_FILE
+    from biomotion.generation.outputs import write_generation
+    from biomotion.generation.pipeline import CHECKPOINTS, Generator
+    from biomotion.io.mot import read_motion
+
+    if profile_file is not None and subject_table is not None:
+        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
+    if (subject_table is None) != (subject_id is None):
+        raise ConfigError("--subject-table and --subject-id go together")
+    profile = (read_profile(profile_file) if profile_file is not None
+               else subject_profile(subject_table, subject_id) if subject_table is not None else None)
+    motions = [read_motion(p) for p in references]
+    started = time.perf_counter()
+    generator = Generator.load(data_root, checkpoints or CHECKPOINTS)
+    loaded = time.perf_counter()
+    vocabulary = generator.bundle.vocabulary
+    request = vocabulary.parse(action)
+    if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
+        request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
+    generated = generator.generate(request, profile=profile, references=motions, seconds=seconds, samples=samples,
+                                   seed=seed, guidance=guidance, personalised=personalised)
+    done = time.perf_counter()
+    files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
+                             request={"command": command, "text": action, "seconds": seconds, "seed": seed,
+                                      "guidance": guidance, "personalised": personalised,
+                                      "references": [str(p) for p in references]})
+    return {"action": request, "files": files, "load_seconds": loaded - started, "generate_seconds": done - loaded,
+            "write_seconds": time.perf_counter() - done, "profile": profile}

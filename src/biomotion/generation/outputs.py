@@ -1,0 +1,118 @@
+"""Everything `biomotion generate` writes for a generated clip, on the person's scaled model.
+
+Per clip: ``motion.mot`` (OpenSim coordinates of the scaled model, degrees, couplers applied), ``motion.bvh``
+(the same motion as a BVH skeleton of the model's bodies), ``grf.mot`` + ``grf_loads.xml`` (ground reaction
+inferred from the motion alone, PhysPT Eq. 4-5), ``torques.sto`` (inverse dynamics with that ground reaction),
+``com_zmp.sto``, ``activations.sto`` (muscle surrogate, PG-BIG Sec. 3.3), ``metrics.json`` (the physics metrics of
+`biomotion eval` plus the guidance terms before and after guidance) and plots. ``model.osim`` (the person's model)
+is written once per request. Files are written atomically by the writers they come from.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.generation.pipeline import Generated
+from biomotion.io.atomic import atomic_write
+from biomotion.motion import Motion
+
+
+def physics_metrics(motion: Motion, model) -> dict[str, dict]:
+    """The per-clip metrics of `biomotion eval` (contact, smoothness, energy, joint range, ZMP) of one motion."""
+    from biomotion.evaluation.clips import CoordinateClip, coordinate_set
+    from biomotion.evaluation.harness import summarize_set
+
+    clips = coordinate_set([CoordinateClip("generated", "generated", motion)], model, motion.rate, derivatives=True)
+    records = summarize_set(clips, model, physics=True)
+    return {k: {"label": r["label"], "unit": r["unit"], "value": r["mean"]} for k, r in records.items()
+            if k != "diversity"}
+
+
+def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: np.ndarray | None,
+               muscle_names: tuple[str, ...], extra_metrics: dict, *, figures: bool = True,
+               geometry: tuple[Path, ...] = ()) -> dict[str, Path]:
+    """Write one generated clip's files into ``out`` (see the module docstring); returns them by role."""
+    from biomotion.analysis import analyze, model_motion, support_polygons, write_analysis
+    from biomotion.body.bvh_export import motion_to_bvh
+    from biomotion.io.bvh import write_bvh
+    from biomotion.io.mot import write_motion, write_storage
+
+    out.mkdir(parents=True, exist_ok=True)
+    coordinates = model_motion(motion, model)
+    files = {"motion": write_motion(out / "motion.mot", coordinates, name="generated")}
+    bvh = out / "motion.bvh"
+    write_bvh(bvh, motion_to_bvh(model, coordinates))
+    files["bvh"] = bvh
+    result = analyze(coordinates, model)
+    written = write_analysis(result, out, grf_file="grf.mot")
+    written.pop("coordinates", None)
+    (out / "coordinates_filtered.mot").unlink(missing_ok=True)
+    written.pop("summary", None)
+    (out / "summary.json").unlink(missing_ok=True)
+    files.update(written)
+    if activations is not None:
+        files["activations"] = write_storage(out / "activations.sto", list(muscle_names), motion.times, activations,
+                                             name="Muscle activations (surrogate)")
+    metrics = {"physics": physics_metrics(motion, model), **extra_metrics}
+    with atomic_write(out / "metrics.json") as handle:
+        json.dump(metrics, handle, indent=1)
+    files["metrics"] = out / "metrics.json"
+    if figures:
+        from biomotion.viz.plots import plot_activations, plot_balance, plot_ground_reaction, plot_joint_angles
+        from biomotion.viz.viewer import view_command
+
+        files["plot_joint_angles"] = plot_joint_angles(coordinates, out / "joint_angles")[0]
+        files["plot_grf"] = plot_ground_reaction(result.inferred, out / "grf", body_weight=result.body_weight)[0]
+        files["plot_balance"] = plot_balance(result.com, result.zmp, out / "balance",
+                                             support=support_polygons(result.contact_points,
+                                                                      result.contact_loaded))[0]
+        if activations is not None:
+            files["plot_activations"] = plot_activations(motion.times, muscle_names, activations,
+                                                         out / "activations")[0]
+        files["viewer"] = view_command(files["motion"], model=model_file, grf=files["grf_inferred"],
+                                       activations=files.get("activations"), com_zmp=files["com_zmp"],
+                                       out=out / "viewer.html", title="biomotion generate", geometry=geometry)
+    return files
+
+
+def write_generation(out: str | Path, generated: Generated, generator, profile, generic_osim: Path, *,
+                     figures: bool = True, request: dict | None = None) -> dict[str, dict[str, Path]]:
+    """Scale the model to ``profile``, write ``model.osim`` and each sample's files (``out`` itself for one
+    sample, ``out/sample_01`` ... for several); returns the files per sample. The viewer takes its meshes from
+    the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present."""
+    from biomotion.body.profile_scaling import scale_to_profile
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    height = profile.height if profile is not None else None
+    mass = profile.mass if profile is not None else None
+    model_file = out / "model.osim"
+    model = scale_to_profile(generic_osim, height, mass, model_file, name="biomotion_generated_subject")
+    motions = generated.motions(height)
+    activations = None
+    names: tuple[str, ...] = ()
+    if generator.surrogate is not None:
+        with torch.no_grad():
+            activations = generator.surrogate(generated.q.float()).double().numpy()
+        names = tuple(generator.surrogate.names)
+    guide_terms = {}
+    if generated.history:
+        guide_terms = {"guidance_first_iteration": generated.history[0], "guidance_last_iteration":
+                       generated.history[-1], "guidance_iterations": len(generated.history)}
+    geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry")
+                     if p.is_dir())
+    result = {}
+    for k, motion in enumerate(motions):
+        folder = out if len(motions) == 1 else out / f"sample_{k + 1:02d}"
+        extra = {"request": {**(request or {}), "sample": k + 1, "action": asdict(generated.action)},
+                 **guide_terms}
+        result[folder.name] = write_clip(folder, motion, model, model_file.resolve(),
+                                         None if activations is None else activations[k], names, extra,
+                                         figures=figures, geometry=geometry)
+        result[folder.name]["model"] = model_file
+    return result

@@ -1,0 +1,155 @@
+"""PG-BIG inference (Fig. 2): profile + action -> codes -> latents -> (guided) motion in canonical coordinates.
+
+1. The condition: reference clips of the person are placed like the training clips (`biomotion.data.placement`)
+   and encoded by the tokenizer; with the profile's biodata and the references' metadata they form the subject
+   profiler's input (A.6); the action request becomes the action features (Sec. 3.2).
+2. The prior samples code indices autoregressively (temperature, top-k), one sequence per requested sample.
+3. Guidance refines the codebook latents through the decoder, body model and muscle surrogate (Sec. 3.3).
+
+``personalised=False`` drops the profile (biodata, references, metadata all masked): the w/o-personalization
+ablation of Table 3. A bundle trained with ``--population`` ignores the profile by construction.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.placement import GENERIC_HEIGHT, place_clip
+from biomotion.data.sources import to_canonical
+from biomotion.errors import ConfigError
+from biomotion.generation.actions import ActionRequest
+from biomotion.generation.bundle import GeneratorBundle
+from biomotion.generation.conditioning import (
+    METADATA_FIELDS,
+    action_features,
+    biodata_features,
+    mean_features,
+    metadata_features,
+)
+from biomotion.guidance.refine import GuidanceConfig, Guide
+from biomotion.models.prior import Condition
+from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
+from biomotion.motion import Motion
+from biomotion.profile import Profile
+
+CHECKPOINTS = Path(__file__).resolve().parents[3] / "checkpoints"
+TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE = (
+    "tokenizer.safetensors", "generator.safetensors", "population.safetensors", "surrogate.safetensors")
+MAX_LATENTS = 128
+
+
+@dataclass
+class Generated:
+    """K generated clips in canonical coordinates at the canonical size, on the floor: ``q`` [K, T, 39] (guided
+    when guidance ran), ``unguided`` [K, T, 39], the codes [K, N], guidance history and the request."""
+
+    q: torch.Tensor
+    unguided: torch.Tensor
+    codes: torch.Tensor
+    rate: float
+    action: ActionRequest
+    history: list[dict[str, float]] = field(default_factory=list)
+
+    def motions(self, height: float | None = None, guided: bool = True) -> list[Motion]:
+        """Each clip as a canonical `Motion`; pelvis translations scaled to a person of ``height`` (m)."""
+        q = (self.q if guided else self.unguided).detach().double().numpy().copy()
+        if height is not None:
+            q[..., 3:6] *= height / GENERIC_HEIGHT
+        times = np.arange(q.shape[1]) / self.rate
+        return [Motion(times=times, values=clip, names=CANONICAL_COORDINATES) for clip in q]
+
+
+def reference_motion(motion: Motion, body, height: float | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """A person's reference clip -> canonical, placed, 30 Hz coordinates [T, 39] (T a multiple of 4) and mask."""
+    canonical = to_canonical(motion)
+    clip = canonical.resample(30.0) if abs(canonical.rate - 30.0) > 1e-6 else canonical
+    clip = place_clip(clip, body, height=height, treadmill_speed=None)
+    n = clip.n_frames // DOWNSAMPLE * DOWNSAMPLE
+    if n < DOWNSAMPLE:
+        raise ConfigError(f"reference clip too short: {clip.n_frames} frames at 30 Hz, need at least {DOWNSAMPLE}")
+    values = np.where(clip.mask[None], clip.values[:n], 0.0)
+    return torch.tensor(values, dtype=torch.float32), torch.from_numpy(clip.mask.copy())
+
+
+class Generator:
+    """Tokenizer + prior bundle + canonical body model (+ surrogate): everything `biomotion generate` runs."""
+
+    def __init__(self, tokenizer: MotionVQVAE, bundle: GeneratorBundle, body, surrogate=None) -> None:
+        self.tokenizer, self.bundle, self.body, self.surrogate = tokenizer, bundle, body, surrogate
+        self.rate = tokenizer.config.rate
+
+    @classmethod
+    def load(cls, data_root: str | Path, checkpoints: str | Path = CHECKPOINTS, *, population: bool = False,
+             surrogate: bool = True) -> Generator:
+        """Shipped weights from ``checkpoints`` and the canonical Rajagopal model from ``data_root``."""
+        from biomotion.evaluation.clips import body_model
+
+        checkpoints = Path(checkpoints)
+        tokenizer = MotionVQVAE.load(checkpoints / TOKENIZER_FILE)
+        bundle = GeneratorBundle.load(checkpoints / (POPULATION_FILE if population else GENERATOR_FILE))
+        muscles = None
+        if surrogate:
+            from biomotion.muscles.surrogate import MuscleSurrogate
+
+            muscles = MuscleSurrogate.load(checkpoints / SURROGATE_FILE)
+        return cls(tokenizer, bundle, body_model(data_root), muscles)
+
+    @torch.no_grad()
+    def condition(self, action: ActionRequest, profile: Profile | None = None,
+                  references: Sequence[Motion] = (), personalised: bool = True) -> Condition:
+        """The prior's input for one request (batch of 1)."""
+        from biomotion.body.kinematics import center_of_mass
+
+        code_dim = self.tokenizer.config.code_dim
+        latents, metadata = torch.zeros(0, code_dim), None
+        if personalised and references:
+            height = profile.height if profile is not None else None
+            encoded, features = [], []
+            for motion in references:
+                q, mask = reference_motion(motion, self.body, height)
+                encoded.append(self.tokenizer.encode_continuous(q[None], mask[None])[0])
+                full = torch.where(mask, q.double(), self.body.defaults)
+                features.append(metadata_features(q, mask, center_of_mass(self.body, full).float(), self.rate))
+            latents = torch.cat(encoded)[:MAX_LATENTS]
+            metadata = mean_features(features).cat()
+        bio = biodata_features(profile if personalised else None).cat()
+        if metadata is None:
+            metadata = torch.zeros(2 * len(METADATA_FIELDS))
+        act = action_features(action, self.bundle.vocabulary).cat()
+        valid = torch.ones(max(len(latents), 1), dtype=torch.bool)
+        if len(latents) == 0:
+            latents, valid = torch.zeros(1, code_dim), torch.zeros(1, dtype=torch.bool)
+        return Condition(latents[None], valid[None], bio[None], metadata[None], act[None])
+
+    def generate(self, action: ActionRequest, *, profile: Profile | None = None, references: Sequence[Motion] = (),
+                 seconds: float = 3.0, samples: int = 1, seed: int = 0, guidance: bool = True,
+                 personalised: bool = True, temperature: float = 1.0, top_k: int | None = 20,
+                 guidance_config: GuidanceConfig | None = None) -> Generated:
+        """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False."""
+        if seconds <= 0:
+            raise ConfigError(f"--seconds must be positive, got {seconds}")
+        if samples < 1:
+            raise ConfigError(f"--samples must be at least 1, got {samples}")
+        n_tokens = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
+        cond = self.condition(action, profile, references, personalised)
+        batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
+                                                                       cond.metadata, cond.action)))
+        generator = torch.Generator().manual_seed(seed)
+        codes = self.bundle.prior.sample(batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator)
+        z0 = self.tokenizer.quantiser.codebook[codes]
+        guide = Guide(self.tokenizer, self.body, self.bundle.bounds_for(action.action),
+                      self.bundle.speed_high(action.action), self.surrogate, guidance_config)
+        frames = round(seconds * self.rate)
+        with torch.no_grad():
+            unguided = guide.kinematics(z0).q[:, :frames]
+        if not guidance:
+            return Generated(unguided, unguided, codes, self.rate, action)
+        result = guide(z0)
+        return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history)

@@ -1,0 +1,65 @@
+"""The biomechanical guidance losses of PG-BIG Table 1, plus a ground term and the proximity term.
+
+All take batched kinematics of generated clips at ``rate`` Hz: coordinates q [B, T, 39] (canonical, SI), foot
+contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activations [B, T, M]. Each returns [B]
+(a mean over time, the paper's 1/T sum_t), differentiable in its inputs. Velocities are forward differences.
+
+- `angular_velocity`: L_omega = 1/T sum_t sum_j max(0, |q_dot_tj| - q_dot_j^high) (95th percentile bounds).
+- `foot_contact`: L_foot = 1/T sum_t ||v_t^foot (.) m_t||^2 with the binary contact mask m_t.
+- `com_velocity`, `com_acceleration`: L_v, L_a = 1/T sum_t max(0, ||c'_t|| - high, low - ||c'_t||) (5-95th).
+- `activation`: L_act = 1/T sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm).
+- `ground`: not in Table 1; it carries Table 4's penetration term into guidance: penetration squared for every
+  point plus height squared for points in contact, so planted feet neither sink nor hover (the contact metrics).
+- `proximity`: mean squared distance of the latents to the unguided sample's (Sec. 3.3, A.1 schedule).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def _speed(x: torch.Tensor, rate: float) -> torch.Tensor:
+    return torch.diff(x, dim=1) * rate
+
+
+def angular_velocity(q: torch.Tensor, rate: float, high: torch.Tensor) -> torch.Tensor:
+    """PG-BIG Table 1, L_omega; ``high`` [39] (inf where unbounded)."""
+    return torch.relu(_speed(q, rate).abs() - high).sum(-1).mean(-1)
+
+
+def foot_contact(feet: torch.Tensor, rate: float, contact: torch.Tensor) -> torch.Tensor:
+    """PG-BIG Table 1, L_foot; ``contact`` [B, T, K] bool, applied to the velocity between frames t and t + 1
+    when the point is in contact at both."""
+    velocity = _speed(feet, rate)
+    both = (contact[:, 1:] & contact[:, :-1]).to(feet.dtype)
+    return (velocity.pow(2).sum(-1) * both).sum(-1).mean(-1)
+
+
+def _outside(values: torch.Tensor, low: float, high: float) -> torch.Tensor:
+    return torch.relu(values - high) + torch.relu(low - values)
+
+
+def com_velocity(com: torch.Tensor, rate: float, low: float, high: float) -> torch.Tensor:
+    """PG-BIG Table 1, L_v."""
+    return _outside(_speed(com, rate).norm(dim=-1), low, high).mean(-1)
+
+
+def com_acceleration(com: torch.Tensor, rate: float, low: float, high: float) -> torch.Tensor:
+    """PG-BIG Table 1, L_a."""
+    return _outside(_speed(_speed(com, rate), rate).norm(dim=-1), low, high).mean(-1)
+
+
+def activation(activations: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """PG-BIG Table 1, L_act; ``low``/``high`` [M]."""
+    return (torch.relu(activations - high) + torch.relu(low - activations)).sum(-1).mean(-1)
+
+
+def ground(feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
+    """Penetration^2 of every point plus height^2 of points in contact, summed over points, mean over time."""
+    height = feet[..., 1]
+    return (torch.relu(-height).pow(2) + contact.to(height.dtype) * height.pow(2)).sum(-1).mean(-1)
+
+
+def proximity(z: torch.Tensor, z0: torch.Tensor) -> torch.Tensor:
+    """Mean squared latent distance to the unguided sample, per clip."""
+    return (z - z0).pow(2).mean((-2, -1))

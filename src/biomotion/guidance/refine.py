@@ -1,0 +1,170 @@
+"""Inference-time biomechanical guidance: optimise the latent sequence through decoder, body model and surrogate.
+
+PG-BIG Sec. 3.3 and A.1: the sampled latents Z* are refined by gradient descent on
+L = w_prox L_prox + alpha(k) L_guide, L_guide = l_omega L_omega + l_foot L_foot + l_v L_v + l_a L_a + l_act L_act
+(Table 1 weights from Table 5: l_omega 10, l_v 0.1, l_a 1, l_act 10), with the staged schedule of A.1: proximity
+only for the first ``physics_start`` iterations, then the physics terms ramped in linearly over ``ramp``
+iterations, and from ``quantize_at`` on the latents are re-quantised (straight-through nearest-code lookup, the
+T2M-GPT quantiser's gradient), so the final motion is again a sequence of codebook entries. Table 5 runs 250
+iterations (physics from 100, quantisation at 200) on a GPU; the defaults here are scaled to the CPU budget of
+``benchmarks/generation.py`` and start the physics at once: guidance starts from the sample itself, where the
+proximity gradient is exactly zero, so a proximity-only warm-up would not move anything.
+
+Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
+`biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
+same, scaled. Before the losses, each clip is put on the floor (pelvis height lowered so that the 5th percentile
+of its lowest foot point is at y = 0, as for the training clips); that offset is not optimised.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+import torch
+
+from biomotion.errors import ConfigError
+from biomotion.generation.bundle import GuidanceBounds
+from biomotion.guidance import losses
+from biomotion.models.vqvae import MotionVQVAE
+
+PELVIS_TY = 4
+TERMS = ("angular_velocity", "foot_contact", "com_velocity", "com_acceleration", "activation", "ground")
+
+
+@dataclass(frozen=True)
+class GuidanceConfig:
+    """Schedule and weights (PG-BIG Table 5 where it gives them)."""
+
+    iterations: int = 40
+    physics_start: int = 0
+    ramp: int = 10
+    quantize_at: int | None = 30
+    lr: float = 0.05
+    w_proximity: float = 1.0
+    w_angular_velocity: float = 10.0
+    w_foot_contact: float = 1.0
+    w_com_velocity: float = 0.1
+    w_com_acceleration: float = 1.0
+    w_activation: float = 10.0
+    w_ground: float = 10.0
+    contact_height: float = 0.05  # m, a point is in contact below this height ...
+    contact_speed: float = 0.5  # m/s ... and horizontal speed (biomotion.metrics.contact)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> GuidanceConfig:
+        known = {f.name for f in fields(cls)}
+        if set(values) - known:
+            raise ConfigError(f"unknown guidance settings: {sorted(set(values) - known)}; known: {sorted(known)}")
+        return cls(**values)
+
+    def alpha(self, k: int) -> float:
+        """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
+        if k < self.physics_start:
+            return 0.0
+        return min(1.0, (k - self.physics_start + 1) / max(self.ramp, 1))
+
+
+@dataclass
+class Kinematics:
+    """Decoded clips placed on the floor: q [B, T, 39], feet [B, T, K, 3], COM [B, T, 3] (canonical size)."""
+
+    q: torch.Tensor
+    feet: torch.Tensor
+    com: torch.Tensor
+
+
+@dataclass
+class GuidanceResult:
+    """Guided coordinates [B, T, 39] (canonical, on the floor), final latents, per-iteration mean loss terms."""
+
+    q: torch.Tensor
+    latents: torch.Tensor
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+class Guide:
+    """Guidance for one action: tokenizer decoder + canonical body model + optional muscle surrogate."""
+
+    def __init__(self, tokenizer: MotionVQVAE, body, bounds: GuidanceBounds, speed_high: torch.Tensor,
+                 surrogate=None, config: GuidanceConfig | None = None) -> None:
+        from biomotion.body.contact import foot_points
+
+        self.tokenizer, self.bounds, self.surrogate = tokenizer, bounds, surrogate
+        self.config = config or GuidanceConfig()
+        self.body = body.to(torch.float32)
+        feet = foot_points(body)
+        self.feet_bodies, self.feet_offsets = feet.bodies, feet.offsets.to(torch.float32)
+        self.speed_high = speed_high.to(torch.float32)
+        self.rate = tokenizer.config.rate
+
+    def kinematics(self, z: torch.Tensor) -> Kinematics:
+        """Decode latents [B, N, D] and put each clip on the floor (differentiable except for the offset)."""
+        from biomotion.body.kinematics import center_of_mass, forward_kinematics, points_in_ground
+
+        q = self.tokenizer.decode_latents(z)
+        flat = q.reshape(-1, q.shape[-1])
+        poses = forward_kinematics(self.body, flat)
+        feet = points_in_ground(poses, self.feet_bodies, self.feet_offsets).view(*q.shape[:2], -1, 3)
+        com = center_of_mass(self.body, flat, poses).view(*q.shape[:2], 3)
+        offset = torch.quantile(feet[..., 1].amin(-1).detach(), 0.05, dim=-1)  # [B]
+        lift = torch.zeros(q.shape[-1], dtype=q.dtype)
+        lift[PELVIS_TY] = 1.0
+        down = offset[:, None, None]
+        up = torch.tensor([0.0, 1.0, 0.0], dtype=q.dtype)
+        return Kinematics(q - down * lift, feet - down[..., None] * up, com - down * up)
+
+    def contact(self, feet: torch.Tensor) -> torch.Tensor:
+        """[B, T, K] contact mask of placed foot points (height and speed thresholds of the config)."""
+        from biomotion.metrics.contact import contact_mask
+
+        return contact_mask(feet.detach(), self.rate, height=self.config.contact_height,
+                            speed=self.config.contact_speed)
+
+    def terms(self, k: Kinematics, contact: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Each guidance term [B] (PG-BIG Table 1 + ground)."""
+        b = self.bounds
+        out = {
+            "angular_velocity": losses.angular_velocity(k.q, self.rate, self.speed_high),
+            "foot_contact": losses.foot_contact(k.feet, self.rate, contact),
+            "com_velocity": losses.com_velocity(k.com, self.rate, *b.com_speed),
+            "com_acceleration": losses.com_acceleration(k.com, self.rate, *b.com_acceleration),
+            "ground": losses.ground(k.feet, contact),
+        }
+        if self.surrogate is not None:
+            activations = self.surrogate(k.q)
+            out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
+        return out
+
+    def _quantised(self, z: torch.Tensor) -> torch.Tensor:
+        codebook = self.tokenizer.quantiser.codebook
+        nearest = codebook[self.tokenizer.quantiser.nearest(z.reshape(-1, z.shape[-1]))].view_as(z)
+        return z + (nearest - z).detach()
+
+    def __call__(self, z0: torch.Tensor) -> GuidanceResult:
+        """Refine latents z0 [B, N, D] (the unguided sample's codebook entries)."""
+        c = self.config
+        z0 = z0.detach()
+        z = z0.clone().requires_grad_(True)
+        optimiser = torch.optim.Adam([z], lr=c.lr)
+        contact = self.contact(self.kinematics(z0).feet)
+        weights = {t: getattr(c, f"w_{t}") for t in TERMS}
+        history = []
+        for k in range(c.iterations):
+            used = self._quantised(z) if c.quantize_at is not None and k >= c.quantize_at else z
+            terms = self.terms(self.kinematics(used), contact)
+            guide = sum(weights[t] * v for t, v in terms.items())
+            loss = (c.w_proximity * losses.proximity(used, z0) + c.alpha(k) * guide).sum()
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            history.append({"iteration": k, "loss": loss.item() / len(z0),
+                            **{t: v.mean().item() for t, v in terms.items()}})
+        with torch.no_grad():
+            final = self._quantised(z) if c.quantize_at is not None else z
+            return GuidanceResult(self.kinematics(final).q, final.detach(), history)
+
+    @torch.no_grad()
+    def evaluate(self, z: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The guidance terms [B] of latents z (no optimisation), for reporting."""
+        k = self.kinematics(z)
+        return self.terms(k, self.contact(k.feet))

@@ -1,0 +1,342 @@
+"""Train the profile-action prior (with its subject profiler) on tokenized dataset clips; ship weights + card.
+
+    python -m biomotion.models.train_generator --config configs/generator.yaml --cache build/dataset \\
+        --tokenizer checkpoints/tokenizer.safetensors --data-root ../shared/data \\
+        --out checkpoints/generator.safetensors [--population] [--minutes N] [--seed N]
+
+Every clip is tokenized once by the frozen tokenizer (PG-BIG trains the prior on the VQ-VAE's codes, Sec. 3.2).
+A training sample is a crop of one train-split clip; its profile comes from up to ``references`` *other* clips of
+the same subject (latents, metadata) plus the subject's biodata, so the profile describes the person, not the
+target clip. Branches are dropped at random (``drop_references``, ``drop_biodata``) so the model also serves
+subjects with no reference clip or no biodata. Loss: next-code cross-entropy plus a triplet term on the profile
+token (same subject closer than another subject, margin ``triplet_margin``; the authors' profile-encoder loss,
+``pg-big-reference-notes.md``). ``--population`` trains the action-only prior (the T2M-GPT-kind baseline).
+
+The checkpoint also stores what generation needs from the training data: the action vocabulary and the
+per-action 5th/95th percentile bounds of coordinate speeds, COM speed and COM acceleration (PG-BIG Table 1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+import yaml
+from tqdm import tqdm
+
+from biomotion.data.registry import DatasetCache
+from biomotion.errors import BiomotionError, ConfigError
+from biomotion.generation.actions import ActionRequest, ActionVocabulary
+from biomotion.generation.bundle import GeneratorBundle, action_bounds
+from biomotion.generation.conditioning import (
+    Features,
+    action_features,
+    action_size,
+    biodata_features,
+    mean_features,
+    metadata_features,
+)
+from biomotion.io.atomic import atomic_write
+from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
+from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
+
+
+@dataclass
+class TokenizedClip:
+    """One cache clip after the frozen tokenizer: codes [N], latents [N, D], metadata/biodata/action features."""
+
+    index: int
+    subject: str
+    split: str
+    codes: torch.Tensor
+    latents: torch.Tensor
+    metadata: Features
+    biodata: Features
+    action: Features
+
+
+@torch.no_grad()
+def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary: ActionVocabulary,
+                   progress: bool = True) -> list[TokenizedClip]:
+    """Tokenize every clip at least one token long (4 frames); COM from ``body`` (the canonical model)."""
+    from biomotion.body.kinematics import center_of_mass
+
+    defaults = body.defaults.to(torch.float32)
+    clips = []
+    for i in tqdm(range(len(cache)), desc="tokenize", unit="clip", disable=not progress):
+        record = cache.records[i]
+        n = record["n_frames"] // DOWNSAMPLE * DOWNSAMPLE
+        if n < DOWNSAMPLE:
+            continue
+        q = torch.from_numpy(np.ascontiguousarray(cache.values[record["offset"]: record["offset"] + n],
+                                                  dtype=np.float32))
+        mask = torch.from_numpy(cache.masks[i]).bool()
+        latents = tokenizer.encode_continuous(q[None], mask[None])[0]
+        codes = tokenizer.quantiser.nearest(latents)
+        full = torch.where(mask, q, defaults)
+        com = center_of_mass(body, full.to(body.dtype)).float()
+        labels = record["labels"]
+        request = ActionRequest(labels["action"], labels.get("style"), labels.get("speed"), labels.get("text") or "")
+        clips.append(TokenizedClip(i, f"{record['source']}/{record['subject']}", record["split"], codes, latents,
+                                   metadata_features(q, mask, com, cache.rate), biodata_features(cache.profile(i)),
+                                   action_features(request, vocabulary)))
+    return clips
+
+
+class Batches:
+    """Random training batches: target crops and profile inputs built from other clips of the same subject."""
+
+    def __init__(self, clips: list[TokenizedClip], crop: int, references: int, max_latents: int,
+                 generator: torch.Generator) -> None:
+        self.clips, self.crop, self.references, self.max_latents = clips, crop, references, max_latents
+        self.generator = generator
+        self.by_subject: dict[str, list[int]] = {}
+        for k, clip in enumerate(clips):
+            self.by_subject.setdefault(clip.subject, []).append(k)
+
+    def _randint(self, high: int) -> int:
+        return int(torch.randint(high, (1,), generator=self.generator))
+
+    def reference_set(self, k: int) -> list[TokenizedClip]:
+        """Up to ``references`` clips of clip k's subject other than k (k itself when the subject has one clip)."""
+        others = [j for j in self.by_subject[self.clips[k].subject] if j != k] or [k]
+        order = torch.randperm(len(others), generator=self.generator)[: self.references]
+        return [self.clips[others[int(j)]] for j in order]
+
+    def condition(self, ks: list[int], drop_references: float = 0.0, drop_biodata: float = 0.0) -> Condition:
+        return stack_conditions([profile_inputs(self.reference_set(k), self.clips[k], self.max_latents,
+                                                keep_references=float(torch.rand(1, generator=self.generator))
+                                                >= drop_references,
+                                                keep_biodata=float(torch.rand(1, generator=self.generator))
+                                                >= drop_biodata) for k in ks])
+
+    def targets(self, ks: list[int]) -> torch.Tensor:
+        """Crops [B, crop] of the clips' codes; positions past a short clip's end hold -100 (ignored)."""
+        out = torch.full((len(ks), self.crop), -100, dtype=torch.long)
+        for row, k in enumerate(ks):
+            codes = self.clips[k].codes
+            start = self._randint(max(len(codes) - self.crop, 0) + 1)
+            piece = codes[start: start + self.crop]
+            out[row, : len(piece)] = piece
+        return out
+
+
+def profile_inputs(references: list[TokenizedClip], target: TokenizedClip, max_latents: int, *,
+                   keep_references: bool = True, keep_biodata: bool = True) -> Condition:
+    """One sample's (unbatched) condition: references' latents + mean metadata, the target's biodata and action."""
+    code_dim = target.latents.shape[-1]
+    if keep_references and references:
+        latents = torch.cat([r.latents for r in references])[:max_latents]
+        metadata = mean_features([r.metadata for r in references]).cat()
+    else:
+        latents = torch.zeros(0, code_dim)
+        metadata = torch.zeros_like(target.metadata.cat())
+    biodata = target.biodata.cat() if keep_biodata else torch.zeros_like(target.biodata.cat())
+    return Condition(latents, torch.ones(len(latents), dtype=torch.bool), biodata, metadata, target.action.cat())
+
+
+def stack_conditions(items: list[Condition]) -> Condition:
+    """Batch unbatched conditions, padding reference latents (at least one padded slot, all invalid if none)."""
+    longest = max(1, max(len(c.latents) for c in items))
+    dim = items[0].latents.shape[-1]
+    latents = torch.zeros(len(items), longest, dim)
+    valid = torch.zeros(len(items), longest, dtype=torch.bool)
+    for row, c in enumerate(items):
+        latents[row, : len(c.latents)] = c.latents
+        valid[row, : len(c.latents)] = c.latent_valid
+    return Condition(latents, valid, torch.stack([c.biodata for c in items]),
+                     torch.stack([c.metadata for c in items]), torch.stack([c.action for c in items]))
+
+
+def cross_entropy(prior: ProfileActionPrior, codes: torch.Tensor, cond: Condition) -> torch.Tensor:
+    """Teacher-forced next-code cross-entropy with -100 targets ignored."""
+    z_cond = prior.condition_vector(cond)
+    start = torch.full_like(codes[:, :1], prior.config.codebook_size)
+    previous = torch.cat([start, codes[:, :-1].clamp_min(0)], 1)
+    logits = prior.logits(previous, z_cond, prior.memory(z_cond))
+    return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), codes.reshape(-1), ignore_index=-100)
+
+
+def triplet(prior: ProfileActionPrior, batches: Batches, ks: list[int], margin: float) -> torch.Tensor:
+    """Profile tokens of two reference draws of the same subject closer than of two different subjects."""
+    if prior.profiler is None:
+        return torch.zeros(())
+
+    def tokens(indices: list[int]) -> torch.Tensor:
+        c = batches.condition(indices)
+        return F.normalize(prior.profiler(c.latents, c.latent_valid, c.biodata, c.metadata), dim=-1)
+
+    anchor, positive = tokens(ks), tokens(ks)
+    subjects = [batches.clips[k].subject for k in ks]
+    shift = [(i + 1) % len(ks) for i in range(len(ks))]
+    different = torch.tensor([subjects[i] != subjects[j] for i, j in enumerate(shift)])
+    if not different.any():
+        return torch.zeros(())
+    negative = anchor[shift]
+    loss = F.relu((anchor - positive).pow(2).sum(-1) - (anchor - negative).pow(2).sum(-1) + margin)
+    return loss[different].mean()
+
+
+@torch.no_grad()
+def evaluate(prior: ProfileActionPrior, clips: list[TokenizedClip], crop: int, references: int, max_latents: int,
+             seed: int = 1) -> dict[str, float]:
+    """Mean next-code cross-entropy and top-1 accuracy over every clip (first ``crop`` codes), fixed references."""
+    was = prior.training
+    prior.eval()
+    batches = Batches(clips, crop, references, max_latents, torch.Generator().manual_seed(seed))
+    ks = list(range(len(clips)))
+    codes = torch.full((len(ks), crop), -100, dtype=torch.long)
+    for row, k in enumerate(ks):
+        piece = clips[k].codes[:crop]
+        codes[row, : len(piece)] = piece
+    cond = batches.condition(ks)
+    z_cond = prior.condition_vector(cond)
+    start = torch.full_like(codes[:, :1], prior.config.codebook_size)
+    logits = prior.logits(torch.cat([start, codes[:, :-1].clamp_min(0)], 1), z_cond, prior.memory(z_cond))
+    keep = codes >= 0
+    ce = F.cross_entropy(logits[keep], codes[keep])
+    accuracy = (logits.argmax(-1)[keep] == codes[keep]).float().mean()
+    prior.train(was)
+    return {"cross_entropy": float(ce), "accuracy": float(accuracy), "clips": len(clips)}
+
+
+def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_root: str | Path, out: str | Path, *,
+          population: bool = False, minutes: float | None = None, iterations: int | None = None, seed: int = 0,
+          progress: bool = True, command: str = "") -> dict:
+    """Train the prior from ``config`` (YAML dict); save `GeneratorBundle` weights + card next to ``out``."""
+    from biomotion.evaluation.clips import body_model
+
+    try:
+        model_cfg, train_cfg = dict(config.get("model", {})), config["train"]
+        crop, refs, max_latents = int(train_cfg["crop"]), int(train_cfg["references"]), int(train_cfg["max_latents"])
+    except KeyError as missing:
+        raise ConfigError(f"generator config lacks the setting {missing}") from None
+    torch.manual_seed(seed)
+    cache = DatasetCache(cache_dir)
+    tokenizer = MotionVQVAE.load(tokenizer_path)
+    body = body_model(data_root)
+    vocabulary = ActionVocabulary.from_labels([r["labels"] for r in cache.records])
+    clips = tokenize_cache(cache, tokenizer, body, vocabulary, progress)
+    train_clips = [c for c in clips if c.split == "train"]
+    val_clips = [c for c in clips if c.split != "train"]
+    config_obj = PriorConfig.from_dict({**model_cfg, "codebook_size": tokenizer.config.codebook_size,
+                                        "code_dim": tokenizer.config.code_dim,
+                                        "action_size": action_size(vocabulary), "use_profile": not population})
+    prior = ProfileActionPrior(config_obj)
+    optimiser = torch.optim.AdamW(prior.parameters(), lr=train_cfg["lr"], weight_decay=train_cfg["weight_decay"])
+    generator = torch.Generator().manual_seed(seed)
+    batches = Batches(train_clips, crop, refs, max_latents, generator)
+    total = int(iterations or train_cfg["iterations"])
+    deadline = time.monotonic() + 60 * minutes if minutes else math.inf
+    before = evaluate(prior, val_clips, crop, refs, max_latents)
+    started = time.monotonic()
+    history = []
+    step = 0
+    bar = tqdm(range(total), desc="population prior" if population else "generator", unit="it",
+               disable=not progress)
+    for step in bar:
+        if time.monotonic() > deadline:
+            break
+        lr = train_cfg["lr"] * min(1.0, (step + 1) / train_cfg["warmup"])
+        lr *= 0.5 * (1 + math.cos(math.pi * step / total))
+        for group in optimiser.param_groups:
+            group["lr"] = lr
+        ks = torch.randint(len(train_clips), (train_cfg["batch_size"],), generator=generator).tolist()
+        cond = batches.condition(ks, train_cfg["drop_references"], train_cfg["drop_biodata"])
+        ce = cross_entropy(prior, batches.targets(ks), cond)
+        tri = triplet(prior, batches, ks, train_cfg["triplet_margin"])
+        loss = ce + train_cfg["w_triplet"] * tri
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(prior.parameters(), train_cfg["grad_clip"])
+        optimiser.step()
+        if step % 20 == 0:
+            bar.set_postfix(ce=f"{ce.item():.3f}", triplet=f"{tri.item():.3f}")
+        if (step + 1) % train_cfg["eval_every"] == 0:
+            history.append({"step": step + 1, "train_ce": ce.item(),
+                            **{f"val_{k}": v for k, v in evaluate(prior, val_clips, crop, refs, max_latents).items()}})
+    else:
+        step = total
+    prior.eval()
+    after_val = evaluate(prior, val_clips, crop, refs, max_latents)
+    after_train = evaluate(prior, train_clips, crop, refs, max_latents)
+    bounds = action_bounds(cache, body, [c.index for c in train_clips])
+    bundle = GeneratorBundle(prior, vocabulary, bounds, tokenizer_sha256=hashlib.sha256(
+        Path(tokenizer_path).read_bytes()).hexdigest(), train_subjects=tuple(sorted({c.subject for c in train_clips})))
+    out = Path(out)
+    bundle.save(out)
+    card = {
+        "model": ("biomotion population prior (action only, T2M-GPT-kind baseline)" if population else
+                  "biomotion profile-action prior + subject profiler (PG-BIG Sec. 3.2, A.6)"),
+        "weights": out.name,
+        "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+        "tokenizer": Path(tokenizer_path).name,
+        "tokenizer_sha256": bundle.tokenizer_sha256,
+        "command": command or "biomotion.models.train_generator.train (Python API)",
+        "config": config, "seed": seed, "iterations": step,
+        "train_seconds": round(time.monotonic() - started, 1),
+        "data": {"train_clips": len(train_clips), "held_out_clips": len(val_clips),
+                 "subjects_train": len({c.subject for c in train_clips}),
+                 "actions": list(vocabulary.actions), "styles": list(vocabulary.styles)},
+        "metrics_held_out_before": before, "metrics_held_out": after_val, "metrics_train": after_train,
+        "history": history,
+        "environment": {"python": platform.python_version(), "torch": torch.__version__},
+    }
+    with atomic_write(out.with_suffix(".json")) as handle:
+        json.dump(card, handle, indent=1)
+    with atomic_write(out.with_suffix(".md")) as handle:
+        handle.write(_markdown(card))
+    return card
+
+
+def _markdown(card: dict) -> str:
+    rows = "".join(f"| {k} | {card['metrics_held_out_before'][k]:.4g} | {v:.4g} | {card['metrics_train'][k]:.4g} |\n"
+                   for k, v in card["metrics_held_out"].items() if k != "clips")
+    return (f"# {card['weights']}\n\n{card['model']}.\n\n- SHA-256: `{card['sha256']}`\n"
+            f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
+            f"- command: `{card['command']}`\n- seed {card['seed']}, {card['iterations']} iterations, "
+            f"{card['train_seconds']} s\n- data: {card['data']['train_clips']} train clips "
+            f"({card['data']['subjects_train']} subjects), {card['data']['held_out_clips']} held-out clips "
+            "(val + test splits, unseen subjects)\n\n"
+            "| metric (first crop of every clip) | held-out, before | held-out, after | train, after |\n"
+            "|---|---|---|---|\n" + rows)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, type=Path)
+    parser.add_argument("--cache", required=True, type=Path)
+    parser.add_argument("--tokenizer", required=True, type=Path)
+    parser.add_argument("--data-root", default=Path("../shared/data"), type=Path)
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--population", action="store_true", help="train the action-only baseline prior")
+    parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    try:
+        config = yaml.safe_load(args.config.read_text())
+        given = argv if argv is not None else sys.argv[1:]
+        card = train(config, args.cache, args.tokenizer, args.data_root, args.out, population=args.population,
+                     minutes=args.minutes, iterations=args.iterations, seed=args.seed,
+                     command=" ".join(["python -m biomotion.models.train_generator", *given]))
+    except BiomotionError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps({"held_out": card["metrics_held_out"], "train": card["metrics_train"]}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    torch.set_num_threads(1)
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""Pieces of `biomotion eval generation` on synthetic input with known answers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.evaluation.generation import done_when, kinematic_measures, stride_period
+
+
+def _running(period: float, knee_amplitude: float, bounce: float, speed: float, rate: float = 30.0,
+             seconds: float = 4.0) -> np.ndarray:
+    t = np.arange(int(seconds * rate)) / rate
+    q = np.zeros((len(t), len(CANONICAL_COORDINATES)))
+    col = CANONICAL_COORDINATES.index
+    phase = 2 * math.pi * t / period
+    q[:, col("knee_angle_r")] = 0.6 + knee_amplitude * np.sin(phase)
+    q[:, col("knee_angle_l")] = 0.6 + knee_amplitude * np.sin(phase + math.pi)
+    q[:, col("pelvis_ty")] = 0.95 + bounce * np.sin(2 * phase)  # two bounces per stride
+    q[:, col("pelvis_tx")] = speed * t
+    return q
+
+
+def test_stride_period_and_measures_recover_the_synthetic_gait():
+    q = _running(period=0.72, knee_amplitude=0.5, bounce=0.04, speed=3.5)
+    assert stride_period(q, 30.0) == pytest.approx(0.72, abs=1 / 30)  # within one frame
+    m = kinematic_measures(q, 30.0)
+    assert m["stride_frequency"] == pytest.approx(1 / 0.72, rel=0.05)
+    assert m["stride_length"] == pytest.approx(3.5 * 0.72, rel=0.05)
+    assert m["knee_rom_r"] == pytest.approx(math.degrees(1.0), rel=0.02)  # 2.5-97.5 percentiles of a sine
+    assert m["pelvis_excursion"] == pytest.approx(2 * 0.04 * math.sin(math.radians(72)), rel=0.1)
+
+
+def _table(**means):
+    keys = ("fidelity", "penetration", "floating", "foot_contact_velocity", "muscle_violations", "skate_ratio",
+            "jerk", "zmp_in_support")
+    return {v: {k: {"mean": means.get(f"{v}_{k}", 1.0)} for k in keys}
+            for v in ("reference", "full", "no_guidance", "no_personalization", "population")}
+
+
+def test_done_when_reads_each_bar_from_the_table():
+    table = _table(full_fidelity=0.5, full_zmp_in_support=95.0, full_jerk=1.5, no_guidance_penetration=2.0)
+    bars = done_when(table, {"full": 0.8, "reference": 0.82}, None)
+    assert bars["fidelity_full_beats_no_personalization"] and bars["fidelity_full_beats_population"]
+    assert bars["penetration_full_beats_no_guidance"]
+    assert not bars["floating_full_beats_no_guidance"]  # equal is not better
+    assert bars["jerk_within_2x_reference"] and bars["zmp_in_support_at_least_90"]
+    assert bars["identity_within_5_points_of_real"]
+    worse = done_when(_table(full_jerk=2.5, full_zmp_in_support=80.0), {"full": 0.5, "reference": 0.9}, None)
+    assert not worse["jerk_within_2x_reference"] and not worse["zmp_in_support_at_least_90"]
+    assert not worse["identity_within_5_points_of_real"]
