@@ -59,6 +59,29 @@ def _convert(args: argparse.Namespace) -> int:
     return 0
 
 
+def _generate(args: argparse.Namespace) -> int:
+    import shlex
+
+    from biomotion.generation.command import generate_command
+
+    result = generate_command(
+        action=args.action, out=args.out, data_root=args.data_root, checkpoints=args.checkpoints,
+        profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
+        references=args.reference or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
+        guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
+        command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+    a = result["action"]
+    speed = "" if a.speed is None else f" at {a.speed:g} m/s"
+    style = "" if a.style is None else f" ({a.style})"
+    print(f"generated {args.samples} x {args.seconds:g} s of {a.action!r}{style}{speed} in "
+          f"{result['generate_seconds']:.2f} s (models loaded in {result['load_seconds']:.1f} s; outputs written in "
+          f"{result['write_seconds']:.1f} s) -> {args.out}")
+    for sample, files in result["files"].items():
+        for role, path in files.items():
+            print(f"  {sample + '/' if len(result['files']) > 1 else ''}{role:18s} {path}")
+    return 0
+
+
 def _inspect(args: argparse.Namespace) -> int:
     from biomotion.io.convert import describe
 
@@ -151,6 +174,24 @@ def _eval(args: argparse.Namespace) -> int:
     from biomotion.errors import ConfigError
     from biomotion.evaluation.harness import eval_command, reference_command
 
+    if args.mode == "generation":
+        import shlex
+
+        from biomotion.evaluation.generation import eval_generation
+
+        if args.json is None:
+            raise ConfigError("eval generation needs --json FILE")
+        report = eval_generation(args.data_root, args.json, args.md, checkpoints=args.checkpoints,
+                                 max_seconds=args.max_seconds, seed=args.seed,
+                                 manipulation_samples=args.manipulation_samples,
+                                 command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+        met = sum(bool(v) for v in report["bars"].values())
+        print(f"evaluated {report['targets']} clips of {report['subjects']} unseen subjects; "
+              f"{met}/{len(report['bars'])} bars met")
+        for bar, value in report["bars"].items():
+            print(f"  {'–' if value is None else 'met' if value else 'NOT met':8s} {bar}")
+        print(f"wrote {args.json}" + (f" and {args.md}" if args.md else ""))
+        return 0
     if args.mode == "reference":
         if args.json is None or args.md is None:
             raise ConfigError("eval reference needs --json FILE and --md FILE")
@@ -219,6 +260,40 @@ def build_parser() -> argparse.ArgumentParser:
     convert.add_argument("input", type=Path)
     convert.add_argument("output", type=Path)
     convert.set_defaults(run=_convert)
+
+    generate = verbs.add_parser(
+        "generate", help="generate personalised, biomechanically guided motion for a person and an action (PG-BIG)",
+        description="Generate motion of ACTION for a person (PG-BIG): the profile (a YAML/JSON file or a subject "
+                    "table row) and optional reference clips of the person condition an autoregressive prior over "
+                    "motion tokens; biomechanical guidance then refines the sample through the body model and the "
+                    "muscle surrogate. Writes, per sample: motion.mot (coordinates of the person's scaled model), "
+                    "motion.bvh, grf.mot + grf_loads.xml and torques.sto (inferred from the motion), "
+                    "activations.sto (surrogate), com_zmp.sto, metrics.json, plots and viewer.html; and model.osim "
+                    "(the generic Rajagopal 2016 model scaled to the person's height and mass).",
+        epilog="example: biomotion generate --profile examples/runner_52_acl.yaml "
+               "--action \"running at 3.5 m/s\" --seconds 3 --out out/runner")
+    person = generate.add_argument_group("who (optional: without a profile the motion is population-level)")
+    person.add_argument("--profile", type=Path, help="profile file (YAML/JSON: age, sex, height, mass, sport, "
+                                                     "level, experience_years, injuries)")
+    person.add_argument("--subject-table", type=Path, help="subject table (CSV/XLSX) holding the person")
+    person.add_argument("--subject-id", help="the person's id in --subject-table")
+    person.add_argument("--reference", type=Path, action="append",
+                        help="a clip of the person (OpenSim coordinates .mot/.sto, Rajagopal-family names); "
+                             "repeatable")
+    generate.add_argument("--action", required=True,
+                          help="what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
+                               "\"squat\", \"drop jump\", \"walk with toes out\")")
+    generate.add_argument("--seconds", type=float, default=3.0, help="clip length (default: %(default)s)")
+    generate.add_argument("--samples", type=int, default=1, help="clips to draw (default: %(default)s)")
+    generate.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    generate.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
+    generate.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
+    generate.add_argument("--no-figures", action="store_true", help="no plots or viewer")
+    generate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+                          help="folder with opensim-models/ (the canonical Rajagopal model; default: %(default)s)")
+    generate.add_argument("--checkpoints", type=Path, help="folder of trained weights (default: the shipped ones)")
+    generate.add_argument("--out", type=Path, required=True, help="output folder")
+    generate.set_defaults(run=_generate)
 
     analyze = verbs.add_parser(
         "analyze", help="joint torques, ground forces, COM, ZMP and energy of a trial on a model",
@@ -290,7 +365,11 @@ def build_parser() -> argparse.ArgumentParser:
                     "a BVH folder, or a dataset cache) and, with --ref, compares it with reference motion "
                     "(PG-BIG Table 2 / PhysPT Table 1 layout). `biomotion eval reference` scores every source of "
                     "the dataset registry under --data-root per source and action: the Reference column.")
-    evaluate.add_argument("mode", nargs="?", choices=("reference",), help="score the real data (reference table)")
+    evaluate.add_argument("mode", nargs="?", choices=("reference", "generation"),
+                          help="reference: score the real data (reference table); generation: generate for every "
+                               "unseen subject of --data-root and tabulate PG-BIG Tables 2-3 (full model, w/o "
+                               "guidance, w/o personalization, population baseline), the identity probe and the "
+                               "profile-manipulation study")
     evaluate.add_argument("--pred", nargs="+", type=Path, help="predicted motion: files or one folder")
     evaluate.add_argument("--ref", nargs="+", type=Path, help="reference motion: files or one folder")
     evaluate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
@@ -300,6 +379,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--physics", action="store_true",
                           help="also full-body energy and ZMP-in-support (slower)")
     evaluate.add_argument("--no-physics", action="store_true", help="reference: skip the slower physics metrics")
+    evaluate.add_argument("--checkpoints", type=Path, help="generation: folder of trained weights (default: shipped)")
+    evaluate.add_argument("--max-seconds", type=float, default=6.0,
+                          help="generation: longest target clip, longer ones are cut (default: %(default)s)")
+    evaluate.add_argument("--seed", type=int, default=0, help="generation: random seed (default: %(default)s)")
+    evaluate.add_argument("--manipulation-samples", type=int, default=8,
+                          help="generation: clips per profile in the manipulation study, 0 skips it "
+                               "(default: %(default)s)")
     evaluate.set_defaults(run=_eval)
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")

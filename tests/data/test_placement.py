@@ -18,9 +18,10 @@ def model():
 
 def _stance_foot_speed(model, motion) -> float:
     """Mean forward (x) speed of the lowest foot point over the frames where it is within 1 cm of its minimum."""
+    import torch
+
     from biomotion.body.contact import foot_points
     from biomotion.body.kinematics import forward_kinematics, points_in_ground
-    import torch
 
     full = np.where(motion.mask[None], motion.values, model.defaults.numpy()[None])
     feet = foot_points(model)

@@ -4,12 +4,11 @@ import json
 import shutil
 
 import numpy as np
-
-from biomotion.data.placement import GENERIC_HEIGHT
 import pytest
 
 from biomotion.cli import main
 from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.data.registry import DatasetCache, build_cache, subject_split
 from biomotion.io.mot import read_motion
 from tests.conftest import DATA_ROOT

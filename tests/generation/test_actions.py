@@ -19,11 +19,10 @@ import os
 import pytest
 import torch
 
-from tests.conftest import REPO
-
 from biomotion.errors import ConfigError
 from biomotion.generation import actions
 from biomotion.generation.actions import ActionRequest, ActionVocabulary, find_speed
+from tests.conftest import REPO
 
 CACHE = REPO / "build" / "dataset"
 

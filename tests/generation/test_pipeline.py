@@ -39,7 +39,8 @@ def generator():
     vocabulary = ActionVocabulary.from_labels(LABELS)
     prior = ProfileActionPrior(PriorConfig(codebook_size=16, code_dim=8, action_size=action_size(vocabulary),
                                            width=16, layers=1, heads=2, max_tokens=8)).eval()
-    bounds = {ALL_ACTIONS: GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000)}
+    bounds = {ALL_ACTIONS: GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000,
+                                             tuple([100.0] * 39))}
     surrogate = MuscleSurrogate(["a", "b"], SurrogateConfig(width=8, depth=1)).eval()
     surrogate.high.fill_(0.3)
     return Generator(tokenizer, GeneratorBundle(prior, vocabulary, bounds), body, surrogate)
@@ -53,6 +54,7 @@ def test_generate_shapes_and_guidance_lowers_its_loss(generator):
     assert out.q.shape == out.unguided.shape == (2, 30, 39)
     # physics weights are on from the first iteration (ramp 1): the objective must fall over 12 Adam steps
     assert out.history[-1]["loss"] < out.history[0]["loss"]
+    assert out.history[-1]["guidance"] < out.history[0]["guidance"]
     assert not torch.allclose(out.q, out.unguided)
     again = generator.generate(request, profile=profile, seconds=1.0, samples=2, seed=3, guidance=False)
     torch.testing.assert_close(again.unguided, out.unguided)  # same seed, same sample

@@ -5,8 +5,12 @@ import pytest
 import torch
 
 from biomotion.errors import DataFormatError, ModelError
-from biomotion.muscles.properties import (max_active_force, read_muscles, thelen_active_force_length,
-                                          thelen_force_velocity)
+from biomotion.muscles.properties import (
+    max_active_force,
+    read_muscles,
+    thelen_active_force_length,
+    thelen_force_velocity,
+)
 from tests.conftest import data_path
 
 GAIT_MODEL = "opensim-models/Pipelines/Gait2392_Simbody/OutputReference/subject01_simbody.osim"

@@ -63,7 +63,11 @@ def test_bad_shapes_and_unactuated_coordinates_are_refused():
 
 def test_matches_opensim_static_optimization_on_a_gait_window():
     pytest.importorskip("opensim")
-    from biomotion.muscles.validation import gait_static_optimization, opensim_gait_static_optimization, r_squared
+    from biomotion.muscles.validation import (
+        gait_static_optimization,
+        opensim_gait_static_optimization,
+        r_squared,
+    )
 
     root = data_path("opensim-models/Pipelines/Gait2392_Simbody").parents[2]
     reference = opensim_gait_static_optimization(root, 0.9, 1.15)

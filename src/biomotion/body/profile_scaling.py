@@ -39,7 +39,11 @@ from pathlib import Path
 import torch
 
 from biomotion.body.contact import foot_points
-from biomotion.body.kinematics import apply_couplers, forward_kinematics, points_in_ground
+from biomotion.body.kinematics import (
+    apply_couplers,
+    forward_kinematics,
+    points_in_ground,
+)
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling import scale_model
 from biomotion.errors import BiomotionWarning, ConfigError, ModelError

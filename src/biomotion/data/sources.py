@@ -9,9 +9,9 @@ canonical). Sources that need retargeting (BVH, raw C3D) register themselves thr
 from __future__ import annotations
 
 import re
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable
 
 import numpy as np
 

@@ -63,7 +63,7 @@ def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float) -> 
         if key not in seen and r["n_frames"] >= 8:
             by_subject.setdefault(key, []).append(i)
     targets = []
-    limit = int(round(max_seconds * cache.rate))
+    limit = round(max_seconds * cache.rate)
     for subject, indices in by_subject.items():
         for i in indices:
             motion = cache.motion(i)
@@ -149,7 +149,12 @@ def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list
 def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str]) -> dict:
     """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits."""
     from biomotion.evaluation.clips import CoordinateClip, coordinate_set
-    from biomotion.evaluation.harness import _record, score_pairs, summarize_set, MetricSpec
+    from biomotion.evaluation.harness import (
+        MetricSpec,
+        _record,
+        score_pairs,
+        summarize_set,
+    )
 
     reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
                                model, rate, derivatives=True)
@@ -173,7 +178,7 @@ def _mean(table: dict, variant: str, key: str) -> float:
 
 def done_when(table: dict, identity: dict, manipulation: dict | None) -> dict[str, bool | None]:
     """Issue 7's bars, each True/False (None where it could not be measured)."""
-    m = lambda v, k: _mean(table, v, k)  # noqa: E731
+    m = lambda v, k: _mean(table, v, k)
     fid = "fidelity"
     checks = {
         "fidelity_full_beats_no_personalization": m("full", fid) < m("no_personalization", fid),
@@ -209,7 +214,7 @@ def markdown(report: dict) -> str:
             if r is None:
                 cells.append("–")
                 continue
-            label, unit, better = r["label"], r["unit"], r["better"]
+            label, unit = r["label"], r["unit"]
             cells.append("–" if r["mean"] is None else f"{r['mean']:.3g} ± {r['std']:.2g}" if r.get("std") is not None
                          else f"{r['mean']:.3g}")
         rows.append(f"| {label} ({unit}) | " + " | ".join(cells) + " |")
@@ -252,8 +257,8 @@ def kinematic_measures(q: np.ndarray, rate: float) -> dict[str, float]:
     """Measures a profile change may move, from canonical coordinates [T, 39] (generic size): knee flexion range
     (deg, each side), hip flexion range (deg), stride frequency (Hz), stride length (m, pelvis speed x period) and
     vertical pelvis excursion (m, 95th - 5th percentile of pelvis_ty)."""
-    col = lambda n: q[:, CANONICAL_COORDINATES.index(n)]  # noqa: E731
-    rom = lambda n: float(np.degrees(np.percentile(col(n), 97.5) - np.percentile(col(n), 2.5)))  # noqa: E731
+    col = lambda n: q[:, CANONICAL_COORDINATES.index(n)]
+    rom = lambda n: float(np.degrees(np.percentile(col(n), 97.5) - np.percentile(col(n), 2.5)))
     period = stride_period(q, rate)
     speed = float(np.hypot(col("pelvis_tx")[-1] - col("pelvis_tx")[0], col("pelvis_tz")[-1] - col("pelvis_tz")[0])
                   / ((len(q) - 1) / rate))

@@ -136,7 +136,7 @@ class ActionVocabulary:
 
     # ---- construction --------------------------------------------------------------------------------------
     @classmethod
-    def from_labels(cls, labels: Iterable[Mapping[str, Any] | Any]) -> "ActionVocabulary":
+    def from_labels(cls, labels: Iterable[Mapping[str, Any] | Any]) -> ActionVocabulary:
         """From label dicts ``{'action', 'style', 'speed', 'text'}`` (or `biomotion.trial.Labels`); labels
         without an action are skipped, a missing text becomes ``"<action>, <style>"``."""
         groups: dict[tuple[str, str | None, str], dict[str, Any]] = {}
@@ -169,7 +169,7 @@ class ActionVocabulary:
                              "speeds": list(e.speeds), "count": e.count} for e in self._entries]}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "ActionVocabulary":
+    def from_dict(cls, data: Mapping[str, Any]) -> ActionVocabulary:
         if data.get("format") != FORMAT:
             raise ConfigError(f"not an action vocabulary of format {FORMAT!r} (got {data.get('format')!r})")
         return cls([_Entry(e["action"], e.get("style"), e["prompt"], tuple(e["texts"]),

@@ -2,7 +2,8 @@
 
 The guidance bounds are PG-BIG Table 1's statistical limits, measured on the training split per action (a run's
 COM speed has nothing in common with a squat's): the 95th percentile of each coordinate's |dq/dt| and the
-5th/95th percentiles of COM speed and COM acceleration magnitude. Actions with too few frames fall back to the
+5th/95th percentiles of COM speed and COM acceleration magnitude; and, in the same form, the 95th percentile of
+each coordinate's |d3q/dt3| for the smoothness term we add (`biomotion.guidance.losses.angular_jerk`). Actions with too few frames fall back to the
 bounds over all actions (key ``"*"``).
 """
 
@@ -34,25 +35,32 @@ class GuidanceBounds:
     com_speed: tuple[float, float]
     com_acceleration: tuple[float, float]
     frames: int
+    jerk_high: tuple[float, ...] = ()
 
     def to_dict(self) -> dict:
-        return {"speed_high": [None if not np.isfinite(v) else v for v in self.speed_high],
+        finite = lambda values: [None if not np.isfinite(v) else v for v in values]
+        return {"speed_high": finite(self.speed_high), "jerk_high": finite(self.jerk_high),
                 "com_speed": list(self.com_speed), "com_acceleration": list(self.com_acceleration),
                 "frames": self.frames}
 
     @classmethod
     def from_dict(cls, d: dict) -> GuidanceBounds:
-        return cls(tuple(float("nan") if v is None else float(v) for v in d["speed_high"]),
-                   tuple(d["com_speed"]), tuple(d["com_acceleration"]), int(d["frames"]))
+        values = lambda key: tuple(float("nan") if v is None else float(v) for v in d[key])
+        return cls(values("speed_high"), tuple(d["com_speed"]), tuple(d["com_acceleration"]), int(d["frames"]),
+                   values("jerk_high"))
 
 
-def _bounds(speeds: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray]) -> GuidanceBounds:
-    s = np.concatenate(speeds)
+def _p95(rows: np.ndarray) -> tuple[float, ...]:
     with np.errstate(all="ignore"):
-        high = np.array([np.nanpercentile(col, 95) if np.isfinite(col).any() else np.nan for col in s.T])
+        return tuple(float(np.nanpercentile(col, 95)) if np.isfinite(col).any() else float("nan") for col in rows.T)
+
+
+def _bounds(speeds: list[np.ndarray], jerks: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray]
+            ) -> GuidanceBounds:
     v, a = np.concatenate(com_v), np.concatenate(com_a)
-    return GuidanceBounds(tuple(float(x) for x in high), (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
-                          (float(np.percentile(a, 5)), float(np.percentile(a, 95))), len(v))
+    return GuidanceBounds(_p95(np.concatenate(speeds)), (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
+                          (float(np.percentile(a, 5)), float(np.percentile(a, 95))), len(v),
+                          _p95(np.concatenate(jerks)))
 
 
 @torch.no_grad()
@@ -63,25 +71,28 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
 
     rate = cache.rate
     defaults = body.defaults.numpy()
-    groups: dict[str, tuple[list, list, list]] = {}
+    groups: dict[str, tuple[list, list, list, list]] = {}
     for i in indices:
         record = cache.records[i]
         q = np.asarray(cache.values[record["offset"]: record["offset"] + record["n_frames"]], dtype=np.float64)
-        if len(q) < 3:
+        if len(q) < 4:
             continue
         mask = cache.masks[i]
         speed = np.abs(np.diff(q, axis=0)) * rate
         speed[:, ~mask] = np.nan
+        jerk = np.abs(np.diff(q, 3, axis=0)) * rate ** 3
+        jerk[:, ~mask] = np.nan
         full = np.where(mask[None], q, defaults[None])
         com = center_of_mass(body, torch.from_numpy(full).to(body.dtype)).numpy()
         v = np.diff(com, axis=0) * rate
         a = np.diff(v, axis=0) * rate
         for key in (record["labels"]["action"], ALL_ACTIONS):
-            bucket = groups.setdefault(key, ([], [], []))
+            bucket = groups.setdefault(key, ([], [], [], []))
             bucket[0].append(speed)
-            bucket[1].append(np.linalg.norm(v, axis=-1))
-            bucket[2].append(np.linalg.norm(a, axis=-1))
-    return {k: _bounds(*g) for k, g in groups.items() if k == ALL_ACTIONS or sum(map(len, g[1])) >= MIN_FRAMES}
+            bucket[1].append(jerk)
+            bucket[2].append(np.linalg.norm(v, axis=-1))
+            bucket[3].append(np.linalg.norm(a, axis=-1))
+    return {k: _bounds(*g) for k, g in groups.items() if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES}
 
 
 class GeneratorBundle:
@@ -98,10 +109,11 @@ class GeneratorBundle:
         """The action's bounds, or the all-action bounds when the action had too few training frames."""
         return self.bounds.get(action, self.bounds[ALL_ACTIONS])
 
-    def speed_high(self, action: str) -> torch.Tensor:
-        """[39] upper speed bound; coordinates never observed for the action take the all-action bound."""
-        own = torch.tensor(self.bounds_for(action).speed_high)
-        fallback = torch.tensor(self.bounds[ALL_ACTIONS].speed_high)
+    def high(self, action: str, quantity: str = "speed_high") -> torch.Tensor:
+        """[39] upper bound of ``quantity`` (``speed_high`` or ``jerk_high``); coordinates never observed for the
+        action take the all-action bound, and those never observed at all are unbounded."""
+        own = torch.tensor(getattr(self.bounds_for(action), quantity))
+        fallback = torch.tensor(getattr(self.bounds[ALL_ACTIONS], quantity))
         return torch.where(torch.isfinite(own), own, fallback).nan_to_num(float("inf"))
 
     def save(self, path: str | Path) -> None:

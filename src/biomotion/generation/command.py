@@ -9,8 +9,8 @@ Motus, Schreiber, simple CSV).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from biomotion.errors import ConfigError, DataFormatError

@@ -37,7 +37,12 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
                muscle_names: tuple[str, ...], extra_metrics: dict, *, figures: bool = True,
                geometry: tuple[Path, ...] = ()) -> dict[str, Path]:
     """Write one generated clip's files into ``out`` (see the module docstring); returns them by role."""
-    from biomotion.analysis import analyze, model_motion, support_polygons, write_analysis
+    from biomotion.analysis import (
+        analyze,
+        model_motion,
+        support_polygons,
+        write_analysis,
+    )
     from biomotion.body.bvh_export import motion_to_bvh
     from biomotion.io.bvh import write_bvh
     from biomotion.io.mot import write_motion, write_storage
@@ -63,7 +68,12 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
         json.dump(metrics, handle, indent=1)
     files["metrics"] = out / "metrics.json"
     if figures:
-        from biomotion.viz.plots import plot_activations, plot_balance, plot_ground_reaction, plot_joint_angles
+        from biomotion.viz.plots import (
+            plot_activations,
+            plot_balance,
+            plot_ground_reaction,
+            plot_joint_angles,
+        )
         from biomotion.viz.viewer import view_command
 
         files["plot_joint_angles"] = plot_joint_angles(coordinates, out / "joint_angles")[0]

@@ -144,8 +144,9 @@ class Generator:
         generator = torch.Generator().manual_seed(seed)
         codes = self.bundle.prior.sample(batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator)
         z0 = self.tokenizer.quantiser.codebook[codes]
-        guide = Guide(self.tokenizer, self.body, self.bundle.bounds_for(action.action),
-                      self.bundle.speed_high(action.action), self.surrogate, guidance_config)
+        bundle = self.bundle
+        guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
+                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config)
         frames = round(seconds * self.rate)
         with torch.no_grad():
             unguided = guide.kinematics(z0).q[:, :frames]

@@ -10,12 +10,17 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
 - `activation`: L_act = 1/T sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm).
 - `ground`: not in Table 1; it carries Table 4's penetration term into guidance: penetration squared for every
   point plus height squared for points in contact, so planted feet neither sink nor hover (the contact metrics).
+- `angular_jerk`: not in Table 1; L_omega's form one derivative up, 1/T sum_t sum_j max(0, |d3q_tj/dt3| - high_j)
+  with 95th percentile bounds. It turns A.1's "refine motion smoothness" into a term, so guided motion is no
+  jerkier than the data (issue 7's bar: jerk within 2x the reference).
 - `proximity`: mean squared distance of the latents to the unguided sample's (Sec. 3.3, A.1 schedule).
 """
 
 from __future__ import annotations
 
 import torch
+
+from biomotion.metrics.bounds import bound_excess
 
 
 def _speed(x: torch.Tensor, rate: float) -> torch.Tensor:
@@ -27,6 +32,12 @@ def angular_velocity(q: torch.Tensor, rate: float, high: torch.Tensor) -> torch.
     return torch.relu(_speed(q, rate).abs() - high).sum(-1).mean(-1)
 
 
+def angular_jerk(q: torch.Tensor, rate: float, high: torch.Tensor) -> torch.Tensor:
+    """Coordinate jerk above its 95th percentile bound ``high`` [39], summed over coordinates, mean over time."""
+    jerk = torch.diff(q, 3, dim=1).abs() * rate ** 3
+    return torch.relu(jerk - high).sum(-1).mean(-1)
+
+
 def foot_contact(feet: torch.Tensor, rate: float, contact: torch.Tensor) -> torch.Tensor:
     """PG-BIG Table 1, L_foot; ``contact`` [B, T, K] bool, applied to the velocity between frames t and t + 1
     when the point is in contact at both."""
@@ -35,23 +46,19 @@ def foot_contact(feet: torch.Tensor, rate: float, contact: torch.Tensor) -> torc
     return (velocity.pow(2).sum(-1) * both).sum(-1).mean(-1)
 
 
-def _outside(values: torch.Tensor, low: float, high: float) -> torch.Tensor:
-    return torch.relu(values - high) + torch.relu(low - values)
-
-
 def com_velocity(com: torch.Tensor, rate: float, low: float, high: float) -> torch.Tensor:
     """PG-BIG Table 1, L_v."""
-    return _outside(_speed(com, rate).norm(dim=-1), low, high).mean(-1)
+    return bound_excess(_speed(com, rate).norm(dim=-1), torch.tensor(low), torch.tensor(high)).mean(-1)
 
 
 def com_acceleration(com: torch.Tensor, rate: float, low: float, high: float) -> torch.Tensor:
     """PG-BIG Table 1, L_a."""
-    return _outside(_speed(_speed(com, rate), rate).norm(dim=-1), low, high).mean(-1)
+    return bound_excess(_speed(_speed(com, rate), rate).norm(dim=-1), torch.tensor(low), torch.tensor(high)).mean(-1)
 
 
 def activation(activations: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
     """PG-BIG Table 1, L_act; ``low``/``high`` [M]."""
-    return (torch.relu(activations - high) + torch.relu(low - activations)).sum(-1).mean(-1)
+    return bound_excess(activations, low, high).sum(-1).mean(-1)
 
 
 def ground(feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:

@@ -7,9 +7,17 @@ Nothing here needs OpenSim at run time; `biomotion.muscles.fit_paths` (a build s
 from pathlib import Path
 
 from biomotion.muscles.geometry import MusclePaths, PathGroup, shipped_paths
-from biomotion.muscles.properties import MuscleParameters, max_active_force, passive_force, read_muscles
-from biomotion.muscles.static_optimization import (StaticOptimizationResult, optimize_activations,
-                                                   solve_static_optimization)
+from biomotion.muscles.properties import (
+    MuscleParameters,
+    max_active_force,
+    passive_force,
+    read_muscles,
+)
+from biomotion.muscles.static_optimization import (
+    StaticOptimizationResult,
+    optimize_activations,
+    solve_static_optimization,
+)
 
 
 def validate_muscles(data_root: str | Path, poses: int = 200) -> dict:
@@ -19,6 +27,16 @@ def validate_muscles(data_root: str | Path, poses: int = 200) -> dict:
     return run(data_root, poses)
 
 
-__all__ = ["MusclePaths", "PathGroup", "shipped_paths", "MuscleParameters", "read_muscles", "max_active_force",
-           "passive_force", "StaticOptimizationResult", "solve_static_optimization", "optimize_activations",
-           "validate_muscles"]
+__all__ = [
+    "MuscleParameters",
+    "MusclePaths",
+    "PathGroup",
+    "StaticOptimizationResult",
+    "max_active_force",
+    "optimize_activations",
+    "passive_force",
+    "read_muscles",
+    "shipped_paths",
+    "solve_static_optimization",
+    "validate_muscles",
+]

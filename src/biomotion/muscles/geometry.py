@@ -38,7 +38,7 @@ class PathGroup:
     coefficients: torch.Tensor  # [n_terms, m] length (m) per basis term
     muscles: torch.Tensor       # [m] long, indices into MusclePaths.muscle_names
 
-    def to(self, dtype: torch.dtype) -> "PathGroup":
+    def to(self, dtype: torch.dtype) -> PathGroup:
         return PathGroup(self.coordinates, self.center.to(dtype), self.half_range.to(dtype), self.exponents,
                          self.coefficients.to(dtype), self.muscles)
 
@@ -99,7 +99,7 @@ class MusclePaths:
     def dtype(self) -> torch.dtype:
         return self.ranges.dtype
 
-    def to(self, dtype: torch.dtype) -> "MusclePaths":
+    def to(self, dtype: torch.dtype) -> MusclePaths:
         return MusclePaths(self.model, self.muscle_names, self.coordinate_names,
                            tuple(g.to(dtype) for g in self.groups), self.ranges.to(dtype), self.info)
 
@@ -168,7 +168,7 @@ class MusclePaths:
             handle.write(save(tensors, metadata=metadata))
 
     @classmethod
-    def load(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> "MusclePaths":
+    def load(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> MusclePaths:
         """Read path functions written by `save` (e.g. the shipped ``biomotion/muscles/paths/*.safetensors``)."""
         from safetensors import SafetensorError, safe_open
 

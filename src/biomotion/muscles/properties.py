@@ -68,7 +68,7 @@ class MuscleParameters:
             raise ModelError(f"{self.source}: mixed muscle types {sorted(kinds)}")
         return kinds.pop()
 
-    def select(self, names: tuple[str, ...] | list[str]) -> "MuscleParameters":
+    def select(self, names: tuple[str, ...] | list[str]) -> MuscleParameters:
         """The parameters of ``names``, in that order."""
         index = {n: i for i, n in enumerate(self.names)}
         missing = [n for n in names if n not in index]

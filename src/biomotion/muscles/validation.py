@@ -27,7 +27,10 @@ import torch
 from biomotion.errors import DataFormatError
 from biomotion.muscles.geometry import MusclePaths, shipped_paths
 from biomotion.muscles.properties import read_muscles
-from biomotion.muscles.static_optimization import StaticOptimizationResult, optimize_activations
+from biomotion.muscles.static_optimization import (
+    StaticOptimizationResult,
+    optimize_activations,
+)
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
 GAIT_MODEL = f"{GAIT}/OutputReference/subject01_simbody.osim"

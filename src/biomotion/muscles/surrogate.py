@@ -1,0 +1,221 @@
+"""Differentiable muscle-activation surrogate for inference-time biomechanical guidance (PG-BIG Sec. 3.3, A.7-A.8).
+
+PG-BIG refines generated motion with gradients of a guidance loss whose muscle term bounds the activations
+a_{t,m} predicted from the kinematics by a surrogate of OpenSim's (non-differentiable) static optimization:
+``L_act = 1/T sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm)`` with the 5th/95th percentiles of the training
+labels as bounds (Table 1). The surrogate maps joint kinematics to activations (A.7) and is validated by R^2 and
+RMSE against the static-optimization targets (A.8, Table 7); BIGE (Maheshwari 2025) trains its surrogate with an
+L1 loss, as we do (`biomotion.muscles.train_surrogate`).
+
+Ours is a small temporal convolution network rather than PG-BIG's transformer encoder, sized for a CPU: input
+canonical coordinates q [B, T, 39] (`biomotion.data.canonical`, SI units, ``config.rate`` Hz) and an optional
+coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2016 muscles. Per frame it sees
+
+- positions of every coordinate except the coupled knee ``_beta`` ones (a function of the knee angle) and the
+  heading-like pelvis_tx, pelvis_tz and pelvis_rotation, which grow or wander over a clip and do not change the
+  joint torques (gravity is vertical);
+- velocities and accelerations of every coordinate but the knee ``_beta`` ones, by central finite differences
+  along T (the edge frames copy their neighbour's value);
+
+standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
+replicate padding; receptive field 1 + 4 (1 + depth) frames), a 1x1 head and a sigmoid. Masked coordinates are
+set to 0 before anything else, which is also how the labels treated absent coordinates
+(`biomotion.muscles.surrogate_labels`). Everything is differentiable with respect to q.
+
+Buffers ``low``/``high`` hold the 5th/95th percentile of each muscle's training-split labels (PG-BIG Table 1
+activation bounds); ``names`` are the muscle names. `MuscleSurrogate.save`/`load` keep the config and names in
+the safetensors metadata, so a file is self-contained.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.errors import ConfigError, ModelError
+
+N_COORDS = len(CANONICAL_COORDINATES)
+FORMAT = "biomotion-muscle-surrogate/1"
+_COUPLED = ("knee_angle_r_beta", "knee_angle_l_beta")
+_NO_POSITION = ("pelvis_tx", "pelvis_tz", "pelvis_rotation")
+#: Canonical indices whose positions / derivatives are features.
+POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED + _NO_POSITION)
+DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED)
+N_FEATURES = len(POSITION_COORDS) + 2 * len(DERIVATIVE_COORDS)
+
+
+@dataclass(frozen=True)
+class SurrogateConfig:
+    """Network sizes. ``rate``: frame rate (Hz) of the q the surrogate is given."""
+
+    width: int = 128
+    depth: int = 3
+    kernel: int = 5
+    dropout: float = 0.1
+    rate: float = DEFAULT_RATE
+
+    @classmethod
+    def from_dict(cls, values: dict) -> SurrogateConfig:
+        known = {f.name for f in fields(cls)}
+        unknown = set(values) - known
+        if unknown:
+            raise ConfigError(f"unknown surrogate model settings: {sorted(unknown)}; known: {sorted(known)}")
+        config = cls(**values)
+        if config.kernel % 2 == 0 or config.kernel < 1:
+            raise ConfigError(f"surrogate kernel must be odd, got {config.kernel}")
+        return config
+
+
+def finite_differences(q: torch.Tensor, rate: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Velocities and accelerations of q [..., T, n] along T: central differences (q[t+1] - q[t-1]) rate / 2 and
+    (q[t+1] - 2 q[t] + q[t-1]) rate^2; the first and last frame copy their neighbour's value. Two frames: one
+    forward difference for both and zero acceleration; one frame: zeros."""
+    t = q.shape[-2]
+    if t >= 3:
+        velocity = (q[..., 2:, :] - q[..., :-2, :]) * (rate / 2)
+        acceleration = (q[..., 2:, :] - 2 * q[..., 1:-1, :] + q[..., :-2, :]) * rate ** 2
+        pad = (lambda x: torch.cat([x[..., :1, :], x, x[..., -1:, :]], dim=-2))
+        return pad(velocity), pad(acceleration)
+    if t == 2:
+        velocity = (q[..., 1:, :] - q[..., :1, :]) * rate
+        return velocity.expand_as(q), torch.zeros_like(q)
+    return torch.zeros_like(q), torch.zeros_like(q)
+
+
+class _Block(nn.Module):
+    """x + Conv1x1(Dropout(GELU(Conv_k(GELU(x)))))."""
+
+    def __init__(self, width: int, kernel: int, dropout: float) -> None:
+        super().__init__()
+        self.conv = nn.Conv1d(width, width, kernel, padding=kernel // 2, padding_mode="replicate")
+        self.mix = nn.Conv1d(width, width, 1)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.mix(self.dropout(F.gelu(self.conv(F.gelu(x)))))
+
+
+class MuscleSurrogate(nn.Module):
+    """Canonical coordinates q [B, T, 39] (+ mask [B, 39]) -> muscle activations [B, T, M] in (0, 1).
+
+    See the module docstring (PG-BIG Sec. 3.3 guidance, A.8 surrogate). ``names``: the M muscle names;
+    buffers ``mean``/``std`` (feature standardisation) and ``low``/``high`` (5th/95th percentile activation
+    bounds per muscle, PG-BIG Table 1) are set from the training split by `set_normalisation`/`set_bounds`.
+    """
+
+    def __init__(self, names: Sequence[str], config: SurrogateConfig | None = None) -> None:
+        super().__init__()
+        self.config = config = config or SurrogateConfig()
+        self.names = tuple(names)
+        if not self.names:
+            raise ModelError("a muscle surrogate needs at least one muscle name")
+        w, k = config.width, config.kernel
+        self.stem = nn.Conv1d(N_FEATURES, w, k, padding=k // 2, padding_mode="replicate")
+        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout) for _ in range(config.depth)])
+        self.head = nn.Conv1d(w, len(self.names), 1)
+        self.register_buffer("mean", torch.zeros(N_FEATURES))
+        self.register_buffer("std", torch.ones(N_FEATURES))
+        self.register_buffer("low", torch.zeros(len(self.names)))
+        self.register_buffer("high", torch.ones(len(self.names)))
+
+    @property
+    def n_muscles(self) -> int:
+        return len(self.names)
+
+    # -- features -------------------------------------------------------------------------------------------
+    def _check(self, q: torch.Tensor, mask: torch.Tensor | None) -> None:
+        if q.ndim != 3 or q.shape[-1] != N_COORDS:
+            raise ModelError(f"muscle surrogate expects q [B, T, {N_COORDS}]; got {tuple(q.shape)}")
+        if mask is not None and tuple(mask.shape) != (q.shape[0], N_COORDS):
+            raise ModelError(f"muscle surrogate expects mask [B, {N_COORDS}]; got {tuple(mask.shape)}")
+
+    def raw_features(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Unstandardised per-frame features [B, T, N_FEATURES]: positions, velocities, accelerations."""
+        self._check(q, mask)
+        q = q.to(self.mean.dtype)
+        if mask is not None:
+            keep = mask.to(torch.bool).unsqueeze(-2)
+            q = torch.where(keep, q, torch.zeros_like(q))
+        velocity, acceleration = finite_differences(q, self.config.rate)
+        d = list(DERIVATIVE_COORDS)
+        return torch.cat([q[..., list(POSITION_COORDS)], velocity[..., d], acceleration[..., d]], dim=-1)
+
+    def features(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Standardised features [B, T, N_FEATURES]."""
+        return (self.raw_features(q, mask) - self.mean) / self.std
+
+    @torch.no_grad()
+    def set_normalisation(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                          weights: torch.Tensor | None = None) -> None:
+        """Feature mean/std from training windows q [N, T, 39] (mask [N, 39]); ``weights`` [N, T] leaves out
+        padding frames. Constant features keep std 1."""
+        f = self.raw_features(q, mask).double()
+        w = (torch.ones(f.shape[:2], dtype=torch.float64) if weights is None else weights.double()).unsqueeze(-1)
+        count = w.sum()
+        mean = (f * w).sum((0, 1)) / count
+        std = (((f - mean) ** 2 * w).sum((0, 1)) / count).sqrt()
+        self.mean.copy_(mean.to(self.mean.dtype))
+        self.std.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).to(self.std.dtype))
+
+    @torch.no_grad()
+    def set_bounds(self, activations: torch.Tensor, low: float = 0.05, high: float = 0.95) -> None:
+        """``low``/``high`` buffers from training labels [N, M]: per-muscle quantiles (PG-BIG Table 1)."""
+        if activations.ndim != 2 or activations.shape[1] != self.n_muscles:
+            raise ModelError(f"bounds need activations [N, {self.n_muscles}]; got {tuple(activations.shape)}")
+        a = activations.double()
+        self.low.copy_(torch.quantile(a, low, dim=0).to(self.low.dtype))
+        self.high.copy_(torch.quantile(a, high, dim=0).to(self.high.dtype))
+
+    # -- model ----------------------------------------------------------------------------------------------
+    def logits(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Pre-sigmoid outputs [B, T, M]."""
+        x = self.stem(self.features(q, mask).transpose(1, 2))
+        return self.head(F.gelu(self.blocks(x))).transpose(1, 2)
+
+    def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """Activations [B, T, M] in (0, 1) from canonical coordinates q [B, T, 39] (mask [B, 39] optional:
+        masked coordinates are treated as 0)."""
+        return torch.sigmoid(self.logits(q, mask))
+
+    # -- persistence ----------------------------------------------------------------------------------------
+    def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
+        """Weights and buffers to ``path`` (safetensors, written atomically) with the config and the muscle
+        names in its metadata."""
+        from safetensors.torch import save
+
+        from biomotion.io.atomic import atomic_write
+
+        state = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
+        meta = {"format": FORMAT, "config": json.dumps(asdict(self.config)), "muscles": json.dumps(list(self.names)),
+                **(metadata or {})}
+        with atomic_write(path, "wb") as handle:
+            handle.write(save(state, metadata=meta))
+
+    @classmethod
+    def load(cls, path: str | Path, map_location: str = "cpu") -> MuscleSurrogate:
+        """A surrogate saved by `save`, in eval mode."""
+        from safetensors import safe_open
+        from safetensors.torch import load_file
+
+        with safe_open(str(path), framework="pt") as handle:
+            meta = handle.metadata() or {}
+        if meta.get("format") != FORMAT or "config" not in meta or "muscles" not in meta:
+            raise ModelError(f"{path}: not a muscle-surrogate file (format {meta.get('format')!r})")
+        model = cls(json.loads(meta["muscles"]), SurrogateConfig.from_dict(json.loads(meta["config"])))
+        model.load_state_dict(load_file(str(path), device=map_location))
+        return model.eval()
+
+    @staticmethod
+    def metadata(path: str | Path) -> dict[str, str]:
+        """The safetensors metadata of a saved surrogate (config, muscles, and what `save` was given)."""
+        from safetensors import safe_open
+
+        with safe_open(str(path), framework="pt") as handle:
+            return dict(handle.metadata() or {})

@@ -1,0 +1,355 @@
+"""Train the muscle-activation surrogate (`MuscleSurrogate`) on static-optimization labels; write weights + card.
+
+    python -m biomotion.muscles.train_surrogate --config configs/surrogate.yaml --cache build/dataset \\
+        --out checkpoints/surrogate.safetensors [--minutes N] [--labels FILE] [--data-root DIR] [--seed N]
+
+Labels come from `biomotion.muscles.surrogate_labels` (``--labels``, default ``<cache>/surrogate_labels.safetensors``;
+computed and written there when missing or made from another cache). Training uses the train split only:
+windows of ``data.window`` frames, L1 loss on the activations (BIGE's surrogate loss) over frames whose static
+optimization converged, AdamW with linear warm-up then cosine decay over the run (the run's progress is the larger
+of iterations done and time used when ``--minutes`` is given), gradient clipping. The ``low``/``high`` bounds are
+the 5th/95th percentiles of the train-split labels (PG-BIG Table 1).
+
+Validation (PG-BIG A.8, Table 7) runs the surrogate on each whole val clip and compares with the labels on
+converged frames: pooled R^2 (1 - SSE / SST summed over all muscles, SST around each muscle's mean), RMSE and
+MAE, the mean of per-muscle R^2 over muscles whose label std exceeds ``data.min_label_std``, and the per-muscle
+R^2/RMSE of the muscles PG-BIG lists (soleus and vasti). Pooled R^2 over all clips also credits the variation
+between clips (speeds, subjects), so the card adds the stricter within-clip R^2 (SST around each clip's own
+muscle means), averaged over clips with at least 30 converged frames. The card also times a 3 s clip (90
+frames): the surrogate (forward, and forward + backward as guidance uses it) against the static-optimization
+solve and the whole label pipeline (inverse dynamics with inferred ground reaction + static optimization), one
+CPU thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+from tqdm import tqdm
+
+from biomotion.data.registry import DatasetCache
+from biomotion.errors import BiomotionError, ConfigError
+from biomotion.guidance.losses import activation
+from biomotion.io.atomic import atomic_write
+from biomotion.muscles.surrogate import MuscleSurrogate, SurrogateConfig
+from biomotion.muscles.surrogate_labels import (
+    DEFAULT_NAME,
+    Labeler,
+    SurrogateLabels,
+    labels_for_cache,
+)
+
+#: PG-BIG Table 7's muscles of interest.
+KEY_MUSCLES = ("soleus_l", "soleus_r", "vasint_l", "vasint_r", "vaslat_l", "vaslat_r", "vasmed_l", "vasmed_r")
+CLIP_FRAMES = 90  # a 3 s clip at 30 Hz (PG-BIG A.8 timing)
+WITHIN_CLIP_FRAMES = 30  # clips with at least this many converged frames get a within-clip R^2
+
+
+def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Training windows of ``split``: q [N, length, 39], masks [N, 39], target activations [N, length, M] and
+    frame weights [N, length] (1 on converged real frames). Window starts every ``stride`` frames, the last flush
+    with the clip's end; a clip shorter than ``length`` gives one window padded by repeating its last frame
+    (weight 0 on the padding)."""
+    qs, masks, targets, weights = [], [], [], []
+    for i in cache.indices(split=split):
+        record = cache.records[i]
+        n, offset = record["n_frames"], record["offset"]
+        if n >= length:
+            starts = np.unique(np.append(np.arange(0, n - length + 1, stride), n - length))
+            rows = offset + starts[:, None] + np.arange(length)
+            real = np.ones(rows.shape, dtype=bool)
+        else:
+            rows = offset + np.minimum(np.arange(length), n - 1)[None]
+            real = (np.arange(length) < n)[None]
+        qs.append(cache.values[rows])
+        targets.append(labels.activations[rows])
+        weights.append(labels.converged[rows] & real)
+        masks.append(np.repeat(cache.masks[i][None], len(rows), 0))
+    if not qs:
+        raise BiomotionError(f"no {split} clips in {cache.folder}")
+    as_tensor = (lambda parts, dtype: torch.from_numpy(np.ascontiguousarray(np.concatenate(parts), dtype=dtype)))
+    return (as_tensor(qs, np.float32), as_tensor(masks, bool), as_tensor(targets, np.float32),
+            as_tensor(weights, np.float32))
+
+
+def clip_arrays(cache: DatasetCache, labels: SurrogateLabels, split: str) -> list[tuple]:
+    """Per clip of ``split``: (q [1, T, 39], mask [1, 39], target [T, M], converged [T] bool)."""
+    out = []
+    for i in cache.indices(split=split):
+        record = cache.records[i]
+        rows = slice(record["offset"], record["offset"] + record["n_frames"])
+        out.append((torch.from_numpy(cache.values[rows].astype(np.float32))[None],
+                    torch.from_numpy(cache.masks[i])[None], torch.from_numpy(labels.activations[rows]),
+                    torch.from_numpy(labels.converged[rows])))
+    return out
+
+
+def agreement(predicted: np.ndarray, reference: np.ndarray, names: tuple[str, ...], min_std: float = 0.02
+              ) -> dict:
+    """R^2 / RMSE of activations [N, M] against reference labels [N, M] (see the module docstring)."""
+    predicted, reference = predicted.astype(np.float64), reference.astype(np.float64)
+    error = predicted - reference
+    sse = (error ** 2).sum(0)
+    sst = ((reference - reference.mean(0)) ** 2).sum(0)
+    varying = reference.std(0) > min_std
+    per_muscle = 1 - sse / np.maximum(sst, 1e-12)
+    rmse_muscle = np.sqrt((error ** 2).mean(0))
+    index = {n: j for j, n in enumerate(names)}
+    return {
+        "frames": len(reference),
+        "r2_pooled": float(1 - sse.sum() / max(sst.sum(), 1e-12)),
+        "rmse": float(np.sqrt((error ** 2).mean())),
+        "mae": float(np.abs(error).mean()),
+        "r2_mean_per_muscle": float(per_muscle[varying].mean()) if varying.any() else float("nan"),
+        "r2_median_per_muscle": float(np.median(per_muscle[varying])) if varying.any() else float("nan"),
+        "muscles_in_mean": int(varying.sum()),
+        "key_muscles": {n: {"r2": float(per_muscle[index[n]]), "rmse": float(rmse_muscle[index[n]])}
+                        for n in KEY_MUSCLES if n in index},
+        "per_muscle_r2": {n: float(per_muscle[j]) for j, n in enumerate(names) if varying[j]},
+    }
+
+
+@torch.no_grad()
+def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02) -> dict:
+    """`agreement` of the surrogate run on each whole clip, over converged frames of all clips."""
+    was_training = model.training
+    model.eval()
+    predicted, reference, within = [], [], []
+    for q, mask, target, converged in clips:
+        predicted.append(model(q, mask)[0][converged].numpy())
+        reference.append(target[converged].numpy())
+        if len(reference[-1]) >= WITHIN_CLIP_FRAMES:
+            within.append(agreement(predicted[-1], reference[-1], model.names, min_std)["r2_pooled"])
+    model.train(was_training)
+    scores = agreement(np.concatenate(predicted), np.concatenate(reference), model.names, min_std)
+    scores.update({"r2_within_clip_mean": float(np.mean(within)) if within else float("nan"),
+                   "r2_within_clip_median": float(np.median(within)) if within else float("nan"),
+                   "clips_within": len(within)})
+    return scores
+
+
+def _median_ms(run, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        tic = time.perf_counter()
+        run()
+        times.append(1000 * (time.perf_counter() - tic))
+    return float(np.median(times))
+
+
+def time_clip(model: MuscleSurrogate, labeler: Labeler, cache: DatasetCache, split: str = "val") -> dict:
+    """Milliseconds for one 3 s clip (the first ``CLIP_FRAMES`` frames of the first long enough ``split``
+    clip), one CPU thread: surrogate forward (no grad), surrogate forward + backward to q, the static
+    optimization solve alone, and the whole label pipeline (inverse dynamics + static optimization)."""
+    index = next((i for i in cache.indices(split=split) if cache.records[i]["n_frames"] >= CLIP_FRAMES),
+                 next(i for i in range(len(cache)) if cache.records[i]["n_frames"] >= CLIP_FRAMES))
+    motion = cache.motion(index).frames(slice(0, CLIP_FRAMES))
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        model.eval()
+        q = torch.tensor(motion.values, dtype=torch.float32)[None]
+        mask = torch.tensor(motion.mask)[None]
+        with torch.no_grad():
+            model(q, mask)  # warm-up
+            forward = _median_ms(lambda: model(q, mask), 20)
+
+        def backward():
+            x = q.clone().requires_grad_(True)
+            activation(model(x, mask), model.low, model.high).sum().backward()  # the guidance term
+
+        backward()
+        forward_backward = _median_ms(backward, 20)
+        inputs = labeler.kinematics_and_torques(motion)
+        labeler.solve(*inputs)  # warm-up
+        solve = _median_ms(lambda: labeler.solve(*inputs), 3)
+        pipeline = _median_ms(lambda: labeler(motion), 3)
+    finally:
+        torch.set_num_threads(threads)
+    return {"clip": cache.records[index]["clip_id"], "frames": CLIP_FRAMES, "threads": 1,
+            "surrogate_forward_ms": round(forward, 2), "surrogate_forward_backward_ms": round(forward_backward, 2),
+            "so_solve_ms": round(solve, 1), "inverse_dynamics_plus_so_ms": round(pipeline, 1),
+            "speedup_vs_so_solve": round(solve / forward, 1),
+            "speedup_vs_pipeline": round(pipeline / forward, 1)}
+
+
+def learning_rate(progress: float, step: int, lr: float, warmup: int) -> float:
+    """Linear warm-up over ``warmup`` steps, then cosine decay to 0 at progress 1."""
+    return lr * min(1.0, (step + 1) / max(warmup, 1)) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: str | Path = "../shared/data",
+          labels_path: str | Path | None = None, minutes: float | None = None, iterations: int | None = None,
+          seed: int = 0, progress: bool = True, command: str = "") -> dict:
+    """Train from ``config`` (the YAML's dict); save weights and card (``.json``, ``.md``) next to ``out``."""
+    try:
+        model_cfg = SurrogateConfig.from_dict(config.get("model", {}))
+        data_cfg, train_cfg = config["data"], config["train"]
+        window, stride = int(data_cfg["window"]), int(data_cfg["stride"])
+        min_std = float(data_cfg.get("min_label_std", 0.02))
+        batch, lr, warmup = int(train_cfg["batch_size"]), float(train_cfg["lr"]), int(train_cfg["warmup"])
+    except KeyError as missing:
+        raise ConfigError(f"surrogate config lacks the setting {missing}") from None
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    cache = DatasetCache(cache_dir)
+    if abs(cache.rate - model_cfg.rate) > 1e-6:
+        raise ConfigError(f"surrogate rate {model_cfg.rate} Hz differs from the cache's {cache.rate} Hz")
+    labels = labels_for_cache(cache, data_root, labels_path, progress=progress)
+    q, mask, target, weight = make_windows(cache, labels, "train", window, stride)
+    val_clips = clip_arrays(cache, labels, "val")
+    train_clips = clip_arrays(cache, labels, "train")
+    model = MuscleSurrogate(labels.muscle_names, model_cfg)
+    model.set_normalisation(q, mask, weight)
+    train_rows = np.concatenate([np.arange(r["offset"], r["offset"] + r["n_frames"])
+                                 for r in (cache.records[i] for i in cache.indices(split="train"))])
+    train_rows = train_rows[labels.converged[train_rows]]
+    model.set_bounds(torch.from_numpy(labels.activations[train_rows]))
+    optimiser = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=float(train_cfg["weight_decay"]))
+    total = int(iterations or train_cfg["iterations"])
+    budget = 60 * minutes if minutes else math.inf
+    generator = torch.Generator().manual_seed(seed)
+    before = evaluate(model, val_clips, min_std)
+    history = []
+    started = time.monotonic()
+    bar = tqdm(range(total), desc="surrogate", unit="it", disable=not progress)
+    step = 0
+    for step in bar:
+        elapsed = time.monotonic() - started
+        if elapsed > budget:
+            break
+        for group in optimiser.param_groups:
+            group["lr"] = learning_rate(max(step / total, elapsed / budget), step, lr, warmup)
+        pick = torch.randint(len(q), (batch,), generator=generator)
+        predicted = model(q[pick], mask[pick])
+        w = weight[pick].unsqueeze(-1)
+        loss = ((predicted - target[pick]).abs() * w).sum() / (w.sum() * model.n_muscles).clamp_min(1)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), float(train_cfg["grad_clip"]))
+        optimiser.step()
+        if step % 20 == 0:
+            bar.set_postfix(l1=f"{loss.item():.4f}")
+        if (step + 1) % int(train_cfg["eval_every"]) == 0:
+            m = evaluate(model, val_clips, min_std)
+            history.append({"step": step + 1, "seconds": round(time.monotonic() - started, 1),
+                            "train_l1": loss.item(), "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"]})
+            bar.set_postfix(l1=f"{loss.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}")
+    else:
+        step = total
+    train_seconds = time.monotonic() - started
+    model.eval()
+    after = evaluate(model, val_clips, min_std)
+    on_train = evaluate(model, train_clips, min_std)
+    out = Path(out)
+    model.save(out, metadata={"labels_cache_sha256": labels.info.get("cache_sha256", ""),
+                              "muscle_curves": labels.info.get("muscle_curves", "")})
+    speed = time_clip(model, Labeler.from_data_root(data_root), cache)
+    card = {
+        "model": "biomotion MuscleSurrogate (PG-BIG Sec. 3.3 / A.8 muscle-activation surrogate)",
+        "weights": out.name,
+        "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+        "size_bytes": out.stat().st_size,
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "command": command or "biomotion.muscles.train_surrogate.train (Python API)",
+        "config": config,
+        "seed": seed,
+        "iterations": step,
+        "train_seconds": round(train_seconds, 1),
+        "labels": {"file": str(labels_path or Path(cache_dir) / DEFAULT_NAME),
+                   **{k: labels.info.get(k) for k in ("settings", "balanced_coordinates", "muscle_curves",
+                                                      "ground_reaction", "absent_coordinates", "converged_share",
+                                                      "reserve_rms_nm", "seconds", "so_seconds", "cache_sha256")}},
+        "data": {"cache_format": cache.manifest.get("format"), "rate_hz": cache.rate,
+                 "train_windows": len(q), "train_clips": len(train_clips),
+                 "train_frames": int(sum(len(c[2]) for c in train_clips)),
+                 "val_clips": len(val_clips), "val_frames": int(sum(len(c[2]) for c in val_clips)),
+                 "val_frames_converged": int(sum(int(c[3].sum()) for c in val_clips)),
+                 "clips_per_split": cache.manifest["counts"]["per_split"],
+                 "clips_per_source": cache.manifest["counts"]["per_source"]},
+        "bounds": {"low_mean": float(model.low.mean()), "high_mean": float(model.high.mean())},
+        "metrics_val_before": {k: v for k, v in before.items() if k not in ("per_muscle_r2", "key_muscles")},
+        "metrics_val": after,
+        "metrics_train": {k: v for k, v in on_train.items() if k != "per_muscle_r2"},
+        "speed_3s_clip": speed,
+        "history": history,
+        "environment": {"python": platform.python_version(), "torch": torch.__version__,
+                        "torch_threads_training": torch.get_num_threads()},
+    }
+    with atomic_write(out.with_suffix(".json")) as handle:
+        json.dump(card, handle, indent=1)
+    with atomic_write(out.with_suffix(".md")) as handle:
+        handle.write(_markdown(card))
+    return card
+
+
+def _markdown(card: dict) -> str:
+    m, t, s, d, lab = (card["metrics_val"], card["metrics_train"], card["speed_3s_clip"], card["data"],
+                       card["labels"])
+    rows = ("r2_pooled", "rmse", "mae", "r2_mean_per_muscle", "r2_median_per_muscle", "muscles_in_mean",
+            "r2_within_clip_mean", "r2_within_clip_median", "clips_within")
+    worst = sorted(m["per_muscle_r2"].items(), key=lambda kv: kv[1])[:5]
+    return (
+        f"# Muscle-activation surrogate: {card['weights']}\n\n{card['model']}.\n\n"
+        f"- SHA-256: `{card['sha256']}` ({card['size_bytes'] / 1e6:.2f} MB, {card['parameters']} parameters)\n"
+        f"- command: `{card['command']}`\n"
+        f"- seed {card['seed']}, {card['iterations']} iterations, {card['train_seconds']} s of training\n"
+        f"- data: {d['train_windows']} train windows from {d['train_clips']} clips ({d['train_frames']} frames); "
+        f"val {d['val_clips']} clips, {d['val_frames']} frames ({d['val_frames_converged']} with converged labels)\n"
+        f"- labels: static optimization on the generic Rajagopal 2016 model, {lab['ground_reaction']}; "
+        f"muscle curves {lab['muscle_curves']}; absent coordinates {lab['absent_coordinates']}; "
+        f"{100 * lab['converged_share']:.2f} % of frames converged, reserve RMS {lab['reserve_rms_nm']:.1f} N·m; "
+        f"computed in {lab['seconds']} s ({lab['so_seconds']} s in the solver)\n\n"
+        "Agreement with the static-optimization labels (converged frames, whole clips):\n\n"
+        "| metric | val before training | val | train |\n|---|---|---|---|\n"
+        + "".join(f"| {k} | {card['metrics_val_before'][k]:.4g} | {m[k]:.4g} | {t[k]:.4g} |\n" for k in rows)
+        + "\n| key muscle (PG-BIG Table 7) | val R² | val RMSE |\n|---|---|---|\n"
+        + "".join(f"| {n} | {v['r2']:.3f} | {v['rmse']:.3f} |\n" for n, v in m["key_muscles"].items())
+        + f"\nLowest per-muscle val R²: {', '.join(f'{n} {v:.2f}' for n, v in worst)}.\n\n"
+        f"Speed on a 3 s clip ({s['frames']} frames of {s['clip']}, one CPU thread): surrogate "
+        f"{s['surrogate_forward_ms']} ms forward, {s['surrogate_forward_backward_ms']} ms forward + backward; "
+        f"static-optimization solve {s['so_solve_ms']} ms ({s['speedup_vs_so_solve']}x the surrogate), inverse "
+        f"dynamics + static optimization {s['inverse_dynamics_plus_so_ms']} ms ({s['speedup_vs_pipeline']}x).\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, type=Path)
+    parser.add_argument("--cache", required=True, type=Path)
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--labels", type=Path, default=None, help=f"default: <cache>/{DEFAULT_NAME}")
+    parser.add_argument("--data-root", type=Path, default=Path("../shared/data"),
+                        help="holds opensim-models (the Rajagopal model, for labels and the timing)")
+    parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads for training")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    try:
+        config = yaml.safe_load(args.config.read_text())
+        given = argv if argv is not None else sys.argv[1:]
+        command = " ".join(["python -m biomotion.muscles.train_surrogate", *given])
+        card = train(config, args.cache, args.out, data_root=args.data_root, labels_path=args.labels,
+                     minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command)
+    except BiomotionError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps({"val": {k: v for k, v in card["metrics_val"].items() if k != "per_muscle_r2"},
+                      "speed_3s_clip": card["speed_3s_clip"]}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

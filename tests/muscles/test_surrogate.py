@@ -1,0 +1,156 @@
+"""Muscle-activation surrogate (PG-BIG Sec. 3.3 / A.8): shapes, gradients, finite differences, persistence, and the
+shipped checkpoint against fresh static-optimization labels on a held-out clip."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.errors import ModelError
+from biomotion.guidance.losses import activation
+from biomotion.muscles.surrogate import (
+    N_COORDS,
+    N_FEATURES,
+    MuscleSurrogate,
+    SurrogateConfig,
+    finite_differences,
+)
+from tests.conftest import DATA_ROOT, REPO, data_path
+
+TINY = SurrogateConfig(width=16, depth=1, kernel=5, dropout=0.0)
+NAMES = ("soleus_r", "vaslat_r", "glmax1_r")
+CHECKPOINT = REPO / "checkpoints" / "surrogate.safetensors"
+
+
+def _batch(b: int = 2, t: int = 20, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    q = torch.randn(b, t, N_COORDS, generator=g).cumsum(1) * 0.05
+    mask = torch.ones(b, N_COORDS, dtype=torch.bool)
+    mask[0, 25:] = False
+    return q, mask
+
+
+def test_shapes_range_and_gradients_reach_q():
+    torch.manual_seed(0)
+    model = MuscleSurrogate(NAMES, TINY)
+    q, mask = _batch()
+    model.set_normalisation(q, mask)
+    q.requires_grad_(True)
+    a = model(q, mask)
+    assert a.shape == (2, 20, len(NAMES)) and bool(((a >= 0) & (a <= 1)).all())
+    a.sum().backward()
+    assert q.grad is not None and bool(torch.isfinite(q.grad).all())
+    assert float(q.grad[1].abs().sum()) > 0 and float(q.grad[0, :, :25].abs().sum()) > 0
+    assert float(q.grad[0, :, 25:].abs().sum()) == 0  # masked coordinates are not inputs
+    # the guidance term on its activations (PG-BIG Table 1) is differentiable too, one value per clip
+    loss = activation(model(q, mask), model.low, model.high)
+    assert loss.shape == (2,)
+    for t in (1, 2, 3):  # short clips work
+        assert model(q[:, :t].detach(), mask).shape == (2, t, len(NAMES))
+    with pytest.raises(ModelError, match="expects q"):
+        model(q[..., :30].detach())
+    with pytest.raises(ModelError, match="expects mask"):
+        model(q.detach(), mask[:, :30])
+
+
+def test_masked_values_and_nan_placeholders_are_ignored():
+    model = MuscleSurrogate(NAMES, TINY).eval()
+    q, mask = _batch()
+    changed = q.clone()
+    changed[0, :, 25:] = float("nan")
+    assert torch.equal(model(q, mask), model(changed, mask))
+    zeroed = torch.where(mask[:, None], q, torch.zeros_like(q))
+    assert torch.equal(model(q, mask), model(zeroed))
+
+
+def test_finite_differences_are_exact_on_a_parabola_with_replicated_edges():
+    rate = 30.0
+    t = torch.arange(10, dtype=torch.float64) / rate
+    q = (3 * t ** 2 + t)[None, :, None].expand(2, 10, 4)
+    velocity, acceleration = finite_differences(q, rate)
+    expected = 6 * t + 1
+    torch.testing.assert_close(velocity[0, 1:-1, 0], expected[1:-1])
+    assert float(velocity[0, 0, 0]) == float(velocity[0, 1, 0]) and float(velocity[0, -1, 0]) == float(
+        velocity[0, -2, 0])
+    torch.testing.assert_close(acceleration, torch.full_like(q, 6.0))
+    assert velocity.shape == q.shape
+
+
+def test_bounds_are_the_label_percentiles_and_drive_the_guidance_term():
+    model = MuscleSurrogate(NAMES, TINY)
+    labels = torch.rand(1000, len(NAMES), generator=torch.Generator().manual_seed(1))
+    model.set_bounds(labels)
+    torch.testing.assert_close(model.low, torch.quantile(labels, 0.05, dim=0))
+    torch.testing.assert_close(model.high, torch.quantile(labels, 0.95, dim=0))
+    inside = ((model.low + model.high) / 2).expand(1, 3, -1)
+    assert float(activation(inside, model.low, model.high).abs().sum()) == 0
+    above = (model.high + 0.1).expand(1, 3, -1)
+    torch.testing.assert_close(activation(above, model.low, model.high), torch.tensor([0.1 * len(NAMES)]))
+
+
+def test_save_load_round_trip_is_exact(tmp_path):
+    torch.manual_seed(0)
+    model = MuscleSurrogate(NAMES, TINY)
+    q, mask = _batch()
+    model.set_normalisation(q, mask)
+    model.set_bounds(torch.rand(50, len(NAMES)))
+    model.eval()
+    path = tmp_path / "surrogate.safetensors"
+    model.save(path, metadata={"note": "test"})
+    loaded = MuscleSurrogate.load(path)
+    assert loaded.names == NAMES and loaded.config == TINY and not loaded.training
+    assert MuscleSurrogate.metadata(path)["note"] == "test"
+    for key, value in model.state_dict().items():
+        assert torch.equal(value, loaded.state_dict()[key]), key
+    assert torch.equal(model(q, mask), loaded(q, mask))
+    assert model.mean.shape == (N_FEATURES,)
+
+
+def _cached_clip(source: str, clip_id: str, rate: float, model):
+    """One clip as the dataset cache holds it (`biomotion.data.registry.build_cache`): canonical coordinates
+    resampled to ``rate`` and placed (`biomotion.data.placement`: generic size, treadmill made overground, on the
+    floor)."""
+    from biomotion.data.placement import place_clip
+    from biomotion.data.registry import subject_split
+    from biomotion.data.sources import SOURCES
+
+    src = SOURCES[source]
+    spec = next(s for s in src.discover(DATA_ROOT) if s.clip_id == clip_id)
+    assert subject_split(spec.source, spec.subject) == "val"  # held out from training
+    motion = src.load_motion(spec).resample(rate)
+    return place_clip(motion, model, height=spec.profile.height,
+                      treadmill_speed=spec.labels.speed if src.treadmill else None)
+
+
+def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
+    """The shipped surrogate against labels computed fresh (inverse dynamics with inferred ground reaction, then
+    static optimization on the Rajagopal model, exactly as `surrogate_labels`) on 40 frames of a val-split runner
+    (Fukuchi RBDS012 at 3.5 m/s: no clip of this subject was trained on)."""
+    if not CHECKPOINT.exists():
+        pytest.skip(f"shipped surrogate checkpoint not available: {CHECKPOINT}")
+    data_path("fukuchi-running/ik/T35/RBDS012_T35_ik_simple.mot")
+    data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
+    from biomotion.muscles.surrogate_labels import Labeler
+    from biomotion.muscles.train_surrogate import agreement
+
+    model = MuscleSurrogate.load(CHECKPOINT)
+    labeler = Labeler.from_data_root(DATA_ROOT)
+    motion = _cached_clip("fukuchi", "fukuchi/RBDS012/T35", model.config.rate, labeler.model)
+    motion = motion.frames(slice(30, 70))
+    assert motion.names == CANONICAL_COORDINATES
+    labels = labeler(motion)
+    assert labels.muscle_names == model.names
+    with torch.no_grad():
+        predicted = model(torch.tensor(motion.values, dtype=torch.float32)[None],
+                          torch.tensor(motion.mask)[None])[0]
+    converged = labels.converged.numpy()
+    assert converged.mean() > 0.9
+    scores = agreement(predicted.numpy()[converged], labels.activations.numpy()[converged], model.names)
+    # Measured with the shipped checkpoint on these 40 frames: pooled R^2 0.828, RMSE 0.093 (other 40-frame
+    # windows of this clip: R^2 0.81-0.86, RMSE 0.08-0.093; whole val split in checkpoints/surrogate.md: pooled
+    # R^2 0.854, RMSE 0.088). The bars sit a little below/above, leaving room for a retrained checkpoint of the
+    # same recipe (its time-based learning-rate schedule is not bit-reproducible), while failing a surrogate that
+    # ignores the kinematics (R^2 <= 0) or has drifted from the labels' pipeline.
+    assert scores["r2_pooled"] > 0.75, scores
+    assert scores["rmse"] < 0.12, scores
