@@ -10,6 +10,8 @@ label, and generates a clip as long as the target (at most ``max_seconds``). Var
 - ``reference``: the real target clips;
 - ``full``: profile + references, with guidance (PG-BIG);
 - ``no_guidance``: the same sample before guidance (w/o Guidance);
+- ``no_priming``: profile + references through the subject profiler only, the prior's context not primed with
+  the reference's codes, with guidance;
 - ``no_personalization``: profile and references dropped, with guidance (w/o Personalization);
 - ``population``: the action-only prior trained with ``--population`` (same tokens), no guidance: a
   population-level baseline of the T2M-GPT kind.
@@ -38,9 +40,10 @@ from biomotion.errors import BiomotionError
 from biomotion.generation.actions import ActionRequest
 from biomotion.motion import Motion
 
-VARIANTS = ("reference", "full", "no_guidance", "no_personalization", "population")
+VARIANTS = ("reference", "full", "no_guidance", "no_priming", "no_personalization", "population")
 LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_guidance": "w/o Guidance",
-          "no_personalization": "w/o Personalization", "population": "Population (T2M-GPT-kind)"}
+          "no_priming": "w/o Reference priming", "no_personalization": "w/o Personalization",
+          "population": "Population (T2M-GPT-kind)"}
 
 
 @dataclass
@@ -92,11 +95,14 @@ def generate_variants(targets: list[Target], cache, generator, population, *, se
         seconds = t.motion.n_frames / generator.rate
         profile = cache.profile(t.index)
         full = generator.generate(request, profile=profile, references=t.references, seconds=seconds, seed=seed + k)
+        unprimed = generator.generate(request, profile=profile, references=t.references, seconds=seconds,
+                                      seed=seed + k, prime=False)
         generic = generator.generate(request, seconds=seconds, seed=seed + k, personalised=False)
         baseline = population.generate(request, seconds=seconds, seed=seed + k, guidance=False)
         out["reference"].append(t.motion)
         out["full"].append(_motion(full.q[0], generator.rate))
         out["no_guidance"].append(_motion(full.unguided[0], generator.rate))
+        out["no_priming"].append(_motion(unprimed.q[0], generator.rate))
         out["no_personalization"].append(_motion(generic.q[0], generator.rate))
         out["population"].append(_motion(baseline.q[0], generator.rate))
     return out
@@ -184,7 +190,7 @@ def done_when(table: dict, identity: dict, manipulation: dict | None) -> dict[st
         "fidelity_full_beats_no_personalization": m("full", fid) < m("no_personalization", fid),
         "fidelity_full_beats_population": m("full", fid) < m("population", fid),
     }
-    for key in ("penetration", "floating", "foot_contact_velocity", "muscle_violations"):
+    for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity", "muscle_violations"):
         checks[f"{key}_full_beats_no_guidance"] = m("full", key) < m("no_guidance", key)
     for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity"):
         checks[f"{key}_full_no_worse_than_reference"] = m("full", key) <= m("reference", key)

@@ -6,6 +6,10 @@
 2. The prior samples code indices autoregressively (temperature, top-k), one sequence per requested sample.
 3. Guidance refines the codebook latents through the decoder, body model and muscle surrogate (Sec. 3.3).
 
+With reference clips, the prior's context is also primed with the last codes of the first reference (few-shot
+prompting, as a language model continues a given text), which `biomotion eval generation` measures against the
+profile alone (``no_priming``).
+
 ``personalised=False`` drops the profile (biodata, references, metadata all masked): the w/o-personalization
 ablation of Table 3. A bundle trained with ``--population`` ignores the profile by construction.
 """
@@ -43,6 +47,7 @@ CHECKPOINTS = Path(__file__).resolve().parents[3] / "checkpoints"
 TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE = (
     "tokenizer.safetensors", "generator.safetensors", "population.safetensors", "surrogate.safetensors")
 MAX_LATENTS = 128
+PRIME_TOKENS = 8  # codes of a reference that prime the prior: 32 frames, about one running stride
 
 
 @dataclass
@@ -103,12 +108,14 @@ class Generator:
 
     @torch.no_grad()
     def condition(self, action: ActionRequest, profile: Profile | None = None,
-                  references: Sequence[Motion] = (), personalised: bool = True) -> Condition:
-        """The prior's input for one request (batch of 1)."""
+                  references: Sequence[Motion] = (), personalised: bool = True
+                  ) -> tuple[Condition, torch.Tensor | None]:
+        """The prior's input for one request (batch of 1) and the priming codes [1, P] (the last `PRIME_TOKENS`
+        codes of the first reference clip; None without references)."""
         from biomotion.body.kinematics import center_of_mass
 
         code_dim = self.tokenizer.config.code_dim
-        latents, metadata = torch.zeros(0, code_dim), None
+        latents, metadata, prime = torch.zeros(0, code_dim), None, None
         if personalised and references:
             height = profile.height if profile is not None else None
             encoded, features = [], []
@@ -119,6 +126,7 @@ class Generator:
                 features.append(metadata_features(q, mask, center_of_mass(self.body, full).float(), self.rate))
             latents = torch.cat(encoded)[:MAX_LATENTS]
             metadata = mean_features(features).cat()
+            prime = self.tokenizer.quantiser.nearest(encoded[0][-PRIME_TOKENS:])[None]
         bio = biodata_features(profile if personalised else None).cat()
         if metadata is None:
             metadata = torch.zeros(2 * len(METADATA_FIELDS))
@@ -126,23 +134,30 @@ class Generator:
         valid = torch.ones(max(len(latents), 1), dtype=torch.bool)
         if len(latents) == 0:
             latents, valid = torch.zeros(1, code_dim), torch.zeros(1, dtype=torch.bool)
-        return Condition(latents[None], valid[None], bio[None], metadata[None], act[None])
+        return Condition(latents[None], valid[None], bio[None], metadata[None], act[None]), prime
 
     def generate(self, action: ActionRequest, *, profile: Profile | None = None, references: Sequence[Motion] = (),
                  seconds: float = 3.0, samples: int = 1, seed: int = 0, guidance: bool = True,
-                 personalised: bool = True, temperature: float = 1.0, top_k: int | None = 20,
+                 personalised: bool = True, prime: bool = True, temperature: float = 1.0, top_k: int | None = 20,
                  guidance_config: GuidanceConfig | None = None) -> Generated:
-        """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False."""
+        """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False. With
+        reference clips and ``prime``, the prior's context starts with the end of the first reference (its
+        codes), so the sample continues the person's own movement pattern under the requested action."""
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         n_tokens = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
-        cond = self.condition(action, profile, references, personalised)
+        cond, prefix = self.condition(action, profile, references, personalised)
         batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
                                                                        cond.metadata, cond.action)))
         generator = torch.Generator().manual_seed(seed)
-        codes = self.bundle.prior.sample(batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator)
+        if prefix is not None and prime:
+            prefix = prefix.expand(samples, -1)
+        else:
+            prefix = None
+        codes = self.bundle.prior.sample(batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator,
+                                         prefix=prefix)
         z0 = self.tokenizer.quantiser.codebook[codes]
         bundle = self.bundle
         guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),

@@ -22,7 +22,9 @@ profile, run / walk / squat, 2 samples each, seed 1; never on evaluation subject
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
-same, scaled. Before the losses, each clip is put on the floor (pelvis height lowered so that the 5th percentile
+same, scaled. Decoded rotations are clamped to the model's coordinate ranges (the decoder has no notion of joint
+limits: unclamped, pro_sup sat outside its range in every generated frame). Before the losses, each clip is put
+on the floor (pelvis height lowered so that the 5th percentile
 of its lowest foot point is at y = 0, as for the training clips); that offset is not optimised.
 """
 
@@ -108,6 +110,9 @@ class Guide:
         self.feet_bodies, self.feet_offsets = feet.bodies, feet.offsets.to(torch.float32)
         self.speed_high, self.jerk_high = speed_high.to(torch.float32), jerk_high.to(torch.float32)
         self.rate = tokenizer.config.rate
+        ranges = self.body.ranges.to(torch.float32)
+        self.lower, self.upper = ranges[:, 0] + 1e-6, ranges[:, 1] - 1e-6  # inside after float32 rounding
+        self.rotational = torch.tensor([not n.startswith("pelvis_t") for n in self.body.coordinate_names])
 
     def kinematics(self, z: torch.Tensor) -> Kinematics:
         """Decode latents [B, N, D] and put each clip on the floor (differentiable except for the offset)."""
@@ -118,6 +123,7 @@ class Guide:
         )
 
         q = self.tokenizer.decode_latents(z)
+        q = torch.where(self.rotational, torch.minimum(torch.maximum(q, self.lower), self.upper), q)
         flat = q.reshape(-1, q.shape[-1])
         poses = forward_kinematics(self.body, flat)
         feet = points_in_ground(poses, self.feet_bodies, self.feet_offsets).view(*q.shape[:2], -1, 3)

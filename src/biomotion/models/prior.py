@@ -115,13 +115,16 @@ class ProfileActionPrior(nn.Module):
 
     @torch.no_grad()
     def sample(self, cond: Condition, n_tokens: int, *, temperature: float = 1.0, top_k: int | None = None,
-               generator: torch.Generator | None = None) -> torch.Tensor:
+               generator: torch.Generator | None = None, prefix: torch.Tensor | None = None) -> torch.Tensor:
         """Draw codes [B, n_tokens] autoregressively. Beyond ``max_tokens`` the context slides: each new code sees
-        the last ``max_tokens - 1`` codes (the start code is dropped)."""
+        the last ``max_tokens - 1`` codes (the start code is dropped). ``prefix`` [B, P] primes the context with
+        given codes (e.g. a reference clip of the person): they are seen, not returned."""
         z_cond = self.condition_vector(cond)
         memory = self.memory(z_cond)
         batch = z_cond.shape[0]
         context = torch.full((batch, 1), self.config.codebook_size, dtype=torch.long, device=z_cond.device)
+        if prefix is not None:
+            context = torch.cat([context, prefix.to(context)], 1)[:, -(self.config.max_tokens - 1):]
         drawn = []
         for _ in range(n_tokens):
             logits = self.logits(context, z_cond, memory)[:, -1] / max(temperature, 1e-6)

@@ -6,7 +6,7 @@ a mirrored decoder with nearest-neighbour upsampling, and an EMA codebook (decay
 reset to random encoder outputs. Losses: masked smooth-L1 reconstruction, a masked velocity (first-difference)
 term and a 0.02-weighted commitment term (Table 4), plus a masked acceleration (second-difference) term that
 is not in the paper: without it the nearest-neighbour upsampling leaves the decoded motion 2.6x as jerky as the
-real motion (joint-position jerk of a Fukuchi run, 605 vs 236 m/s^3). The weights live in
+real motion (joint-position jerk of a Fukuchi run, 605 vs 236 m/s^3; 378 with the term). The weights live in
 ``configs/tokenizer.yaml``.
 
 Input is the canonical skeleton (`biomotion.data.canonical`, 39 Rajagopal coordinates, SI units) with a
