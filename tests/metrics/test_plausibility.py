@@ -97,8 +97,10 @@ def test_fukuchi_running_against_training_bounds(fukuchi_cache):
     ranges = {c.name: c.range for c in model.coordinates}
     low = torch.tensor([ranges[n][0] for n in names], dtype=F64)
     high = torch.tensor([ranges[n][1] for n in names], dtype=F64)
+    # translations are left out, as `biomotion eval` does: placed overground runs travel past pelvis_tx's +-5 m
+    rotations = torch.tensor([not n.startswith("pelvis_t") for n in names])
     range_rates = [JointRangeViolation(low=low, high=high).score(torch.from_numpy(m.values),
-                                                                 torch.from_numpy(m.mask)).item()
+                                                                 torch.from_numpy(m.mask) & rotations).item()
                    for m in clips["train"] + clips["val"] + clips["test"]]
     print(f"Fukuchi: knee speed bound {knee:.1f} rad/s; angular-velocity violations train {train_rate:.3f}, "
           f"held out {np.mean(held_out):.3f}; range-of-motion violations {np.mean(range_rates):.4f}")

@@ -25,7 +25,7 @@ def test_shapes_and_token_count():
     x, mask = _random_batch(t=48)
     recon, losses = model(x, mask)
     assert recon.shape == x.shape
-    assert set(losses) == {"loss", "recon", "velocity", "commit", "perplexity"}
+    assert set(losses) == {"loss", "recon", "velocity", "acceleration", "commit", "perplexity"}
     latents, indices = model.encode(x, mask)
     assert indices.shape == (3, 12) and latents.shape == (3, 12, SMALL.code_dim)
     assert indices.dtype == torch.int64 and int(indices.max()) < SMALL.codebook_size
