@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.conftest import REPO, data_path
+from tests.conftest import DATA_ROOT, data_path
 
 from biomotion.body.bvh_export import ROTATION_CHANNELS, motion_to_bvh, zxy_euler
 from biomotion.body.kinematics import apply_couplers, forward_kinematics
@@ -21,7 +21,6 @@ from biomotion.io.bvh import axis_rotation, read_bvh, write_bvh
 from biomotion.motion import Motion
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
-CACHE = REPO / "build" / "dataset"
 POSITION_TOLERANCE = 1e-4   # m
 ROTATION_TOLERANCE = 1e-6
 
@@ -86,11 +85,11 @@ def test_synthetic_motion_round_trips_through_a_bvh_file(model, tmp_path):
 
 
 def test_cached_motions_round_trip_through_a_bvh_file(model, tmp_path):
-    if not (CACHE / "manifest.json").exists():
-        pytest.skip(f"no dataset cache at {CACHE} (build it with `biomotion data build`)")
-    from biomotion.data.registry import DatasetCache
+    from biomotion.data.registry import DatasetCache, build_cache
 
-    cache = DatasetCache(CACHE)
+    data_path("opencap")
+    build_cache(DATA_ROOT, tmp_path / "cache", sources=["opencap", "fukuchi"], progress=False)
+    cache = DatasetCache(tmp_path / "cache")
     for action in ("run", "squat", "drop jump", "walk"):
         found = cache.indices(action=action)
         if found:

@@ -106,6 +106,12 @@ def test_percentile_bounds_are_stored_with_the_cache(cache):
     angles = PercentileBounds.load(cache.folder / "bounds_coordinates.json")
     hip = angles.names.index("hip_flexion_r")
     assert -0.6 < angles.low[hip] < 0.0 < 0.4 < angles.high[hip] < 1.6   # rad: extension to flexion in gait
+    com = PercentileBounds.load(cache.folder / cache.manifest["bounds"]["com"])
+    speed, acceleration = (com.names.index(n) for n in ("com_speed", "com_acceleration"))
+    # training clips are walks (1-2 m/s), runs at 2.5-5 m/s and squats or jumps: the 95th percentile of COM speed
+    # is a fast run's, the 5th a squat's; COM acceleration reaches about 1.5 g in running and landing
+    assert com.low[speed] < 0.5 and 4.0 < com.high[speed] < 5.5
+    assert 8.0 < com.high[acceleration] < 25.0
 
 
 def test_report_writes_the_counts(tmp_path, data_root):

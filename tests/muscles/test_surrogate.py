@@ -3,6 +3,7 @@ shipped checkpoint against fresh static-optimization labels on a held-out clip."
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -154,3 +155,23 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
     # ignores the kinematics (R^2 <= 0) or has drifted from the labels' pipeline.
     assert scores["r2_pooled"] > 0.75, scores
     assert scores["rmse"] < 0.12, scores
+
+
+def test_activation_bounds_use_converged_training_frames_only():
+    from types import SimpleNamespace
+
+    from biomotion.muscles.surrogate_labels import SurrogateLabels, activation_bounds
+
+    rng = np.random.default_rng(0)
+    activations = rng.random((30, 2)).astype(np.float32)
+    activations[20:] = 5.0                                   # a held-out clip: must not count
+    converged = np.ones(30, bool)
+    converged[:2] = False                                    # unconverged frames must not count either
+    activations[:2] = -5.0
+    records = [{"offset": 0, "n_frames": 20, "split": "train"}, {"offset": 20, "n_frames": 10, "split": "val"}]
+    cache = SimpleNamespace(values=np.zeros((30, 39)), records=records,
+                            indices=lambda split: [i for i, r in enumerate(records) if r["split"] == split])
+    bounds = activation_bounds(cache, SurrogateLabels(activations, converged, ("m1", "m2"), {}))
+    expected = activations[2:20]
+    np.testing.assert_allclose(bounds.low, np.percentile(expected, 5, axis=0), rtol=1e-6)
+    np.testing.assert_allclose(bounds.high, np.percentile(expected, 95, axis=0), rtol=1e-6)

@@ -131,7 +131,7 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     tmp = out / f".{ARRAYS}.tmp"
     save_file(arrays, str(tmp))
     tmp.replace(out / ARRAYS)
-    bounds = _write_bounds(out, chunks, masks, records, rate)
+    bounds = _write_bounds(out, chunks, masks, records, rate, model)
     manifest = {
         "format": "biomotion-dataset-cache/1",
         "bounds": bounds,
@@ -153,9 +153,12 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
 
 
 def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], records: list[ClipRecord],
-                  rate: float) -> dict[str, str]:
+                  rate: float, model=None) -> dict[str, str]:
     """5th/95th percentile bounds of coordinates and coordinate speeds over the training split's clips
-    (PG-BIG Sec. 3.3, Table 1: the guidance and plausibility metrics share them); written beside the cache."""
+    (PG-BIG Sec. 3.3, Table 1: the guidance and plausibility metrics share them), and with the canonical
+    ``model`` those of COM speed and acceleration magnitude (forward differences, as
+    `biomotion.metrics.plausibility`); written beside the cache. Muscle-activation bounds need static
+    optimization and are written with its labels (`biomotion.muscles.surrogate_labels`)."""
     from biomotion.metrics.bounds import PercentileBounds
 
     train = [i for i, r in enumerate(records) if r.split == "train"] or list(range(len(records)))
@@ -168,7 +171,37 @@ def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], 
         bounds = PercentileBounds.from_samples(array, CANONICAL_COORDINATES, mask=mask, quantity=name, unit=unit)
         bounds.save(out / f"bounds_{name}.json")
         files[name] = f"bounds_{name}.json"
+    if model is not None:
+        values, keep = _com_terms(model, [chunks[i] for i in train], [masks[i] for i in train], rate)
+        bounds = PercentileBounds.from_samples(values, ("com_speed", "com_acceleration"), mask=keep,
+                                               quantity="com", unit="m/s and m/s^2")
+        bounds.save(out / "bounds_com.json")
+        files["com"] = "bounds_com.json"
     return files
+
+
+def _com_terms(model, chunks: list[np.ndarray], masks: list[np.ndarray], rate: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """[N, 2] COM speed and acceleration magnitude per frame pair / triple of every clip, and their mask (the
+    acceleration column has one sample fewer per clip)."""
+    import torch
+
+    from biomotion.body.kinematics import center_of_mass
+
+    defaults = model.defaults.numpy()
+    rows, keep = [], []
+    for chunk, mask in zip(chunks, masks):
+        if len(chunk) < 3:
+            continue
+        full = np.where(mask.astype(bool)[None], chunk, defaults[None]).astype(np.float64)
+        with torch.no_grad():
+            com = center_of_mass(model, torch.from_numpy(full)).numpy()
+        speed = np.linalg.norm(np.diff(com, axis=0), axis=-1) * rate
+        acceleration = np.append(np.linalg.norm(np.diff(com, 2, axis=0), axis=-1) * rate ** 2, np.nan)
+        rows.append(np.stack([speed, acceleration], -1))
+        keep.append(np.stack([np.ones_like(speed, bool), np.isfinite(acceleration)], -1))
+    values, mask = np.concatenate(rows), np.concatenate(keep)
+    return np.nan_to_num(values), mask
 
 
 def _counts(records: list[ClipRecord]) -> dict:

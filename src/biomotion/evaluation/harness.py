@@ -376,9 +376,11 @@ def reference_metrics(cache, model, *, physics: bool = True) -> dict:
 
 REFERENCE_NOTE = """\
 Every clip of the dataset cache (every source of the dataset registry, canonical Rajagopal 2016 coordinates
-resampled to {rate:g} Hz) run through the generic (unscaled) Rajagopal 2016 model; mean ± std over clips per source
-and action. These are the "Reference" column a generator is compared against. Written by
-`biomotion.evaluation.harness.reference_command` (`biomotion eval reference`); definitions in docs/metrics.md.
+resampled to {rate:g} Hz and placed in one frame by `biomotion.data.placement`: pelvis translations at the generic
+1.70 m size, treadmill runs made overground, feet on y = 0) run through the generic Rajagopal 2016 model; mean ±
+std over clips per source and action. These are the "Reference" column a generator is compared against, in the
+frame the generator works in. Written by `biomotion.evaluation.harness.reference_command`
+(`biomotion eval reference`); definitions in docs/metrics.md.
 
 Contact points are the 10 sole points of the model feet (`biomotion.body.contact.foot_points`); contact at 5 cm,
 skating at 0.5 m/s over 0.25 s, planted (floating) at 0.5 m/s. "clip median" is PG-BIG's public-evaluator ground
@@ -390,17 +392,18 @@ heights of the joint centres, 50 bins. Diversity: mean pairwise distance of per-
 joint-centre heights and horizontal distances from the pelvis), within each row.
 
 How to read it. Real capture is not scored as perfect, as the papers report for their references (PG-BIG Table 2:
-penetration 2.29 cm, floating 2.07 cm). Three properties of the sources shape the columns:
-- Each source's IK puts the pelvis at the height of its own subject-scaled model above its own lab floor, so on
-  the generic model the per-clip median of the lowest sole point is not 0: Fukuchi runners -4 to 20 cm (median
-  9 cm), Hamner 12-17 cm, OpenCap 3-4.5 cm (3.9 cm in the static trial), Schreiber walkers -9 to 12 cm (median
-  3 cm). Absolute penetration, floating and the 5 cm contact test (hence foot contact velocity, skate and ZMP in
-  support) therefore reflect each source's floor offset; the clip-median columns remove it and are the ones to
-  compare across sources.
-- Fukuchi and Hamner run on a treadmill: the stance foot moves backwards at the belt speed (2.5-5 m/s), so the
-  speed-based tests (planted for floating, skate, foot contact velocity) measure the belt, not sliding.
-- OpenCap drop jumps spend most frames on the raised start (median lowest sole 22-34 cm above y = 0), which the
-  clip-median penetration (9 cm) counts against the floor landing.
+penetration 2.29 cm, floating 2.07 cm):
+- Placement puts the 5th percentile of each clip's lowest sole point on y = 0, so absolute penetration is small by
+  construction (the 5 % of frames below the floor) and the clip-median columns measure how far the typical lowest
+  point sits above it. Real feet still float, slide and sink against a rigid model floor: skin and shoe are not
+  rigid, IK has marker error, and the model's sole points are a generic foot's.
+- Treadmill runs made overground keep the belt's speed fluctuations within a stride (the belt is not perfectly
+  uniform and IK noise adds to it), which the speed-based tests (planted for floating, skate, foot contact
+  velocity) count as sliding.
+- OpenCap drop jumps spend most frames standing on the raised start box: placement puts the landing on y = 0, so
+  the frames on the box count as floating (about 19 cm) and the clip-median ground lies on the box, which makes
+  the clip-median penetration (about 10 cm) count the landing. They are the one source whose floor is not one
+  plane.
 """
 
 

@@ -63,6 +63,7 @@ from biomotion.muscles.static_optimization import (
 FORMAT = "biomotion-surrogate-labels/1"
 MODEL_FILE = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 DEFAULT_NAME = "surrogate_labels.safetensors"
+BOUNDS_NAME = "bounds_muscle_activations.json"
 
 
 @dataclass(frozen=True)
@@ -244,16 +245,30 @@ def compute_labels(cache, data_root: str | Path, settings: LabelSettings = Label
 def labels_for_cache(cache, data_root: str | Path, path: str | Path | None = None, *,
                      progress: bool = True) -> SurrogateLabels:
     """Labels of ``cache`` from ``path`` (default ``<cache>/surrogate_labels.safetensors``) when that file
-    exists and was made from this very cache; otherwise computed and written there."""
+    exists and was made from this very cache; otherwise computed and written there. The muscle-activation
+    bounds (`activation_bounds`) are written beside it either way."""
     path = Path(path) if path else Path(cache.folder) / DEFAULT_NAME
-    if path.exists():
-        labels = SurrogateLabels.load(path)
-        if labels.info.get("cache_sha256") == cache_fingerprint(cache) and len(labels.activations) == len(
-                cache.values):
-            return labels
-    labels = compute_labels(cache, data_root, progress=progress)
-    labels.save(path)
+    labels = SurrogateLabels.load(path) if path.exists() else None
+    if labels is None or labels.info.get("cache_sha256") != cache_fingerprint(cache) or len(
+            labels.activations) != len(cache.values):
+        labels = compute_labels(cache, data_root, progress=progress)
+        labels.save(path)
+    activation_bounds(cache, labels).save(path.parent / BOUNDS_NAME)
     return labels
+
+
+def activation_bounds(cache, labels: SurrogateLabels):
+    """5th/95th percentile of each muscle's activation over the training split's converged frames (PG-BIG Table 1
+    activation bounds), as `biomotion.metrics.bounds.PercentileBounds`: written beside the cache's other bounds."""
+    from biomotion.metrics.bounds import PercentileBounds
+
+    rows = np.zeros(len(cache.values), dtype=bool)
+    for i in cache.indices(split="train"):
+        record = cache.records[i]
+        rows[record["offset"]: record["offset"] + record["n_frames"]] = True
+    keep = rows & labels.converged
+    return PercentileBounds.from_samples(labels.activations[keep], labels.muscle_names,
+                                         quantity="muscle_activations", unit="1")
 
 
 def main(argv: list[str] | None = None) -> int:
