@@ -100,7 +100,8 @@ def _analysis_figures(args: argparse.Namespace, result, files: dict) -> dict:
     out["plot_joint_angles"] = plot_joint_angles(result.motion, args.out / "joint_angles")[0]
     reaction = result.measured if result.measured is not None else result.inferred
     out["plot_grf"] = plot_ground_reaction(reaction, args.out / "grf", body_weight=result.body_weight,
-                                           inferred=result.inferred if result.measured is not None else None)[0]
+                                           inferred=result.inferred if result.measured is not None else None,
+                                           label="measured" if result.measured is not None else "inferred")[0]
     out["plot_balance"] = plot_balance(result.com, result.zmp, args.out / "balance",
                                        support=support_polygons(result.contact_points, result.contact_loaded))[0]
     return out

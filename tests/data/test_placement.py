@@ -50,5 +50,8 @@ def test_treadmill_clip_becomes_overground_on_the_floor(model, source):
     assert abs(np.percentile(lowest_foot_heights(model, full), 5)) < 1e-6
     scale = GENERIC_HEIGHT / spec.profile.height if spec.profile.height else 1.0
     np.testing.assert_allclose(np.diff(placed["pelvis_ty"]), scale * np.diff(raw["pelvis_ty"]), atol=1e-6)
+    # the belt is scaled with the body: the placed speed is the belt's at the generic size
+    assert (placed["pelvis_tx"][-1] - placed["pelvis_tx"][0]) / (raw.times[-1] - raw.times[0]) == pytest.approx(
+        scale * speed, abs=0.05 * speed)
     rotations = [n for n in raw.names if not n.startswith("pelvis_t")]
     np.testing.assert_array_equal(placed.select(rotations).values, raw.select(rotations).values)

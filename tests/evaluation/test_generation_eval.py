@@ -52,3 +52,14 @@ def test_done_when_reads_each_bar_from_the_table():
     worse = done_when(_table(full_jerk=2.5, full_zmp_in_support=80.0), {"full": 0.5, "reference": 0.9}, None)
     assert not worse["jerk_within_2x_reference"] and not worse["zmp_in_support_at_least_90"]
     assert not worse["identity_within_5_points_of_real"]
+
+
+def test_speed_error_is_measured_at_the_persons_size():
+    from biomotion.evaluation.generation import speed_errors
+    from biomotion.motion import Motion
+
+    q = _running(period=0.72, knee_amplitude=0.5, bounce=0.04, speed=3.4)  # canonical 1.70 m frame
+    motion = Motion(times=np.arange(len(q)) / 30.0, values=q, names=CANONICAL_COORDINATES)
+    # a 1.87 m person: 3.4 m/s at the generic size is 3.74 m/s at theirs
+    errors = speed_errors([motion, motion, motion], [3.74, None, 3.4], [1.87, 1.87, None])
+    assert errors[0] == pytest.approx(0.0, abs=1e-9) and math.isnan(errors[1]) and errors[2] == pytest.approx(0.0)

@@ -6,11 +6,13 @@ clips start anywhere in the room, and pelvis translations grow with the subject'
 raw mixture would have to learn all of that as noise. Each clip's pelvis translations (only those; rotations are
 untouched) are therefore:
 
-1. scaled to the generic body: x (GENERIC_HEIGHT / height) when the subject's height is known (the Rajagopal 2016
-   model represents a 1.70 m adult, Rajagopal et al. 2016 Sec. II), so the generator scales them back for a person;
-2. made overground for treadmill clips: the belt speed times time is added along +x (the walking direction of
+1. made overground for treadmill clips: the belt speed times time is added along +x (the walking direction of
    the Fukuchi and Hamner labs: without it the stance foot moves at minus the belt speed, measured in
    ``tests/data/test_placement.py``), so the stance foot rests on the floor as it does overground;
+2. scaled to the generic body: x (GENERIC_HEIGHT / height) when the subject's height is known (the Rajagopal 2016
+   model represents a 1.70 m adult, Rajagopal et al. 2016 Sec. II), so the generator scales them back for a
+   person. The belt is added first, so it is scaled with the legs that run on it: added after, a 1.81 m runner's
+   planted foot would slide at 6 % of the belt speed;
 3. started at the origin: pelvis_tx and pelvis_tz of the first frame are 0;
 4. put on the floor: pelvis_ty is lowered so the 5th percentile over frames of the lowest foot contact point
    (`biomotion.body.contact.foot_points` on the canonical model) is at y = 0, the absolute ground the contact
@@ -48,10 +50,10 @@ def place_clip(motion: Motion, model, *, height: float | None, treadmill_speed: 
     tx, ty, tz = (names.index(n) for n in ("pelvis_tx", "pelvis_ty", "pelvis_tz"))
     if not motion.mask[[tx, ty, tz]].all():
         return motion
-    if height is not None:
-        values[:, [tx, ty, tz]] *= GENERIC_HEIGHT / height
     if treadmill_speed is not None:
         values[:, tx] += treadmill_speed * (motion.times - motion.times[0])
+    if height is not None:
+        values[:, [tx, ty, tz]] *= GENERIC_HEIGHT / height
     values[:, [tx, tz]] -= values[:1, [tx, tz]]
     full = np.where(motion.mask[None, :], values, model.defaults.numpy()[None, :])
     values[:, ty] -= np.percentile(lowest_foot_heights(model, full), GROUND_PERCENTILE)

@@ -36,6 +36,7 @@ import torch
 from tqdm import tqdm
 
 from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.errors import BiomotionError
 from biomotion.generation.actions import ActionRequest
 from biomotion.motion import Motion
@@ -152,8 +153,22 @@ def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list
     return result
 
 
-def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str]) -> dict:
-    """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits."""
+def speed_errors(motions: list[Motion], speeds: list[float | None], heights: list[float | None]) -> list[float]:
+    """Per clip with a labelled speed, |mean horizontal pelvis speed - label speed| (m/s) at the person's size (the
+    canonical clip's speed x height / 1.70 m, `biomotion.data.placement`); NaN where no speed is labelled."""
+    out = []
+    for motion, speed, height in zip(motions, speeds, heights):
+        tx, tz = motion["pelvis_tx"], motion["pelvis_tz"]
+        achieved = math.hypot(tx[-1] - tx[0], tz[-1] - tz[0]) / max(motion.times[-1] - motion.times[0], 1e-9)
+        achieved *= (height / GENERIC_HEIGHT) if height else 1.0
+        out.append(math.nan if speed is None else abs(achieved - speed))
+    return out
+
+
+def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str],
+                   speeds: list[float | None], heights: list[float | None]) -> dict:
+    """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits,
+    and the error of the requested locomotion speed."""
     from biomotion.evaluation.clips import CoordinateClip, coordinate_set
     from biomotion.evaluation.harness import (
         MetricSpec,
@@ -165,12 +180,14 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
     reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
                                model, rate, derivatives=True)
     muscle = MetricSpec("muscle_violations", "Muscle-limit violations", "%", 100.0, "↓", None)
+    speed = MetricSpec("speed_error", "Speed error vs label", "m/s", 1.0, "↓", None)
     table = {}
     for variant, motions in variants.items():
         clips = coordinate_set([CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate,
                                derivatives=True)
         records = summarize_set(clips, model, physics=True)
         records[muscle.key] = _record(muscle, torch.tensor(muscle_violation_share(motions, surrogate)))
+        records[speed.key] = _record(speed, torch.tensor(speed_errors(motions, speeds, heights)))
         if variant != "reference":
             records.update(score_pairs(clips, reference)[1])
         table[variant] = records
@@ -343,7 +360,9 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         variants = generate_variants(targets, cache, generator, population, seed=seed, progress=progress)
         names = [cache.records[t.index]["clip_id"] for t in targets]
         model = body_model(data_root)
-        table = score_variants(variants, model, generator.surrogate, generator.rate, names)
+        speeds = [cache.records[t.index]["labels"].get("speed") for t in targets]
+        heights = [cache.records[t.index]["profile"].get("height") for t in targets]
+        table = score_variants(variants, model, generator.surrogate, generator.rate, names, speeds, heights)
         identity = identity_accuracy(generator.tokenizer, targets, variants)
     manipulation = None
     if manipulation_samples > 0:

@@ -77,7 +77,8 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
         from biomotion.viz.viewer import view_command
 
         files["plot_joint_angles"] = plot_joint_angles(coordinates, out / "joint_angles")[0]
-        files["plot_grf"] = plot_ground_reaction(result.inferred, out / "grf", body_weight=result.body_weight)[0]
+        files["plot_grf"] = plot_ground_reaction(result.inferred, out / "grf", body_weight=result.body_weight,
+                                                 label="inferred", title="ground reaction inferred from the motion")[0]
         files["plot_balance"] = plot_balance(result.com, result.zmp, out / "balance",
                                              support=support_polygons(result.contact_points,
                                                                       result.contact_loaded))[0]

@@ -152,12 +152,13 @@ def plot_joint_angles(motion: Motion, path: str | Path, *, coordinates: Sequence
 
 def plot_ground_reaction(measured: GroundReaction, path: str | Path, *, inferred: GroundReaction | None = None,
                          pairs: Sequence[tuple[str, str]] | None = None, body_weight: float | None = None,
-                         title: str | None = None) -> tuple[Path, Path]:
+                         title: str | None = None, label: str = "measured") -> tuple[Path, Path]:
     """Ground reaction force components over time, one column per channel (plate or foot), one row per axis.
 
     ``inferred`` (e.g. forces inferred from kinematics) is drawn dashed over ``measured``; ``pairs`` lists
     (measured channel, inferred channel) names (default: channels in order). ``body_weight`` (N) expresses forces
-    in body weights.
+    in body weights. ``label`` names the first set in the legend (``"inferred"`` when only inferred forces are
+    drawn).
     """
     if inferred is not None and pairs is None:
         pairs = list(zip(measured.names, inferred.names))
@@ -172,7 +173,7 @@ def plot_ground_reaction(measured: GroundReaction, path: str | Path, *, inferred
             other = inferred.force[:, inferred.names.index(pairs[c][1])] * scale
         for a in range(3):
             ax = axes[a, c]
-            ax.plot(measured.times, force[:, a], color="black", linewidth=1.3, label=f"measured {channel}")
+            ax.plot(measured.times, force[:, a], color="black", linewidth=1.3, label=f"{label} {channel}")
             if other is not None:
                 ax.plot(inferred.times, other[:, a], color="tab:red", linewidth=1.3, linestyle="--",
                         label=f"inferred {pairs[c][1]}")
