@@ -167,5 +167,9 @@ class Generator:
             unguided = guide.kinematics(z0).q[:, :frames]
         if not guidance:
             return Generated(unguided, unguided, codes, self.rate, action)
-        result = guide(z0)
+        speed = None
+        if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
+            height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
+            speed = action.speed * GENERIC_HEIGHT / height
+        result = guide(z0, speed)
         return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history)

@@ -2,9 +2,9 @@
 
 PG-BIG Sec. 3.3 and A.1: the sampled latents Z* are refined by gradient descent (Adam) on
 L = w_prox L_prox + alpha(k) L_guide, L_guide = l_omega L_omega + l_foot L_foot + l_v L_v + l_a L_a + l_act L_act
-+ l_ground L_ground + l_jerk L_jerk (`biomotion.guidance.losses`; the last two are ours), with the staged
-schedule of A.1: proximity only for the first ``physics_start`` iterations, then the physics terms ramped in
-linearly over ``ramp`` iterations, and from ``quantize_at`` on (if set) the latents are re-quantised
++ l_ground L_ground + l_jerk L_jerk + l_speed L_speed (`biomotion.guidance.losses`; the last three are ours), with
+the staged schedule of A.1: proximity only for the first ``physics_start`` iterations, then the physics terms
+ramped in linearly over ``ramp`` iterations, and from ``quantize_at`` on (if set) the latents are re-quantised
 (straight-through nearest-code lookup, the T2M-GPT quantiser's gradient), so the final motion is again a sequence
 of codebook entries.
 
@@ -15,10 +15,11 @@ profile, run / walk / squat, 2 samples each, seed 1; never on evaluation subject
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
 - l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with
   l_omega 10 and l_foot 1 guidance slowed the legs while the pelvis kept its speed, and sliding *rose* (foot
-  contact velocity 0.90 -> 1.44 m/s, skate 55 -> 92 %); with these weights it falls to 0.38 m/s and 22 %, jerk
-  712 -> 341 m/s^3, floating 3.2 -> 1.9 cm.
+  contact velocity 1.00 -> 1.59 m/s, skate 52 -> 73 %); with these weights it falls to 0.64 m/s and 30 %, jerk
+  558 -> 363 m/s^3, floating 2.9 -> 1.8 cm. l_speed 100 holds the requested speed (`losses.locomotion_speed`).
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
-  half of the gains (jerk 514, foot contact velocity 0.71 m/s), so the decoder reads the refined latents.
+  most of the gains (jerk 426 m/s^3, foot contact velocity 0.94 m/s, skate 55 %), so the decoder reads the
+  refined latents.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -41,7 +42,7 @@ from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
 TERMS = ("angular_velocity", "foot_contact", "com_velocity", "com_acceleration", "activation", "ground",
-         "angular_jerk")
+         "angular_jerk", "locomotion_speed")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,7 @@ class GuidanceConfig:
     w_activation: float = 10.0
     w_ground: float = 100.0
     w_angular_jerk: float = 0.01
+    w_locomotion_speed: float = 100.0
     contact_height: float = 0.05  # m, a foot point of the unguided sample this low is in contact (metrics' 5 cm)
 
     @classmethod
@@ -140,8 +142,9 @@ class Guide:
         speed: a sliding stance foot is exactly what L_foot must catch, and a speed test would excuse it."""
         return feet.detach()[..., 1] < self.config.contact_height
 
-    def terms(self, k: Kinematics, contact: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Each guidance term [B] (PG-BIG Table 1 + ground)."""
+    def terms(self, k: Kinematics, contact: torch.Tensor, speed: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Each guidance term [B] (PG-BIG Table 1 + ground, jerk and speed); ``speed`` [B] the target locomotion
+        speed (m/s, canonical size)."""
         b = self.bounds
         out = {
             "angular_velocity": losses.angular_velocity(k.q, self.rate, self.speed_high),
@@ -150,6 +153,7 @@ class Guide:
             "com_acceleration": losses.com_acceleration(k.com, self.rate, *b.com_acceleration),
             "ground": losses.ground(k.feet, contact),
             "angular_jerk": losses.angular_jerk(k.q, self.rate, self.jerk_high),
+            "locomotion_speed": losses.locomotion_speed(k.q, self.rate, speed),
         }
         if self.surrogate is not None:
             activations = self.surrogate(k.q)
@@ -161,18 +165,21 @@ class Guide:
         nearest = codebook[self.tokenizer.quantiser.nearest(z.reshape(-1, z.shape[-1]))].view_as(z)
         return z + (nearest - z).detach()
 
-    def __call__(self, z0: torch.Tensor) -> GuidanceResult:
-        """Refine latents z0 [B, N, D] (the unguided sample's codebook entries)."""
+    def __call__(self, z0: torch.Tensor, speed: float | None = None) -> GuidanceResult:
+        """Refine latents z0 [B, N, D] (the unguided sample's codebook entries) towards locomotion at ``speed``
+        (m/s at the canonical size; None keeps each sample's own mean speed)."""
         c = self.config
         z0 = z0.detach()
         z = z0.clone().requires_grad_(True)
         optimiser = torch.optim.Adam([z], lr=c.lr)
-        contact = self.contact(self.kinematics(z0).feet)
+        start = self.kinematics(z0)
+        contact = self.contact(start.feet)
+        target = self.speed(start.q) if speed is None else torch.full((len(z0),), float(speed))
         weights = {t: getattr(c, f"w_{t}") for t in TERMS}
         history = []
         for k in range(c.iterations):
             used = self._quantised(z) if c.quantize_at is not None and k >= c.quantize_at else z
-            terms = self.terms(self.kinematics(used), contact)
+            terms = self.terms(self.kinematics(used), contact, target)
             guide = sum(weights[t] * v for t, v in terms.items())
             loss = (c.w_proximity * losses.proximity(used, z0) + c.alpha(k) * guide).sum()
             optimiser.zero_grad(set_to_none=True)
@@ -184,8 +191,7 @@ class Guide:
             final = self._quantised(z) if c.quantize_at is not None else z
             return GuidanceResult(self.kinematics(final).q, final.detach(), history)
 
-    @torch.no_grad()
-    def evaluate(self, z: torch.Tensor) -> dict[str, torch.Tensor]:
-        """The guidance terms [B] of latents z (no optimisation), for reporting."""
-        k = self.kinematics(z)
-        return self.terms(k, self.contact(k.feet))
+    def speed(self, q: torch.Tensor) -> torch.Tensor:
+        """[B] mean horizontal pelvis speed (m/s) of clips q [B, T, 39]."""
+        horizontal = q[..., [3, 5]].detach()
+        return ((horizontal[:, -1] - horizontal[:, 0]) * self.rate / max(q.shape[1] - 1, 1)).norm(dim=-1)
