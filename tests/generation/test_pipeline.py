@@ -84,3 +84,21 @@ def test_write_generation_files_open_and_agree(generator, tmp_path):
     metrics = json.loads(files["metrics"].read_text())
     assert {"penetration", "floating", "jerk", "zmp_in_support"} <= set(metrics["physics"])
     assert metrics["request"]["action"]["action"] == "run"
+
+
+def test_reference_clips_of_flexion_negative_models_are_flipped(generator):
+    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.errors import BiomotionWarning
+    from biomotion.generation.pipeline import reference_motion
+    from biomotion.motion import Motion
+
+    t = np.arange(60) / 30.0
+    values = np.zeros((60, len(CANONICAL_COORDINATES)))
+    knee = CANONICAL_COORDINATES.index("knee_angle_r")
+    values[:, knee] = 0.5 + 0.4 * np.sin(2 * np.pi * t)          # flexion positive, canonical
+    canonical = Motion(times=t, values=values, names=CANONICAL_COORDINATES)
+    flipped = canonical.with_values(np.where(np.arange(values.shape[1]) == knee, -values, values))
+    q_canonical, _ = reference_motion(canonical, generator.body, None)
+    with pytest.warns(BiomotionWarning, match="flexion-negative"):
+        q_flipped, _ = reference_motion(flipped, generator.body, None)
+    torch.testing.assert_close(q_flipped[:, knee], q_canonical[:, knee])

@@ -69,11 +69,11 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     motions = [read_motion(p) for p in references]
     started = time.perf_counter()
     generator = Generator.load(data_root, checkpoints or CHECKPOINTS)
-    loaded = time.perf_counter()
     vocabulary = generator.bundle.vocabulary
-    request = vocabulary.parse(action)
+    request = vocabulary.parse(action)  # loads the sentence encoder unless the text names an action exactly
     if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
         request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
+    loaded = time.perf_counter()
     generated = generator.generate(request, profile=profile, references=motions, seconds=seconds, samples=samples,
                                    seed=seed, guidance=guidance, personalised=personalised)
     done = time.perf_counter()

@@ -17,6 +17,7 @@ ablation of Table 3. A bundle trained with ``--population`` ignores the profile 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,10 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
-from biomotion.errors import ConfigError
+from biomotion.errors import BiomotionWarning, ConfigError
 from biomotion.generation.actions import ActionRequest
 from biomotion.generation.bundle import GeneratorBundle
 from biomotion.generation.conditioning import (
@@ -71,9 +72,22 @@ class Generated:
         return [Motion(times=times, values=clip, names=CANONICAL_COORDINATES) for clip in q]
 
 
+def knee_flexion_negative(motion: Motion) -> bool:
+    """True when the clip's knee angles are mostly negative: flexion-negative models (Fukuchi ``_simple``, Hamner
+    2010; `biomotion.data.canonical`) rather than the canonical flexion-positive convention."""
+    knees = [motion[n] for n in KNEE_COORDINATES if n in motion.names and motion.mask[motion.index(n)]]
+    return bool(knees) and float(np.median(np.concatenate(knees))) < 0.0
+
+
 def reference_motion(motion: Motion, body, height: float | None) -> tuple[torch.Tensor, torch.Tensor]:
-    """A person's reference clip -> canonical, placed, 30 Hz coordinates [T, 39] (T a multiple of 4) and mask."""
-    canonical = to_canonical(motion)
+    """A person's reference clip -> canonical, placed, 30 Hz coordinates [T, 39] (T a multiple of 4) and mask.
+    Knee angles of a flexion-negative model are flipped to the canonical sign, with a warning."""
+    flipped = knee_flexion_negative(motion)
+    if flipped:
+        warnings.warn("reference clip has mostly negative knee angles: read as a flexion-negative model "
+                      "(Fukuchi _simple, Hamner 2010) and flipped to flexion-positive", BiomotionWarning,
+                      stacklevel=2)
+    canonical = to_canonical(motion, knee_flipped=flipped)
     clip = canonical.resample(30.0) if abs(canonical.rate - 30.0) > 1e-6 else canonical
     clip = place_clip(clip, body, height=height, treadmill_speed=None)
     n = clip.n_frames // DOWNSAMPLE * DOWNSAMPLE
