@@ -8,18 +8,18 @@ ramped in linearly over ``ramp`` iterations, and from ``quantize_at`` on (if set
 (straight-through nearest-code lookup, the T2M-GPT quantiser's gradient), so the final motion is again a sequence
 of codebook entries.
 
-Defaults, and where they leave Table 5 (measured with `biomotion generate` on the example
-profile, run / walk / squat, 2 samples each, seed 1; never on evaluation subjects):
+Defaults, and where they leave Table 5 (measured by ``python benchmarks/guidance_weights.py``,
+docs/results/guidance_weights.md: the example profile running, walking and squatting, never evaluation subjects):
 - 40 iterations, physics from the first one: Table 5 runs 250 on a GPU with physics from 100, but guidance starts
   from the sample itself, where the proximity gradient is exactly zero, so a proximity-only warm-up would not move
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
 - l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with
   l_omega 10 and l_foot 1 guidance slowed the legs while the pelvis kept its speed, and sliding *rose* (foot
-  contact velocity 1.00 -> 1.59 m/s, skate 52 -> 73 %); with these weights it falls to 0.64 m/s and 30 %, jerk
-  558 -> 363 m/s^3, floating 2.9 -> 1.8 cm. l_speed 100 holds the requested speed (`losses.locomotion_speed`).
+  contact velocity 0.91 -> 1.10 m/s, skate 28 -> 49 %); with these weights it falls to 0.50 m/s and 23 %, jerk
+  529 -> 312 m/s^3, floating 3.5 -> 1.6 cm. l_speed 100 holds the requested speed (`losses.locomotion_speed`).
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
-  most of the gains (jerk 426 m/s^3, foot contact velocity 0.94 m/s, skate 55 %), so the decoder reads the
-  refined latents.
+  most of the gains (jerk 416 m/s^3, foot contact velocity 0.68 m/s, skate 32 %, floating 3.2 cm), so the decoder
+  reads the refined latents.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the

@@ -4,6 +4,10 @@
         --tokenizer checkpoints/tokenizer.safetensors --data-root ../shared/data \\
         --out checkpoints/generator.safetensors [--population] [--minutes N] [--seed N]
 
+``dev_fraction`` of the *training* subjects (a stable hash) is set aside to choose the iteration kept (lowest
+next-code cross-entropy on them): the prior memorises its few clips, and the val/test subjects stay untouched for
+`biomotion eval generation`.
+
 Every clip is tokenized once by the frozen tokenizer (PG-BIG trains the prior on the VQ-VAE's codes, Sec. 3.2).
 A training sample is a crop of one train-split clip; its profile comes from up to ``references`` *other* clips of
 the same subject (latents, metadata) plus the subject's biodata, so the profile describes the person, not the
@@ -19,6 +23,7 @@ per-action 5th/95th percentile bounds of coordinate speeds, COM speed and COM ac
 from __future__ import annotations
 
 import argparse
+import copy
 import hashlib
 import json
 import math
@@ -34,6 +39,7 @@ import torch.nn.functional as F
 import yaml
 from tqdm import tqdm
 
+from biomotion.data.mirror import mirror_coordinates
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.generation.actions import ActionRequest, ActionVocabulary
@@ -67,8 +73,10 @@ class TokenizedClip:
 
 @torch.no_grad()
 def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary: ActionVocabulary,
-                   progress: bool = True) -> list[TokenizedClip]:
-    """Tokenize every clip at least one token long (4 frames); COM from ``body`` (the canonical model)."""
+                   progress: bool = True, mirror: bool = False) -> list[TokenizedClip]:
+    """Tokenize every clip at least one token long (4 frames); COM from ``body`` (the canonical model). With
+    ``mirror``, each training-split clip also gives its left-right mirror image (`biomotion.data.mirror`), a clip
+    of the same person and action."""
     from biomotion.body.kinematics import center_of_mass
 
     defaults = body.defaults.to(torch.float32)
@@ -81,15 +89,20 @@ def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary
         q = torch.from_numpy(np.ascontiguousarray(cache.values[record["offset"]: record["offset"] + n],
                                                   dtype=np.float32))
         mask = torch.from_numpy(cache.masks[i]).bool()
-        latents = tokenizer.encode_continuous(q[None], mask[None])[0]
-        codes = tokenizer.quantiser.nearest(latents)
-        full = torch.where(mask, q, defaults)
-        com = center_of_mass(body, full.to(body.dtype)).float()
         labels = record["labels"]
         request = ActionRequest(labels["action"], labels.get("style"), labels.get("speed"), labels.get("text") or "")
-        clips.append(TokenizedClip(i, f"{record['source']}/{record['subject']}", record["split"], codes, latents,
-                                   metadata_features(q, mask, com, cache.rate), biodata_features(cache.profile(i)),
-                                   action_features(request, vocabulary)))
+        versions = [(q, mask)]
+        if mirror and record["split"] == "train":
+            q_m, mask_m = mirror_coordinates(q.numpy(), mask.numpy())
+            versions.append((torch.from_numpy(np.ascontiguousarray(q_m)), torch.from_numpy(mask_m.copy())))
+        for q_v, mask_v in versions:
+            latents = tokenizer.encode_continuous(q_v[None], mask_v[None])[0]
+            full = torch.where(mask_v, q_v, defaults)
+            com = center_of_mass(body, full.to(body.dtype)).float()
+            clips.append(TokenizedClip(i, f"{record['source']}/{record['subject']}", record["split"],
+                                       tokenizer.quantiser.nearest(latents), latents,
+                                       metadata_features(q_v, mask_v, com, cache.rate),
+                                       biodata_features(cache.profile(i)), action_features(request, vocabulary)))
     return clips
 
 
@@ -108,8 +121,10 @@ class Batches:
         return int(torch.randint(high, (1,), generator=self.generator))
 
     def reference_set(self, k: int) -> list[TokenizedClip]:
-        """Up to ``references`` clips of clip k's subject other than k (k itself when the subject has one clip)."""
-        others = [j for j in self.by_subject[self.clips[k].subject] if j != k] or [k]
+        """Up to ``references`` clips of clip k's subject other than k and its mirror image (k itself when the
+        subject has no other clip)."""
+        index = self.clips[k].index
+        others = [j for j in self.by_subject[self.clips[k].subject] if self.clips[j].index != index] or [k]
         order = torch.randperm(len(others), generator=self.generator)[: self.references]
         return [self.clips[others[int(j)]] for j in order]
 
@@ -129,6 +144,12 @@ class Batches:
             piece = codes[start: start + self.crop]
             out[row, : len(piece)] = piece
         return out
+
+
+def dev_subject(subject: str, fraction: float) -> bool:
+    """Whether a training subject is set aside to choose the stopping iteration (a stable hash, like the splits)."""
+    digest = hashlib.sha256(f"dev/{subject}".encode()).digest()
+    return int.from_bytes(digest[:8], "big") / 2 ** 64 < fraction
 
 
 def profile_inputs(references: list[TokenizedClip], target: TokenizedClip, max_latents: int, *,
@@ -226,9 +247,11 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     tokenizer = MotionVQVAE.load(tokenizer_path)
     body = body_model(data_root)
     vocabulary = ActionVocabulary.from_labels([r["labels"] for r in cache.records])
-    clips = tokenize_cache(cache, tokenizer, body, vocabulary, progress)
-    train_clips = [c for c in clips if c.split == "train"]
+    clips = tokenize_cache(cache, tokenizer, body, vocabulary, progress, mirror=bool(train_cfg.get("mirror", False)))
     val_clips = [c for c in clips if c.split != "train"]
+    dev_fraction = float(train_cfg.get("dev_fraction", 0.0))
+    dev_clips = [c for c in clips if c.split == "train" and dev_subject(c.subject, dev_fraction)]
+    train_clips = [c for c in clips if c.split == "train" and not dev_subject(c.subject, dev_fraction)]
     config_obj = PriorConfig.from_dict({**model_cfg, "codebook_size": tokenizer.config.codebook_size,
                                         "code_dim": tokenizer.config.code_dim,
                                         "action_size": action_size(vocabulary), "use_profile": not population})
@@ -241,6 +264,7 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     before = evaluate(prior, val_clips, crop, refs, max_latents)
     started = time.monotonic()
     history = []
+    best = (math.inf, 0, None)  # dev cross-entropy, step, weights
     step = 0
     bar = tqdm(range(total), desc="population prior" if population else "generator", unit="it",
                disable=not progress)
@@ -265,14 +289,22 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
         if (step + 1) % train_cfg["eval_every"] == 0:
             history.append({"step": step + 1, "train_ce": ce.item(),
                             **{f"val_{k}": v for k, v in evaluate(prior, val_clips, crop, refs, max_latents).items()}})
+            if dev_clips:
+                dev = evaluate(prior, dev_clips, crop, refs, max_latents)["cross_entropy"]
+                history[-1]["dev_cross_entropy"] = dev
+                if dev < best[0]:
+                    best = (dev, step + 1, copy.deepcopy(prior.state_dict()))
     else:
         step = total
+    if best[2] is not None:  # early stopping on the training subjects set aside, never on held-out ones
+        prior.load_state_dict(best[2])
     prior.eval()
     after_val = evaluate(prior, val_clips, crop, refs, max_latents)
     after_train = evaluate(prior, train_clips, crop, refs, max_latents)
-    bounds = action_bounds(cache, body, [c.index for c in train_clips])
+    bounds = action_bounds(cache, body, sorted({c.index for c in train_clips}))
+    seen = tuple(sorted({c.subject for c in train_clips + dev_clips}))
     bundle = GeneratorBundle(prior, vocabulary, bounds, tokenizer_sha256=hashlib.sha256(
-        Path(tokenizer_path).read_bytes()).hexdigest(), train_subjects=tuple(sorted({c.subject for c in train_clips})))
+        Path(tokenizer_path).read_bytes()).hexdigest(), train_subjects=seen)
     out = Path(out)
     bundle.save(out)
     card = {
@@ -284,8 +316,11 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
         "tokenizer_sha256": bundle.tokenizer_sha256,
         "command": command or "biomotion.models.train_generator.train (Python API)",
         "config": config, "seed": seed, "iterations": step,
+        "kept_iteration": best[1] if best[2] is not None else step,
+        "dev_clips": len(dev_clips), "dev_cross_entropy": None if best[2] is None else best[0],
         "train_seconds": round(time.monotonic() - started, 1),
         "data": {"train_clips": len(train_clips), "held_out_clips": len(val_clips),
+                 "mirrored": bool(train_cfg.get("mirror", False)),
                  "subjects_train": len({c.subject for c in train_clips}),
                  "actions": list(vocabulary.actions), "styles": list(vocabulary.styles)},
         "metrics_held_out_before": before, "metrics_held_out": after_val, "metrics_train": after_train,
@@ -305,7 +340,8 @@ def _markdown(card: dict) -> str:
     return (f"# {card['weights']}\n\n{card['model']}.\n\n- SHA-256: `{card['sha256']}`\n"
             f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
             f"- command: `{card['command']}`\n- seed {card['seed']}, {card['iterations']} iterations, "
-            f"{card['train_seconds']} s\n- data: {card['data']['train_clips']} train clips "
+            f"{card['train_seconds']} s, weights of iteration {card['kept_iteration']} kept (early stopping on "
+            f"{card['dev_clips']} clips of training subjects set aside)\n- data: {card['data']['train_clips']} train clips "
             f"({card['data']['subjects_train']} subjects), {card['data']['held_out_clips']} held-out clips "
             "(val + test splits, unseen subjects)\n\n"
             "| metric (first crop of every clip) | held-out, before | held-out, after | train, after |\n"

@@ -37,6 +37,7 @@ import torch
 import yaml
 from tqdm import tqdm
 
+from biomotion.data.mirror import mirror_coordinates, mirror_labels
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.guidance.losses import activation
@@ -208,6 +209,13 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         raise ConfigError(f"surrogate rate {model_cfg.rate} Hz differs from the cache's {cache.rate} Hz")
     labels = labels_for_cache(cache, data_root, labels_path, progress=progress)
     q, mask, target, weight = make_windows(cache, labels, "train", window, stride)
+    if data_cfg.get("mirror", False):  # left-right mirror images with left-right swapped labels
+        q_m, mask_m = mirror_coordinates(q.numpy(), mask.numpy())
+        q = torch.cat([q, torch.from_numpy(np.ascontiguousarray(q_m))])
+        mask = torch.cat([mask, torch.from_numpy(np.ascontiguousarray(mask_m))])
+        target = torch.cat([target, torch.from_numpy(np.ascontiguousarray(mirror_labels(target.numpy(),
+                                                                                         labels.muscle_names)))])
+        weight = torch.cat([weight, weight])
     val_clips = clip_arrays(cache, labels, "val")
     train_clips = clip_arrays(cache, labels, "train")
     model = MuscleSurrogate(labels.muscle_names, model_cfg)
