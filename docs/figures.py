@@ -5,7 +5,8 @@
 Joint angles (OpenCap walking1 against walking2/4), inferred vs measured GRF and the COM/ZMP path come from
 `biomotion.analysis.analyze`; the activation heatmap shows OpenSim's stored CMC excitations of gait2392 subject01
 with the Rajagopal walk's EMG envelopes; the metric panel shows knee range and peak GRF over OpenCap walking trials;
-the viewer screenshot is `biomotion view` of walking1 at frame 60 in headless Chromium.
+the viewer screenshot is `biomotion view` of walking1 at frame 60 in headless Chromium; the generated run is
+`biomotion generate` for `examples/runner_52_acl.yaml` (its joint angles).
 """
 
 from __future__ import annotations
@@ -90,8 +91,18 @@ def main() -> None:
         page.evaluate("window.viewer.ready")
         page.evaluate("window.viewer.setFrame(60)")
         (out / "viewer_walking.png").write_bytes(page.screenshot())
+    generated_figure(root, out, scratch)
     print(f"figures written to {out}")
 
+
+def generated_figure(root: Path, out: Path, scratch: Path) -> None:
+    """Joint angles of `biomotion generate` for the example profile running at 3.5 m/s (seed 0)."""
+    from biomotion.generation.command import generate_command
+
+    result = generate_command(action="running at 3.5 m/s", out=scratch / "generated", data_root=root,
+                              profile_file=Path("examples/runner_52_acl.yaml"), seconds=3.0)
+    files = result["files"][next(iter(result["files"]))]
+    (out / "plot_generated_joint_angles.png").write_bytes(files["plot_joint_angles"].read_bytes())
 
 if __name__ == "__main__":
     main()
