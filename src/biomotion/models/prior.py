@@ -16,7 +16,6 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from biomotion.errors import ConfigError
@@ -61,9 +60,6 @@ class Condition:
     metadata: torch.Tensor
     action: torch.Tensor
 
-    def select(self, index: torch.Tensor) -> Condition:
-        return Condition(*(getattr(self, f.name)[index] for f in fields(self)))
-
 
 class ProfileActionPrior(nn.Module):
     """p(code_t | code_<t, profile, action) (PG-BIG Sec. 3.2)."""
@@ -107,11 +103,11 @@ class ProfileActionPrior(nn.Module):
         return self.head(self.decoder(queries, memory, tgt_mask=causal, tgt_is_causal=True))
 
     def forward(self, codes: torch.Tensor, cond: Condition) -> torch.Tensor:
-        """Teacher-forced cross-entropy of ``codes`` [B, L] (mean over tokens)."""
+        """Teacher-forced next-code logits [B, L, K] for ``codes`` [B, L] (entries < 0 are padding: they are not
+        fed back as context)."""
         z_cond = self.condition_vector(cond)
         start = torch.full_like(codes[:, :1], self.config.codebook_size)
-        logits = self.logits(torch.cat([start, codes[:, :-1]], 1), z_cond, self.memory(z_cond))
-        return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), codes.reshape(-1))
+        return self.logits(torch.cat([start, codes[:, :-1].clamp_min(0)], 1), z_cond, self.memory(z_cond))
 
     @torch.no_grad()
     def sample(self, cond: Condition, n_tokens: int, *, temperature: float = 1.0, top_k: int | None = None,

@@ -181,10 +181,7 @@ def stack_conditions(items: list[Condition]) -> Condition:
 
 def cross_entropy(prior: ProfileActionPrior, codes: torch.Tensor, cond: Condition) -> torch.Tensor:
     """Teacher-forced next-code cross-entropy with -100 targets ignored."""
-    z_cond = prior.condition_vector(cond)
-    start = torch.full_like(codes[:, :1], prior.config.codebook_size)
-    previous = torch.cat([start, codes[:, :-1].clamp_min(0)], 1)
-    logits = prior.logits(previous, z_cond, prior.memory(z_cond))
+    logits = prior(codes, cond)
     return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), codes.reshape(-1), ignore_index=-100)
 
 
@@ -220,10 +217,7 @@ def evaluate(prior: ProfileActionPrior, clips: list[TokenizedClip], crop: int, r
     for row, k in enumerate(ks):
         piece = clips[k].codes[:crop]
         codes[row, : len(piece)] = piece
-    cond = batches.condition(ks)
-    z_cond = prior.condition_vector(cond)
-    start = torch.full_like(codes[:, :1], prior.config.codebook_size)
-    logits = prior.logits(torch.cat([start, codes[:, :-1].clamp_min(0)], 1), z_cond, prior.memory(z_cond))
+    logits = prior(codes, batches.condition(ks))
     keep = codes >= 0
     ce = F.cross_entropy(logits[keep], codes[keep])
     accuracy = (logits.argmax(-1)[keep] == codes[keep]).float().mean()
