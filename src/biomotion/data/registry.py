@@ -187,6 +187,7 @@ def _com_terms(model, chunks: list[np.ndarray], masks: list[np.ndarray], rate: f
     import torch
 
     from biomotion.body.kinematics import center_of_mass
+    from biomotion.metrics.plausibility import com_acceleration, com_speed
 
     defaults = model.defaults.numpy()
     rows, keep = [], []
@@ -195,9 +196,9 @@ def _com_terms(model, chunks: list[np.ndarray], masks: list[np.ndarray], rate: f
             continue
         full = np.where(mask.astype(bool)[None], chunk, defaults[None]).astype(np.float64)
         with torch.no_grad():
-            com = center_of_mass(model, torch.from_numpy(full)).numpy()
-        speed = np.linalg.norm(np.diff(com, axis=0), axis=-1) * rate
-        acceleration = np.append(np.linalg.norm(np.diff(com, 2, axis=0), axis=-1) * rate ** 2, np.nan)
+            com = center_of_mass(model, torch.from_numpy(full))
+        speed = com_speed(com, rate)[:, 0].numpy()
+        acceleration = np.append(com_acceleration(com, rate)[:, 0].numpy(), np.nan)
         rows.append(np.stack([speed, acceleration], -1))
         keep.append(np.stack([np.ones_like(speed, bool), np.isfinite(acceleration)], -1))
     values, mask = np.concatenate(rows), np.concatenate(keep)

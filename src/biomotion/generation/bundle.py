@@ -68,6 +68,7 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
     """Per-action `GuidanceBounds` over the clips ``indices`` of ``cache`` (forward differences at the cache rate;
     COM from the canonical ``body`` model, absent coordinates at the model default)."""
     from biomotion.body.kinematics import center_of_mass
+    from biomotion.metrics.plausibility import com_acceleration, com_speed
 
     rate = cache.rate
     defaults = body.defaults.numpy()
@@ -83,15 +84,14 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
         jerk = np.abs(np.diff(q, 3, axis=0)) * rate ** 3
         jerk[:, ~mask] = np.nan
         full = np.where(mask[None], q, defaults[None])
-        com = center_of_mass(body, torch.from_numpy(full).to(body.dtype)).numpy()
-        v = np.diff(com, axis=0) * rate
-        a = np.diff(v, axis=0) * rate
+        com = center_of_mass(body, torch.from_numpy(full).to(body.dtype))
+        v, a = com_speed(com, rate)[:, 0].numpy(), com_acceleration(com, rate)[:, 0].numpy()
         for key in (record["labels"]["action"], ALL_ACTIONS):
             bucket = groups.setdefault(key, ([], [], [], []))
             bucket[0].append(speed)
             bucket[1].append(jerk)
-            bucket[2].append(np.linalg.norm(v, axis=-1))
-            bucket[3].append(np.linalg.norm(a, axis=-1))
+            bucket[2].append(v)
+            bucket[3].append(a)
     return {k: _bounds(*g) for k, g in groups.items() if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES}
 
 

@@ -70,11 +70,15 @@ def ground(feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
     return (torch.relu(-height).pow(2) + contact.to(height.dtype) * height.pow(2)).sum(-1).mean(-1)
 
 
-def locomotion_speed(q: torch.Tensor, rate: float, target: torch.Tensor) -> torch.Tensor:
-    """(||mean horizontal pelvis velocity|| - target [B])^2 per clip (pelvis_tx, pelvis_tz: canonical columns 3, 5)."""
+def mean_horizontal_speed(q: torch.Tensor, rate: float) -> torch.Tensor:
+    """[B] ||mean horizontal pelvis velocity|| (m/s) of clips q [B, T, 39] (pelvis_tx, pelvis_tz: columns 3, 5)."""
     horizontal = q[..., [3, 5]]
-    velocity = (horizontal[:, -1] - horizontal[:, 0]) * rate / max(q.shape[1] - 1, 1)
-    return (velocity.norm(dim=-1) - target).pow(2)
+    return ((horizontal[:, -1] - horizontal[:, 0]) * rate / max(q.shape[1] - 1, 1)).norm(dim=-1)
+
+
+def locomotion_speed(q: torch.Tensor, rate: float, target: torch.Tensor) -> torch.Tensor:
+    """(||mean horizontal pelvis velocity|| - target [B])^2 per clip."""
+    return (mean_horizontal_speed(q, rate) - target).pow(2)
 
 
 def proximity(z: torch.Tensor, z0: torch.Tensor) -> torch.Tensor:

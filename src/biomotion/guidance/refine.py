@@ -31,11 +31,10 @@ of its lowest foot point is at y = 0, as for the training clips); that offset is
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import torch
 
-from biomotion.errors import ConfigError
 from biomotion.generation.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.models.vqvae import MotionVQVAE
@@ -64,13 +63,6 @@ class GuidanceConfig:
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 100.0
     contact_height: float = 0.05  # m, a foot point of the unguided sample this low is in contact (metrics' 5 cm)
-
-    @classmethod
-    def from_dict(cls, values: dict) -> GuidanceConfig:
-        known = {f.name for f in fields(cls)}
-        if set(values) - known:
-            raise ConfigError(f"unknown guidance settings: {sorted(set(values) - known)}; known: {sorted(known)}")
-        return cls(**values)
 
     def alpha(self, k: int) -> float:
         """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
@@ -174,7 +166,8 @@ class Guide:
         optimiser = torch.optim.Adam([z], lr=c.lr)
         start = self.kinematics(z0)
         contact = self.contact(start.feet)
-        target = self.speed(start.q) if speed is None else torch.full((len(z0),), float(speed))
+        target = (losses.mean_horizontal_speed(start.q.detach(), self.rate) if speed is None
+                  else torch.full((len(z0),), float(speed)))
         weights = {t: getattr(c, f"w_{t}") for t in TERMS}
         history = []
         for k in range(c.iterations):
@@ -190,8 +183,3 @@ class Guide:
         with torch.no_grad():
             final = self._quantised(z) if c.quantize_at is not None else z
             return GuidanceResult(self.kinematics(final).q, final.detach(), history)
-
-    def speed(self, q: torch.Tensor) -> torch.Tensor:
-        """[B] mean horizontal pelvis speed (m/s) of clips q [B, T, 39]."""
-        horizontal = q[..., [3, 5]].detach()
-        return ((horizontal[:, -1] - horizontal[:, 0]) * self.rate / max(q.shape[1] - 1, 1)).norm(dim=-1)

@@ -13,13 +13,14 @@ baseline of `biomotion eval generation`.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
 
 from biomotion.errors import ConfigError
 from biomotion.models.profiler import SubjectProfiler
+from biomotion.settings import settings_from_dict
 
 
 @dataclass(frozen=True)
@@ -39,11 +40,7 @@ class PriorConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> PriorConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(values) - known
-        if unknown:
-            raise ConfigError(f"unknown prior settings: {sorted(unknown)}; known: {sorted(known)}")
-        return cls(**values)
+        return settings_from_dict(cls, values, "prior")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -27,7 +27,6 @@ import copy
 import hashlib
 import json
 import math
-import platform
 import sys
 import time
 from dataclasses import dataclass
@@ -52,7 +51,7 @@ from biomotion.generation.conditioning import (
     mean_features,
     metadata_features,
 )
-from biomotion.io.atomic import atomic_write
+from biomotion.models.cards import environment, write_card
 from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
 
@@ -319,12 +318,9 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
                  "actions": list(vocabulary.actions), "styles": list(vocabulary.styles)},
         "metrics_held_out_before": before, "metrics_held_out": after_val, "metrics_train": after_train,
         "history": history,
-        "environment": {"python": platform.python_version(), "torch": torch.__version__},
+        "environment": environment(),
     }
-    with atomic_write(out.with_suffix(".json")) as handle:
-        json.dump(card, handle, indent=1)
-    with atomic_write(out.with_suffix(".md")) as handle:
-        handle.write(_markdown(card))
+    write_card(out, card, _markdown(card))
     return card
 
 

@@ -15,7 +15,6 @@ import argparse
 import hashlib
 import json
 import math
-import platform
 import sys
 import time
 from pathlib import Path
@@ -27,7 +26,7 @@ from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.io.atomic import atomic_write
+from biomotion.models.cards import environment, write_card
 from biomotion.models.vqvae import N_COORDS, TRANSLATIONS, MotionVQVAE, VQVAEConfig
 
 
@@ -147,12 +146,9 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: floa
         "metrics_val_before": before,
         "metrics_val": after,
         "history": history,
-        "environment": {"python": platform.python_version(), "torch": torch.__version__},
+        "environment": environment(),
     }
-    with atomic_write(out.with_suffix(".json")) as handle:
-        json.dump(card, handle, indent=1)
-    with atomic_write(out.with_suffix(".md")) as handle:
-        handle.write(_markdown(card))
+    write_card(out, card, _markdown(card))
     return card
 
 

@@ -17,7 +17,7 @@ the model through its placeholder values.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
-from biomotion.errors import ConfigError, ModelError
+from biomotion.errors import ModelError
+from biomotion.settings import settings_from_dict
 
 N_COORDS = len(CANONICAL_COORDINATES)
 #: Horizontal pelvis translations, represented as velocities (see `MotionVQVAE.to_features`).
@@ -53,11 +54,7 @@ class VQVAEConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> VQVAEConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(values) - known
-        if unknown:
-            raise ConfigError(f"unknown tokenizer model settings: {sorted(unknown)}; known: {sorted(known)}")
-        return cls(**values)
+        return settings_from_dict(cls, values, "tokenizer model")
 
 
 class ResBlock1D(nn.Module):

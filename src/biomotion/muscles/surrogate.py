@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import torch
@@ -40,6 +40,7 @@ from torch import nn
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
 from biomotion.errors import ConfigError, ModelError
+from biomotion.settings import settings_from_dict
 
 N_COORDS = len(CANONICAL_COORDINATES)
 FORMAT = "biomotion-muscle-surrogate/1"
@@ -63,11 +64,7 @@ class SurrogateConfig:
 
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
-        known = {f.name for f in fields(cls)}
-        unknown = set(values) - known
-        if unknown:
-            raise ConfigError(f"unknown surrogate model settings: {sorted(unknown)}; known: {sorted(known)}")
-        config = cls(**values)
+        config = settings_from_dict(cls, values, "surrogate model")
         if config.kernel % 2 == 0 or config.kernel < 1:
             raise ConfigError(f"surrogate kernel must be odd, got {config.kernel}")
         return config

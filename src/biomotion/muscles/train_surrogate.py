@@ -27,7 +27,6 @@ import argparse
 import hashlib
 import json
 import math
-import platform
 import sys
 import time
 from pathlib import Path
@@ -41,7 +40,7 @@ from biomotion.data.mirror import mirror_coordinates, mirror_labels
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.guidance.losses import activation
-from biomotion.io.atomic import atomic_write
+from biomotion.models.cards import environment, write_card
 from biomotion.muscles.surrogate import MuscleSurrogate, SurrogateConfig
 from biomotion.muscles.surrogate_labels import (
     DEFAULT_NAME,
@@ -292,13 +291,9 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         "metrics_train": {k: v for k, v in on_train.items() if k != "per_muscle_r2"},
         "speed_3s_clip": speed,
         "history": history,
-        "environment": {"python": platform.python_version(), "torch": torch.__version__,
-                        "torch_threads_training": torch.get_num_threads()},
+        "environment": environment(torch_threads_training=torch.get_num_threads()),
     }
-    with atomic_write(out.with_suffix(".json")) as handle:
-        json.dump(card, handle, indent=1)
-    with atomic_write(out.with_suffix(".md")) as handle:
-        handle.write(_markdown(card))
+    write_card(out, card, _markdown(card))
     return card
 
 
