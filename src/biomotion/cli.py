@@ -209,16 +209,19 @@ def _eval(args: argparse.Namespace) -> int:
 
 def _retarget(args: argparse.Namespace) -> int:
     from biomotion.body.model import BodyModel
-    from biomotion.ik.retarget import marker_files, retarget
+    from biomotion.ik.retarget import motion_files, retarget
     from biomotion.ik.setup import read_ik_setup
+    from biomotion.ik.skeleton import JointMap
 
     weights = read_ik_setup(args.setup).marker_weights if args.setup else None
-    summaries = retarget(marker_files(args.input), BodyModel.from_osim(args.model), args.out, weights=weights,
-                         filter_hz=args.filter, progress=not args.quiet)
+    joint_map = JointMap.from_file(args.joint_map) if args.joint_map else None
+    summaries = retarget(motion_files(args.input), BodyModel.from_osim(args.model), args.out, weights=weights,
+                         filter_hz=args.filter, joint_map=joint_map, model_path=args.model,
+                         progress=not args.quiet)
     failed = [s for s in summaries if s.error]
     for summary in summaries:
         state = f"FAILED: {summary.error}" if summary.error else \
-            f"{summary.frames} frames, marker RMS {100 * summary.rms_error_m:.2f} cm, max {100 * summary.max_error_m:.2f} cm"
+            f"{summary.frames} frames, RMS error {100 * summary.rms_error_m:.2f} cm, max {100 * summary.max_error_m:.2f} cm"
         print(f"  {summary.trial}: {state}")
     print(f"{len(summaries) - len(failed)} of {len(summaries)} trials retargeted -> {args.out} (summary.csv)")
     return 2 if failed and len(failed) == len(summaries) else 0
@@ -346,16 +349,27 @@ def build_parser() -> argparse.ArgumentParser:
     validate.set_defaults(run=_validate)
 
     retarget = verbs.add_parser(
-        "retarget", help="marker trials (.trc, .c3d; a file or a folder) -> model coordinates (.mot) by batched IK",
-        description="Inverse kinematics of every frame at once on MODEL (weighted least squares, coordinate ranges, "
-                    "locked and coupled coordinates, occluded markers skipped per frame). Writes <trial>.mot per "
-                    "trial and summary.csv (marker RMS and max error, frames dropped); keeps going past a bad "
-                    "trial. Marker weights come from an OpenSim IK setup (--setup) or are 1 for every model "
-                    "marker found in the data.")
-    retarget.add_argument("input", type=Path, help="a .trc/.c3d file or a folder of them")
-    retarget.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim (with markers)")
+        "retarget", help="captured motion (.trc, .c3d markers; .bvh/.bvh.gz skeletons; a file or a folder) -> "
+                         "model coordinates (.mot) by batched IK",
+        description="Marker trials: inverse kinematics of every frame at once on MODEL, the subject's scaled model "
+                    "(weighted least squares, coordinate ranges, locked and coupled coordinates, occluded markers "
+                    "skipped per frame); marker weights come from an OpenSim IK setup (--setup) or are 1 for every "
+                    "model marker found in the data. Skeletons (BVH, or marker files of joint centres with "
+                    "--joint-map): MODEL is the generic model, scaled to each skeleton's segment lengths and fitted "
+                    "to its joint centres (PG-BIG A.5), coordinates filtered at 10 Hz and kept in range, feet put "
+                    "on y = 0; the scaled model is written as <trial>.osim. Writes <trial>.mot per trial and "
+                    "summary.csv (RMS and max marker or joint-centre error, frames dropped); keeps going past a "
+                    "bad trial.")
+    retarget.add_argument("input", type=Path, help="a .trc/.c3d/.bvh/.bvh.gz file or a folder of them")
+    retarget.add_argument("--model", type=Path, required=True,
+                          help="markers: the subject's scaled .osim (with markers); skeletons: the generic .osim "
+                               "(e.g. Rajagopal2016.osim)")
     retarget.add_argument("--setup", type=Path, help="OpenSim IK setup XML to take marker weights from")
-    retarget.add_argument("--filter", type=float, help="low-pass the markers first (Hz)")
+    retarget.add_argument("--joint-map", type=Path,
+                          help='JSON {"centres": {model joint: skeleton joint}, "toes": {model toe joint: skeleton '
+                               'joint}}: treat the input as joint centres (built in: the Bandai-Namco skeleton)')
+    retarget.add_argument("--filter", type=float,
+                          help="low-pass (Hz): markers before IK; skeletons: the coordinates (default 10)")
     retarget.add_argument("--out", type=Path, required=True, help="output folder")
     retarget.add_argument("--quiet", action="store_true", help="no progress bar")
     retarget.set_defaults(run=_retarget)

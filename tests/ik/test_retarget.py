@@ -38,8 +38,17 @@ def test_folder_with_a_bad_trial(tmp_path):
 
 
 def test_rejects_what_it_cannot_read(tmp_path, capsys):
+    text = tmp_path / "clip.txt"
+    text.write_text("not motion")
+    code = main(["retarget", str(text), "--model", str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
+                 "--out", str(tmp_path / "o"), "--quiet"])
+    assert code == 2 and "reads .trc and .c3d marker files and .bvh(.gz) skeletons" in capsys.readouterr().err
+
+
+def test_a_skeleton_on_a_model_the_map_does_not_fit_is_named(tmp_path, capsys):
     bvh = tmp_path / "clip.bvh.gz"
     shutil.copy(data_path("bandai-namco/dataset-2/dataset-2_walk_normal_016.bvh.gz"), bvh)
     code = main(["retarget", str(bvh), "--model", str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
                  "--out", str(tmp_path / "o"), "--quiet"])
-    assert code == 2 and "BVH retargeting is not available yet" in capsys.readouterr().err
+    row = next(csv.DictReader((tmp_path / "o" / "summary.csv").open()))
+    assert code == 2 and "model joint 'walker_knee_r'" in row["error"] and row["trial"] == "clip"

@@ -1,8 +1,13 @@
-"""``biomotion retarget``: captured markers (TRC, C3D) → coordinates of a model, one trial or a folder of them.
+"""``biomotion retarget``: captured motion → coordinates of a model, one trial or a folder of them.
 
-Each trial is solved by `biomotion.ik.markers.solve_ik` (all frames at once) and written as an OpenSim ``.mot``;
-a batch keeps going past a bad trial and writes ``summary.csv`` with one row per trial: frames, RMS and maximum
-marker error, frames where no tracked marker was visible (dropped), and the error if the trial failed.
+- Markers (TRC, C3D) on a subject-scaled model: `biomotion.ik.markers.solve_ik` (all frames at once).
+- Skeletons (BVH, ``.bvh.gz``), or marker files holding joint centres when a joint map is given: the generic model
+  is scaled to the skeleton and fitted to its joint centres (`biomotion.ik.skeleton`); the scaled model is
+  written beside the motion as ``<trial>.osim``.
+
+Each trial is written as an OpenSim ``.mot``; a batch keeps going past a bad trial and writes ``summary.csv`` with
+one row per trial: frames, RMS and maximum marker (or joint-centre) error, frames where no tracked point was
+visible (dropped), and the error if the trial failed.
 """
 
 from __future__ import annotations
@@ -17,6 +22,8 @@ from tqdm import tqdm
 from biomotion.body.model import BodyModel
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.ik.markers import solve_ik
+from biomotion.ik.skeleton import FILTER_HZ, JointMap, joint_positions, retarget_skeleton, write_scaled_model
+from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import write_motion
 from biomotion.io.tables import write_csv
@@ -24,6 +31,7 @@ from biomotion.io.trc import read_trc
 from biomotion.motion import Markers
 
 MARKER_SUFFIXES = (".trc", ".c3d")
+SKELETON_SUFFIXES = (".bvh", ".bvh.gz")
 SUMMARY_COLUMNS = ["trial", "frames", "rms_error_m", "max_error_m", "frames_dropped", "output", "error"]
 
 
@@ -34,15 +42,32 @@ def read_markers(path: Path) -> Markers:
     return read_trc(path)
 
 
-def marker_files(source: Path) -> list[Path]:
-    """``source`` itself, or every TRC/C3D file in the folder ``source`` (sorted)."""
+def is_skeleton(path: Path) -> bool:
+    return path.name.lower().endswith(SKELETON_SUFFIXES)
+
+
+def _readable(path: Path) -> bool:
+    return path.suffix.lower() in MARKER_SUFFIXES or is_skeleton(path)
+
+
+def trial_name(path: Path) -> str:
+    """The file name without its suffix (both of ``.bvh.gz``)."""
+    name = path.name
+    for suffix in (*SKELETON_SUFFIXES, *MARKER_SUFFIXES):
+        if name.lower().endswith(suffix):
+            return name[:-len(suffix)]
+    return path.stem
+
+
+def motion_files(source: Path) -> list[Path]:
+    """``source`` itself, or every TRC, C3D and BVH file in the folder ``source`` (sorted)."""
     if source.is_dir():
-        files = sorted(p for p in source.iterdir() if p.suffix.lower() in MARKER_SUFFIXES)
+        files = sorted(p for p in source.iterdir() if _readable(p))
         if not files:
-            raise ConfigError(f"{source}: no .trc or .c3d files to retarget")
+            raise ConfigError(f"{source}: no .trc, .c3d or .bvh(.gz) files to retarget")
         return files
-    if source.suffix.lower() not in MARKER_SUFFIXES:
-        raise ConfigError(f"{source}: retarget reads .trc and .c3d marker files (BVH retargeting is not available yet)")
+    if not _readable(source):
+        raise ConfigError(f"{source}: retarget reads .trc and .c3d marker files and .bvh(.gz) skeletons")
     if not source.exists():
         raise ConfigError(f"{source}: no such file")
     return [source]
@@ -63,27 +88,55 @@ class TrialSummary:
                 self.error]
 
 
-def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: Mapping[str, float] | None = None,
-             filter_hz: float | None = None, progress: bool = True) -> list[TrialSummary]:
-    """Solve IK for every marker file and write ``<trial>.mot`` plus ``summary.csv`` into ``out``.
+def _summary(name: str, frames: int, errors: np.ndarray, output: str) -> TrialSummary:
+    visible = np.isfinite(errors).any(axis=1)
+    return TrialSummary(name, frames, float(np.sqrt(np.nanmean(errors ** 2))), float(np.nanmax(errors)),
+                        int((~visible).sum()), output)
 
-    ``weights`` are marker weights (default: every model marker found in the data, weight 1); ``filter_hz``
-    low-passes the markers first (zero-lag Butterworth; the Fukuchi chain uses 10 Hz). A trial that fails is
-    recorded with its error and the batch goes on; malformed input still names its file and line.
+
+def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
+                      filter_hz: float | None) -> TrialSummary:
+    markers = read_markers(path)
+    if filter_hz:
+        markers = markers.filtered(filter_hz)
+    result = solve_ik(model, markers, weights=dict(weights) if weights else None)
+    output = write_motion(out / f"{name}.mot", result.motion)
+    return _summary(name, result.motion.n_frames, result.errors, output.name)
+
+
+def _retarget_skeleton(path: Path, model: BodyModel, model_path: Path, out: Path, name: str,
+                       joint_map: JointMap | None, filter_hz: float | None) -> TrialSummary:
+    source = joint_positions(read_bvh(path)) if is_skeleton(path) else read_markers(path)
+    result = retarget_skeleton(source, model, joint_map, cutoff_hz=FILTER_HZ if filter_hz is None else filter_hz)
+    write_scaled_model(model_path, out / f"{name}.osim", model, result.factors, name=name)
+    output = write_motion(out / f"{name}.mot", result.motion)
+    return _summary(name, result.motion.n_frames, result.errors, output.name)
+
+
+def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: Mapping[str, float] | None = None,
+             filter_hz: float | None = None, joint_map: JointMap | None = None, model_path: Path | None = None,
+             progress: bool = True) -> list[TrialSummary]:
+    """Retarget every file and write ``<trial>.mot`` (and ``<trial>.osim`` for skeletons) plus ``summary.csv``.
+
+    Marker files are solved on ``model`` as it is (the subject's scaled model), with marker ``weights``
+    (default: every model marker found in the data, weight 1) after an optional ``filter_hz`` low-pass of the
+    markers (zero-lag Butterworth; the Fukuchi chain uses 10 Hz). BVH files, and marker files when a
+    ``joint_map`` is given, are joint centres: ``model`` is the generic model scaled to each skeleton (it must
+    have been read from ``model_path``, which the scaled copy is written from), and ``filter_hz`` (default 10)
+    low-passes the coordinates. A trial that fails is recorded with its error and the batch goes on; malformed
+    input still names its file and line.
     """
     out.mkdir(parents=True, exist_ok=True)
     summaries = []
     for path in tqdm(list(sources), desc="retargeting", unit="trial", disable=not progress):
-        name = path.name.removesuffix(path.suffix)
+        name = trial_name(path)
         try:
-            markers = read_markers(path)
-            if filter_hz:
-                markers = markers.filtered(filter_hz)
-            result = solve_ik(model, markers, weights=dict(weights) if weights else None)
-            output = write_motion(out / f"{name}.mot", result.motion)
-            visible = np.isfinite(result.errors).any(axis=1)
-            summaries.append(TrialSummary(name, result.motion.n_frames, float(result.rmse),
-                                          float(np.nanmax(result.errors)), int((~visible).sum()), output.name))
+            if is_skeleton(path) or joint_map is not None:
+                if model_path is None:
+                    raise ConfigError("retargeting a skeleton writes the scaled model: give the model's file")
+                summaries.append(_retarget_skeleton(path, model, model_path, out, name, joint_map, filter_hz))
+            else:
+                summaries.append(_retarget_markers(path, model, out, name, weights, filter_hz))
         except BiomotionError as error:
             summaries.append(TrialSummary(name, 0, float("nan"), float("nan"), 0, "", str(error)))
     write_csv(out / "summary.csv", SUMMARY_COLUMNS, [s.row() for s in summaries])
