@@ -3,8 +3,9 @@
 `analyze` is a pure function of (motion, model, optional measured forces); `write_analysis` writes its result as
 OpenSim files (torques ``.sto`` with OpenSim's ``<coordinate>_moment|_force`` column names, GRF ``.mot`` with an
 ExternalLoads XML, COM/ZMP ``.sto``) plus a JSON summary. The processing follows OpenSim's inverse dynamics tool:
-coordinates low-pass filtered (default 6 Hz, 3rd-order zero-lag Butterworth after padding half the signal by odd
-reflection), then differentiated with quintic splines.
+coordinates (with 360° wraps of IK angles removed first, see `unwrapped`) low-pass filtered (default 6 Hz,
+3rd-order zero-lag Butterworth after padding half the signal by odd reflection), then differentiated with quintic
+splines.
 """
 
 from __future__ import annotations
@@ -70,6 +71,23 @@ def model_motion(motion: Motion, model: BodyModel) -> Motion:
     return selected.with_values(values.numpy())
 
 
+def unwrapped(motion: Motion, model: BodyModel) -> Motion:
+    """The motion with 2π jumps between frames removed from its rotational coordinates.
+
+    IK output can hold angles wrapped into (−180°, 180°]: in OpenCap Subject4's DJAsym1, DJAsym2 and DJAsym3
+    ``_ik.mot`` an arm turning through ±180° near gimbal lock jumps by 245°-351° between two frames (DJAsym1
+    ``arm_flex_r`` 170° → −176°, a 14° turn). Filtered and differentiated as it is, such a jump becomes an
+    acceleration of thousands of rad/s² and a ground force of several body weights. ``numpy.unwrap`` moves only
+    steps larger than π (to the same pose, 2π away), so coordinates without a wrap are unchanged.
+    """
+    rotational = np.array([kind == "rotational" for kind in model.motion_types])
+    if not rotational.any() or motion.n_frames < 2:
+        return motion
+    values = motion.values.copy()
+    values[:, rotational] = np.unwrap(values[:, rotational], axis=0)
+    return motion.with_values(values)
+
+
 def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
                    threshold: float = 1.0) -> GroundReaction:
     """Per-foot loads from plate channels: at every frame each loaded plate goes to the foot whose contact
@@ -133,7 +151,7 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
             contact: ContactSettings = ContactSettings()) -> Analysis:
     """Torques, GRF (inferred always; measured plates assigned to feet when given, or applied to the bodies they
     name when every channel has one), COM, ZMP and energy."""
-    coordinates = model_motion(motion, model)
+    coordinates = unwrapped(model_motion(motion, model), model)
     if cutoff_hz and coordinates.n_frames > 15:
         coordinates, qd_np, qdd_np = coordinates.smoothed(cutoff_hz)
     else:
@@ -176,23 +194,47 @@ def vertical_agreement(predicted: np.ndarray, measured: np.ndarray, body_weight:
             "rmse_bw": float(np.sqrt(np.mean(residual ** 2)) / body_weight)}
 
 
-def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 0.2) -> np.ndarray:
-    """[T] bool: frames where every foot the kinematics put on the ground is loaded on the plates.
+def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 0.2, hold: float = 0.1
+                 ) -> np.ndarray:
+    """[T] bool: frames where every foot the kinematics put on a support is loaded on the plates.
 
-    A foot is on the ground when one of its contact points is within ``rest_tolerance`` of its resting height
-    with vertical speed below ``speed``; if such a foot carries < 20 N on the plates it stands beside them
-    (overground walking), the plate total is incomplete and the frame is left out of comparisons. No fitted
-    quantity enters the rule.
+    A foot is on the floor when one of its contact points is within ``rest_tolerance`` of its resting height with
+    vertical speed below ``speed``. It stands on a raised support (the box a drop jump starts from) where it
+    stays still — one of its contact points slower than ``speed`` in every direction for at least ``hold``
+    seconds — with < 20 N on the plates; stepping onto or off that support (a contact point within
+    ``rest_tolerance`` of a height it had while standing there, vertical speed below ``speed``, in the same
+    stretch of frames) counts too. A foot passes through rest for only about 2·``speed``/g = 0.04 s at the top of
+    a jump, and a stance foot on a treadmill moves with the belt. If a foot on a support carries < 20 N on the
+    plates it stands beside them (overground walking) or on something they do not measure, the plate total is
+    incomplete and the frame is left out of comparisons. No fitted quantity enters the rule.
     """
-    height = result.contact_points[..., 1] - np.percentile(result.contact_points[..., 1], 2.0, axis=0)
-    vertical_speed = np.abs(np.gradient(result.contact_points[..., 1], result.motion.times, axis=0))
-    planted = (height < rest_tolerance) & (vertical_speed < speed)
+    from scipy.ndimage import binary_opening, label
+
+    points, times = result.contact_points, result.motion.times
+    height = points[..., 1] - np.percentile(points[..., 1], 2.0, axis=0)
+    velocity = np.gradient(points, times, axis=0)
+    slow = np.abs(velocity[..., 1]) < speed
+    still = np.linalg.norm(velocity, axis=-1) < speed
+    frames = max(1, round(hold * result.motion.rate))
     feet = np.array(foot_points(result.model).feet)
     keep = np.ones(result.motion.n_frames, dtype=bool)
     for side in ("r", "l"):
         channels = [j for j, body in enumerate(result.measured.bodies) if str(body).endswith(f"_{side}")]
-        load = result.measured.force[:, channels, 1].sum(1)
-        keep &= ~(planted[:, feet == side].any(axis=1) & (load < 20.0))
+        unloaded = result.measured.force[:, channels, 1].sum(1) < 20.0
+        own = np.flatnonzero(feet == side)
+        on_support = ((height[:, own] < rest_tolerance) & slow[:, own]).any(axis=1)
+        raised = binary_opening(still[:, own].any(axis=1), structure=np.ones(frames, dtype=bool)) & unloaded
+        if raised.any():
+            at_level = np.zeros_like(raised)
+            for k in own:
+                levels = np.sort(height[raised, k])
+                above = np.searchsorted(levels, height[:, k])
+                distance = np.minimum(np.abs(height[:, k] - levels[np.clip(above - 1, 0, len(levels) - 1)]),
+                                      np.abs(height[:, k] - levels[np.clip(above, 0, len(levels) - 1)]))
+                at_level |= (distance < rest_tolerance) & slow[:, k]
+            stretches, _ = label(at_level | raised)
+            on_support |= np.isin(stretches, stretches[raised])
+        keep &= ~(on_support & unloaded)
     return keep
 
 

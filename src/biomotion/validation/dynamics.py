@@ -11,12 +11,17 @@ Figures (keys of the JSON report, issue 3):
   kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners and OpenCap Subject4 trials.
 
 Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK times come from the C3D, OpenCap's
-``_ik.mot`` and ``_grf.mot`` share their time base), so no offset is applied or estimated. Frame rule for the GRF
-comparison: frames where a foot the kinematics put on the ground (lowest contact point within 2 cm of its rest
-height and vertical speed below 0.2 m/s) carries < 20 N on the plates are left out — that foot is off the plates
-(overground walking), so the plate total is incomplete there. The rule uses no fitted quantity. Sit-to-stand trials
-are not in the GRF comparison (the issue lists drop jumps, squats and walking): the chair carries weight that no
-plate measures and that a feet-only contact model cannot place.
+``_ik.mot`` and ``_grf.mot`` share their time base), so no offset is applied or estimated. (Checked without the
+plates: the Fukuchi model markers posed by the IK match the C3D markers best at zero frame offset. The shift
+that would minimise the GRF error is −4 to −8 ms on the Fukuchi runners and +4 to +6 ms on OpenCap: no one
+physical lag explains both, and taking it from the plates would fit the test frames.) Frame rule for the GRF comparison
+(`biomotion.analysis.plate_frames`): frames where a foot the kinematics put on a support — the floor (lowest
+contact point within 2 cm of its rest height, vertical speed below 0.2 m/s) or a level where that foot stood
+still for 0.1 s without load on the plates (the drop-jump box) — carries < 20 N on the plates are left out: that
+foot is beside the plates (overground walking) or on something they do not measure, so the plate total is
+incomplete there. The rule uses no fitted quantity. Sit-to-stand trials are not in the GRF comparison (the issue
+lists drop jumps, squats and walking): the chair carries weight that no plate measures and that a feet-only
+contact model cannot place.
 """
 
 from __future__ import annotations
@@ -29,13 +34,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.analysis import analyze, model_motion, plate_frames, torque_labels, vertical_agreement
+from biomotion.analysis import analyze, model_motion, plate_frames, torque_labels, unwrapped, \
+    vertical_agreement
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.io.c3d import read_c3d_forces
 from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
-    write_external_loads_xml, write_ground_reaction
+    write_external_loads_xml, write_ground_reaction, write_motion
 from biomotion.motion import GroundReaction
 from biomotion.validation.oracle import Oracle, opensim, random_poses, run_inverse_dynamics_tool
 
@@ -151,17 +157,23 @@ def check_inverse_dynamics_solver(data_root: Path, progress: bool = True) -> dic
 
 def _end_to_end_case(model_path: Path, motion_path: Path, forces: GroundReaction, assignment: dict[str, str],
                      tmp: Path) -> dict:
-    """Our ID pipeline vs OpenSim's InverseDynamicsTool, both from the raw coordinates with a 6 Hz filter."""
+    """Our ID pipeline vs OpenSim's InverseDynamicsTool, both from the same coordinates with a 6 Hz filter.
+
+    OpenSim is given the coordinates `analyze` works on: the IK's, with 2π wraps of angles removed (`unwrapped`:
+    the same poses; OpenSim's tool would filter such a jump as motion). Only the file's own columns are written:
+    OpenSim's tool given a coupled coordinate's column follows it instead of its coupler."""
     motion = read_motion(motion_path)
+    model = BodyModel.from_osim(model_path)
+    columns = [name for name in model.coordinate_names if name in motion.names]
+    coordinates = write_motion(tmp / "coordinates.mot", unwrapped(model_motion(motion, model), model).select(columns))
     start = max(float(motion.times[0]), float(forces.times[0]))
     end = min(float(motion.times[-1]), float(forces.times[-1]))
     # both tools filter the whole trial and are compared where the plates recorded
     forces = forces.assign([assignment.get(name) for name in forces.names]).select(list(assignment))
     grf_file = write_ground_reaction(tmp / "grf.mot", forces)
     loads_file = write_external_loads_xml(tmp / "loads.xml", forces, str(grf_file))
-    reference = read_storage(run_inverse_dynamics_tool(model_path, motion_path, loads_file, tmp / "opensim",
+    reference = read_storage(run_inverse_dynamics_tool(model_path, coordinates, loads_file, tmp / "opensim",
                                                        start, end))
-    model = BodyModel.from_osim(model_path)
     ours = analyze(motion, model, forces, cutoff_hz=6.0)
     labels = torque_labels(model)
     out = {}
