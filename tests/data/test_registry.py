@@ -14,10 +14,14 @@ from biomotion.io.mot import read_motion
 from tests.conftest import DATA_ROOT
 
 
+#: every source but the retargeted BVH one, whose 664 clips take minutes of IK (tested on a few clips below)
+FILE_SOURCES = ["fukuchi", "opencap", "hamner", "schreiber"]
+
+
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory, data_root):
     out = tmp_path_factory.mktemp("cache")
-    build_cache(data_root, out, progress=False)
+    build_cache(data_root, out, sources=FILE_SOURCES, progress=False)
     return DatasetCache(out)
 
 
@@ -117,7 +121,35 @@ def test_percentile_bounds_are_stored_with_the_cache(cache):
 def test_report_writes_the_counts(tmp_path, data_root):
     report = tmp_path / "dataset.md"
     assert main(["data", "build", "--data-root", str(data_root), "--out", str(tmp_path / "c"), "--quiet",
-                 "--report", str(report)]) == 0
+                 "--report", str(report), *[a for s in FILE_SOURCES for a in ("--source", s)]]) == 0
     text = report.read_text()
     runners = {p.name.split("_")[0] for p in DATA_ROOT.glob("fukuchi-running/ik/T*/*_ik_simple.mot")}
     assert f"| fukuchi | {3 * len(runners)} | {len(runners)} |" in text
+
+
+def test_bandai_clips_are_retargeted_into_the_cache(tmp_path, data_root):
+    """A root with three Bandai-Namco clips (and the model they are retargeted onto): canonical coordinates that
+    move like the clip says, labels from the name, the actor group as subject."""
+    root = tmp_path / "root"
+    for name in ("dataset-2/dataset-2_walk_elderly_001.bvh.gz", "dataset-2/dataset-2_run_normal_001.bvh.gz",
+                 "dataset-1/dataset-1_bow_happy_001.bvh.gz"):
+        (root / "bandai-namco" / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / "bandai-namco" / name).symlink_to(data_root / "bandai-namco" / name)
+    model = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
+    (root / model).parent.mkdir(parents=True)
+    (root / model).symlink_to(data_root / model)
+    out = tmp_path / "cache"
+    build_cache(root, out, progress=False)
+    cache = DatasetCache(out)
+    records = {r["clip_id"]: (i, r) for i, r in enumerate(cache.records)}
+    i, walk = records["bandai-namco/dataset-2/walk_elderly_001"]
+    assert walk["labels"]["action"] == "walk" and walk["labels"]["style"] == "elderly"
+    assert walk["labels"]["text"] == "walk, elderly" and 0.3 < walk["labels"]["speed"] < 1.6   # m/s, measured
+    assert walk["subject"] == "dataset-2/hips@5,91,-427"             # active/elderly/exhausted share an actor
+    motion = cache.motion(i)
+    assert motion.mask.all() and motion.rate == pytest.approx(30.0)
+    assert np.degrees(motion["knee_angle_r"]).max() > 40              # swing flexion
+    run = cache.motion(records["bandai-namco/dataset-2/run_normal_001"][0])
+    assert np.degrees(run["knee_angle_r"]).max() > np.degrees(motion["knee_angle_r"]).max()
+    bow = cache.motion(records["bandai-namco/dataset-1/bow_happy_001"][0])
+    assert np.degrees(bow["pelvis_tilt"]).min() < -30 and np.degrees(bow["hip_flexion_r"]).max() > 30  # bent forward

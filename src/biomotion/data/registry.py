@@ -17,9 +17,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
+import os
 import time
 from collections import Counter
 from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -86,13 +89,43 @@ def _placement_model(data_root: Path):
     return BodyModel.from_osim(path) if path.exists() else None
 
 
+def _load_motion(spec) -> Motion:
+    return SOURCES[spec.source].load_motion(spec)
+
+
+def _load_thread_limited(spec) -> Motion:
+    import torch
+
+    torch.set_num_threads(1)
+    return _load_motion(spec)
+
+
+def _motions(specs: list, workers: int, progress: bool) -> Iterable[Motion]:
+    """Each clip's motion in order; clips whose source retargets them (minutes of IK for a few hundred BVH clips)
+    are loaded by ``workers`` processes."""
+    heavy = sum(SOURCES[s.source].retargeted for s in specs)
+    bar = tqdm(total=len(specs), desc="building dataset cache", unit="clip", disable=not progress)
+    if workers > 1 and heavy > workers:
+        context = multiprocessing.get_context("spawn")   # torch's thread pools do not survive a fork
+        with ProcessPoolExecutor(workers, mp_context=context) as pool:
+            for motion in pool.map(_load_thread_limited, specs, chunksize=4):
+                bar.update()
+                yield motion
+    else:
+        for spec in specs:
+            bar.update()
+            yield _load_motion(spec)
+    bar.close()
+
+
 def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT_RATE,
-                sources: Iterable[str] | None = None, progress: bool = True) -> dict:
+                sources: Iterable[str] | None = None, progress: bool = True, workers: int | None = None) -> dict:
     """Build the cache in ``out`` from every source present under ``data_root``; returns the manifest.
 
     A clip that fails to load stops the build with its file named (malformed data is an error, not a skip);
     sources absent from the data root are listed under ``skipped``. Files are written atomically, the manifest
-    last, so a folder with a manifest always holds a complete cache.
+    last, so a folder with a manifest always holds a complete cache. Retargeted clips are loaded by ``workers``
+    processes (default: one per CPU).
     """
     data_root, out = Path(data_root), Path(out)
     started = time.perf_counter()
@@ -104,9 +137,8 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     masks: list[np.ndarray] = []
     records: list[ClipRecord] = []
     offset = 0
-    for spec in tqdm(specs, desc="building dataset cache", unit="clip", disable=not progress):
+    for spec, motion in zip(specs, _motions(specs, workers or os.cpu_count() or 1, progress)):
         source = SOURCES[spec.source]
-        motion = source.load_motion(spec)
         labels = spec.labels
         if source.overground and labels.speed is None and labels.action in ("walk", "run"):
             labels = replace(labels, speed=round(forward_speed(motion), 3))

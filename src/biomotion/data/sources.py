@@ -8,6 +8,8 @@ canonical). Sources that need retargeting (BVH, raw C3D) register themselves thr
 
 from __future__ import annotations
 
+import functools
+import gzip
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -16,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
+from biomotion.errors import DataFormatError
 from biomotion.io.mot import read_motion
 from biomotion.io.tables import read_subject_table
 from biomotion.motion import Motion
@@ -46,6 +49,7 @@ class Source:
     description: str = ""
     overground: bool = False  # locomotion speed can be measured from the pelvis path (not on a treadmill)
     treadmill: bool = False  # locomotion on a treadmill at the label's speed (`biomotion.data.placement`)
+    retargeted: bool = False  # clips are solved by IK when loaded (slow: the cache loads them in parallel)
 
     def present(self, data_root: Path) -> bool:
         return (data_root / self.folder).is_dir()
@@ -202,6 +206,74 @@ SCHREIBER = register_source(Source(
     load_motion=lambda spec: to_canonical(read_motion(spec.path)),
     description="Schreiber & Moissenet 2019 overground walking, spontaneous and fast (Rajagopal, 39 coordinates)",
     overground=True))
+
+
+# --- Bandai-Namco BVH: bandai-namco/dataset-{1,2}/*.bvh.gz, retargeted onto the canonical model -----------------
+
+BANDAI_MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
+
+
+def _hips_rest_offset(path: Path) -> tuple[float, float, float]:
+    """The OFFSET line of the ``Hips`` joint in a BVH header (cm)."""
+    with gzip.open(path, "rt") as handle:
+        seen_hips = False
+        for number, line in enumerate(handle, 1):
+            words = line.split()
+            if words[-1:] == ["Hips"]:
+                seen_hips = True
+            elif seen_hips and words[:1] == ["OFFSET"]:
+                return tuple(float(w) for w in words[1:4])
+            elif words[:1] == ["MOTION"]:
+                break
+    raise DataFormatError(path, "no OFFSET for a joint named Hips in the hierarchy", line=number)
+
+
+def _bandai_discover(root: Path) -> list[ClipSpec]:
+    """Every clip present, labelled from its name (``dataset-N_content_style_take``, bandai-namco/SOURCE.md).
+
+    The datasets name no actors. The rest OFFSET of ``Hips`` differs between groups of styles (three main groups
+    per dataset, as the three actors the upstream README names), so it stands in for the subject and a split keeps
+    a group's clips together.
+    """
+    specs = []
+    for path in sorted((root / "bandai-namco").glob("dataset-*/*.bvh.gz")):
+        parts = path.name.removesuffix(".bvh.gz").split("_")
+        if len(parts) != 4:
+            raise DataFormatError(path, "expected a name dataset-N_content_style_take.bvh.gz")
+        dataset, content, style, take = parts
+        x, y, z = _hips_rest_offset(path)
+        action = content.replace("-", " ")
+        specs.append(ClipSpec(
+            clip_id=f"bandai-namco/{dataset}/{content}_{style}_{take}", source="bandai-namco", path=path,
+            subject=f"{dataset}/hips@{x:.0f},{y:.0f},{z:.0f}",
+            labels=Labels(action=action, style=style, text=action if style == "normal" else f"{action}, {style}")))
+    return specs
+
+
+@functools.lru_cache(maxsize=2)
+def _generic_model(root: Path):
+    from biomotion.body.model import BodyModel
+
+    path = root / BANDAI_MODEL
+    if not path.exists():
+        raise DataFormatError(path, "the Bandai-Namco clips are retargeted onto this model, which is absent")
+    return BodyModel.from_osim(path)
+
+
+def _bandai_load(spec: ClipSpec) -> Motion:
+    """The clip retargeted onto the canonical (Rajagopal 2016) model (`biomotion.ik.skeleton`, default rules)."""
+    from biomotion.ik.skeleton import joint_positions, retarget_skeleton
+    from biomotion.io.bvh import read_bvh
+
+    root = spec.path.parents[2]
+    return to_canonical(retarget_skeleton(joint_positions(read_bvh(spec.path)), _generic_model(root)).motion)
+
+
+BANDAI = register_source(Source(
+    name="bandai-namco", folder="bandai-namco", discover=_bandai_discover, load_motion=_bandai_load,
+    description="Bandai-Namco stylised motion (BVH, 30 fps), retargeted onto Rajagopal 2016: locomotion, gestures, "
+                "fighting, dance in styles such as elderly, exhausted, youthful (39 coordinates)",
+    overground=True, retargeted=True))
 
 
 def discover_all(data_root: Path, names: Iterable[str] | None = None) -> tuple[list[ClipSpec], list[str]]:

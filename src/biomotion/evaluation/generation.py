@@ -352,7 +352,9 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
     checkpoints = Path(checkpoints or CHECKPOINTS)
     generator = Generator.load(data_root, checkpoints)
     population = Generator.load(data_root, checkpoints, population=True, surrogate=False)
-    handle, cache = build_temporary_cache(data_root)
+    # the sources the generator learnt from: it knows their actions and how their people are described
+    trained_sources = sorted({key.split("/", 1)[0] for key in generator.bundle.train_subjects})
+    handle, cache = build_temporary_cache(data_root, sources=trained_sources)
     with handle:
         targets = unseen_targets(cache, generator.bundle.train_subjects, max_seconds)
         if not targets:

@@ -65,7 +65,9 @@ _F64 = torch.float64
 FILTER_HZ = 10.0
 MIN_RATE_PER_CUTOFF = 4.0    # the coordinates are filtered only when rate >= 4 x cutoff (module docstring, step 5)
 FLAT_FOOT_TOLERANCE = 0.01   # m above the 5th-percentile height at which a joint still counts as down
-RETRY_ERROR = 0.01           # m: mean joint error of a frame above which IK is tried again from mid-range
+RETRY_ERROR = 0.01           # m: mean joint error of a frame above which IK is tried again
+RESTART_FRACTIONS = (0.0, 0.5, -0.5)   # restarts of such frames: joint coordinates at middle + f x half range
+NEIGHBOUR_PASSES = 2         # then passes from the nearest frame below the error
 UNIFORM_PULL = 0.1           # weight of the pull towards a uniform factor in a multi-pair body fit
 
 
@@ -139,6 +141,8 @@ class SkeletonRetarget:
         skate_source, skate_result: skate ratio of the source's and the model's ankle and toe points.
         floor_shift: m the result was lowered to put the feet on y = 0 (the source was shifted the same way for
             the errors).
+        ik_motion: the IK solution before filtering and the floor shift.
+        tracked: the source points in the model's frame (faced forward), named after the model joints.
     """
     motion: Motion
     model: BodyModel
@@ -148,6 +152,8 @@ class SkeletonRetarget:
     skate_source: float
     skate_result: float
     floor_shift: float
+    ik_motion: Motion
+    tracked: Markers
 
     @property
     def mean_error(self) -> float:
@@ -330,28 +336,47 @@ def _virtual_markers(model: BodyModel, source: Markers, joint_map: JointMap) -> 
                                marker_offsets=torch.stack(offsets).to(model.dtype), clamped=clamped)
 
 
+def _nearest(good: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """For each of ``frames``, the index in ``good`` (sorted frame numbers) of the nearest good frame."""
+    right = np.clip(np.searchsorted(good, frames), 0, len(good) - 1)
+    left = np.clip(right - 1, 0, len(good) - 1)
+    return np.where(np.abs(good[left] - frames) <= np.abs(good[right] - frames), left, right)
+
+
 def _solve(model: BodyModel, tracked: Markers) -> Motion:
-    """IK on the virtual markers; frames left with a joint error above `RETRY_ERROR` are solved again from every
-    joint coordinate at the middle of its range (the root where the first solve put it), and each frame keeps the
-    lower objective. A limb can stall at its range limits in a basin the frame-to-frame warm start never leaves
-    (an arm crossed in front, solved with the humerus rotated 180° and the elbow straight at its limit)."""
+    """IK on the virtual markers, then passes over the frames left with a mean joint error above `RETRY_ERROR`:
+    solved again with every joint coordinate at the middle of its range, then at a quarter from either end (the
+    root where the first solve put it), then from the solution of the nearest frame below the error; each frame
+    keeps its lowest objective. A limb can stall at its range limits in a basin the frame-to-frame warm start never leaves (an arm
+    held behind the back, solved with the humerus rotated 180° and the elbow straight at its limit)."""
     first = solve_ik(model, tracked)
-    worse = np.nanmean(first.errors, axis=1) > RETRY_ERROR
-    if not worse.any():
-        return first.motion
-    middle = model.ranges.mean(1).numpy()
-    root = [c for c in range(model.n_q) if model.joints[model.coordinate_joint[c]].parent < 0]
-    values = np.where(model.clamped.numpy(), middle, first.motion.values)
-    values[:, root] = first.motion.values[:, root]
-    second = solve_ik(model, tracked, initial=first.motion.with_values(values))
-    better = (second.cost < first.cost)[:, None]
-    return first.motion.with_values(np.where(better, second.motion.values, first.motion.values))
+    values, cost = first.motion.values.copy(), first.cost.copy()
+    error = np.nanmean(first.errors, axis=1)
+    clamped = model.clamped.numpy()
+    middle, half = model.ranges.mean(1).numpy(), 0.5 * (model.ranges[:, 1] - model.ranges[:, 0]).numpy()
+    restarts = [np.where(clamped, middle + fraction * half, np.nan) for fraction in RESTART_FRACTIONS]
+    for attempt in range(len(restarts) + NEIGHBOUR_PASSES):
+        bad = np.flatnonzero(error > RETRY_ERROR)
+        good = np.flatnonzero(error <= RETRY_ERROR)
+        if not len(bad) or (attempt >= len(restarts) and not len(good)):
+            break
+        if attempt < len(restarts):
+            start = np.where(np.isnan(restarts[attempt]), values[bad], restarts[attempt])
+        else:
+            start = values[good[_nearest(good, bad)]]
+        retry = solve_ik(model, tracked.frames(bad), initial=first.motion.frames(bad).with_values(start))
+        better = retry.cost < cost[bad]
+        values[bad[better]] = retry.motion.values[better]
+        cost[bad[better]] = retry.cost[better]
+        error[bad[better]] = np.nanmean(retry.errors[better], axis=1)
+    return first.motion.with_values(values)
 
 
-def _filtered_in_range(motion: Motion, model: BodyModel, cutoff_hz: float) -> Motion:
-    """Low-passed (module docstring, step 5) and clamped into the ranges of the clamped coordinates."""
+def filtered_in_range(motion: Motion, model: BodyModel, cutoff_hz: float, *, always: bool = False) -> Motion:
+    """Low-passed (module docstring, step 5; ``always`` filters whatever the rate) and clamped into the ranges
+    of the clamped coordinates."""
     values = motion.values
-    if cutoff_hz * MIN_RATE_PER_CUTOFF <= motion.rate and motion.n_frames > 15:
+    if (always or cutoff_hz * MIN_RATE_PER_CUTOFF <= motion.rate) and motion.n_frames > 15:
         values = motion.filtered(cutoff_hz).values
     lower, upper = model.ranges[:, 0].numpy(), model.ranges[:, 1].numpy()
     clamped = model.clamped.numpy()
@@ -382,17 +407,27 @@ def retarget_skeleton(source: Markers, generic: BodyModel, joint_map: JointMap |
     model = _virtual_markers(scale_model(generic, factors), source, joint_map)
     tracked = source.select([joint_map.centres.get(n) or joint_map.toes[n] for n in model.marker_names])
     tracked = dataclasses.replace(tracked, names=model.marker_names)
-    motion = _filtered_in_range(_solve(model, tracked), model, cutoff_hz)
-    points = _points(model, motion.values)
-    errors = np.linalg.norm(points - tracked.positions, axis=-1)
+    ik_motion = _solve(model, tracked)
+    motion = filtered_in_range(ik_motion, model, cutoff_hz)
+    errors, skate = score(model, motion, tracked, joint_map)
     shift = float(np.percentile(lowest_foot_heights(model, motion.values), GROUND_PERCENTILE))
-    ty = motion.index("pelvis_ty") if "pelvis_ty" in motion.names else None
-    if ty is not None:
-        values = motion.values.copy()
-        values[:, ty] -= shift
-        motion = motion.with_values(values)
+    values = motion.values.copy()
+    values[:, motion.index("pelvis_ty")] -= shift
+    return SkeletonRetarget(motion=motion.with_values(values), model=model, factors=factors,
+                            joint_names=model.marker_names, errors=errors,
+                            skate_source=_skate(tracked.positions[:, _feet(model, joint_map)], source.rate),
+                            skate_result=skate, floor_shift=shift, ik_motion=ik_motion, tracked=tracked)
+
+
+def _feet(model: BodyModel, joint_map: JointMap) -> list[int]:
+    """Indices of the ankle and toe virtual markers."""
     foot_joints = set(joint_map.toes) | {_ankle(model, toe, joint_map) for toe in joint_map.toes}
-    feet = [i for i, name in enumerate(model.marker_names) if name in foot_joints]
-    return SkeletonRetarget(motion=motion, model=model, factors=factors, joint_names=model.marker_names,
-                            errors=errors, skate_source=_skate(tracked.positions[:, feet], source.rate),
-                            skate_result=_skate(points[:, feet], source.rate), floor_shift=shift)
+    return [i for i, name in enumerate(model.marker_names) if name in foot_joints]
+
+
+def score(model: BodyModel, motion: Motion, tracked: Markers, joint_map: JointMap) -> tuple[np.ndarray, float]:
+    """Joint-centre errors [T, J] (m) of ``motion`` against the ``tracked`` source points, and the skate ratio
+    of its ankle and toe points (module docstring)."""
+    points = _points(model, motion.values)
+    return np.linalg.norm(points - tracked.positions, axis=-1), _skate(points[:, _feet(model, joint_map)],
+                                                                       tracked.rate)

@@ -11,7 +11,8 @@
 - ``ik_speedup_vs_opensim``: OpenSim's ``run()`` wall time over ours, both reading the same TRC file and
   writing a .mot (per case also ``solve_speedup_vs_opensim``: over our solve alone);
 - ``scale_factor_max_rel_err``: the worst relative difference between our ScaleTool-measurement factors from
-  each Fukuchi runner's static C3D and the runner's shipped ScaleSet.
+  each Fukuchi runner's static C3D and the runner's shipped ScaleSet;
+- ``bvh_*``: every Bandai-Namco BVH clip retargeted onto Rajagopal 2016 (`biomotion.ik.validate_bvh`).
 
 Per case the detail holds every coordinate's RMSE and, for coordinates over the bar, how many frames OpenSim's
 own objective is at least 1 % above ours there (OpenSim stopping short or in another local minimum).
@@ -36,6 +37,7 @@ from biomotion.body.model import BodyModel
 from biomotion.ik.markers import IKResult, evaluate_ik, solve_ik
 from biomotion.ik.scaling import body_scale_factors, scale_static, write_scaled_osim
 from biomotion.ik.setup import CoordinateTask, read_ik_setup, read_scale_setup
+from biomotion.ik.validate_bvh import BANDAI, RAJAGOPAL_MODEL, validate_bvh
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion, write_motion
 from biomotion.io.osim import read_scale_set
@@ -308,11 +310,12 @@ def scaled_model_loads(root: Path, runner: str) -> dict:
 
 
 def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCAP_TRIALS, runners: int = 2,
-                rajagopal: bool = True) -> dict:
+                rajagopal: bool = True, bvh: bool = True, progress: bool = False) -> dict:
     """Run every IK and scaling check whose data is under ``data_root``; see the module docstring.
 
     ``opencap_trials`` picks OpenCap Subject4 trials (``("all",)`` for every trial); ``runners`` caps the Fukuchi
-    runners whose 3.5 m/s trial is solved (scaling is checked on every runner present).
+    runners whose 3.5 m/s trial is solved (scaling is checked on every runner present); ``bvh`` retargets every
+    Bandai-Namco clip present (`biomotion.ik.validate_bvh`).
     """
     root = Path(data_root)
     cases: dict[str, dict] = {}
@@ -358,6 +361,10 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
     else:
         skipped.append(f"{FUKUCHI}: no runner with a static C3D and a scale setup")
 
+    retargeting = validate_bvh(root, progress=progress) if bvh else {}
+    if bvh and not retargeting:
+        skipped.append(f"{BANDAI}: no clip (or no {RAJAGOPAL_MODEL}) under the data root")
+
     summary: dict = {"skipped": skipped}
     if cases:
         ours_sq = sum(c["_squared_errors"][0] for c in cases.values())
@@ -374,6 +381,7 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
             del case["_squared_errors"]
     if scaling:
         summary["scale_factor_max_rel_err"] = scaling["scale_factor_max_rel_err"]
+    summary.update(retargeting)
     summary["cases"] = cases
     summary["scaling"] = scaling
     return summary

@@ -17,7 +17,7 @@ SOURCES = {
     "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap/Subject4", "fukuchi-running/c3d"),
     "muscles": ("opensim-models/Models/Rajagopal", "opensim-models/Pipelines/Gait2392_Simbody"),
     "ik": ("opensim-models/Pipelines/Gait2392_Simbody", "opensim-models/Pipelines/Rajagopal", "opencap/Subject4",
-           "fukuchi-running/c3d"),
+           "fukuchi-running/c3d", "bandai-namco"),
 }
 
 
@@ -34,7 +34,8 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
     skipped = [f"{s} (not under {data_root})" for s in SOURCES[what] if not (data_root / s).exists()]
     started = time.perf_counter()
     checks = {"kinematics": dynamics.validate_kinematics, "dynamics": dynamics.validate_dynamics,
-              "ik": lambda root, progress: validate_ik(root, opencap_trials=("all",), runners=10**6),
+              "ik": lambda root, progress: validate_ik(root, opencap_trials=("all",), runners=10**6,
+                                                       progress=progress),
               "muscles": lambda root, progress: validate_muscles(root)}
     report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
               "python": platform.python_version(), "skipped": skipped}
@@ -46,6 +47,24 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
         with atomic_write(md_path) as handle:
             handle.write(markdown(report, command))
     return report
+
+
+def _bvh_markdown(rows: list[dict]) -> list[str]:
+    """BVH retargeting per dataset and content: clips, joint-centre error, skating (result / source)."""
+    groups: dict[str, list[dict]] = {}
+    for row in rows:
+        dataset, content = row["clip"].split("_")[:2]
+        groups.setdefault(f"{dataset} {content}", []).append(row)
+    lines = ["## BVH retargeting (Bandai-Namco onto Rajagopal 2016)", "",
+             "| clips | n | mean joint error (cm) | worst clip mean (cm) | range violations | skate source | "
+             "skate result | skate result, 10 Hz forced |", "|---|---|---|---|---|---|---|---|"]
+    for name, group in sorted(groups.items()):
+        errors = [r["mean_err_m"] for r in group]
+        mean = lambda key: sum(r[key] for r in group) / len(group)  # noqa: E731 - a column average
+        lines.append(f"| {name} | {len(group)} | {100 * sum(errors) / len(errors):.2f} | {100 * max(errors):.2f} | "
+                     f"{sum(r['range_violations'] for r in group)} | {mean('skate_source'):.3f} | "
+                     f"{mean('skate_result'):.3f} | {mean('skate_filtered'):.3f} |")
+    return lines + [""]
 
 
 def markdown(report: dict, command: str) -> str:
@@ -69,6 +88,8 @@ def markdown(report: dict, command: str) -> str:
             over = [k for k, v in values.items() if v > 0.02]
             lines.append(f"| {trial} | {name} | {worst:.4f} | {', '.join(over) or '–'} |")
         lines.append("")
+    if report.get("bvh_per_clip"):
+        lines += _bvh_markdown(report["bvh_per_clip"])
     if report.get("fk_per_model_max_err_m"):
         lines += ["## Forward kinematics vs OpenSim", "", "| model | max error (m) |", "|---|---|"]
         lines += [f"| {k} | {v:.2e} |" for k, v in report["fk_per_model_max_err_m"].items()] + [""]
