@@ -10,7 +10,9 @@
   subject's model plus ``gait2392_SO_Residual_Actuators.xml``, GRF from ``subject01_walk1_grf.xml``, step
   interval 1, squared activations). Torques come from OpenSim's ``InverseDynamicsTool`` on the same motion and q,
   qdot from a ``Kinematics`` analysis run with the optimization, so both solvers get the same inputs.
-- ``so_speedup``: OpenSim's SO wall time over ours (geometry, muscle forces and the batched solve), same frames.
+- ``so_speedup``: OpenSim's SO wall time over ours (geometry, muscle forces and the batched solve), same frames;
+- ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
+  trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 import torch
 
 from biomotion.errors import DataFormatError
+from biomotion.muscles.emg import emg_check
 from biomotion.muscles.geometry import MusclePaths, shipped_paths
 from biomotion.muscles.properties import read_muscles
 from biomotion.muscles.static_optimization import (
@@ -214,4 +217,5 @@ def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5
         "so_seconds_biomotion": seconds,
         "so_speedup": reference.seconds / seconds,
         "reserve_usage": result.reserve_usage(),
+        **emg_check(data_root),
     }
