@@ -10,6 +10,7 @@ from biomotion.cli import main
 from biomotion.data.canonical import CANONICAL_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.data.registry import DatasetCache, build_cache, subject_split
+from biomotion.data.sources import to_canonical
 from biomotion.io.mot import read_motion
 from tests.conftest import DATA_ROOT
 
@@ -153,3 +154,26 @@ def test_bandai_clips_are_retargeted_into_the_cache(tmp_path, data_root):
     assert np.degrees(run["knee_angle_r"]).max() > np.degrees(motion["knee_angle_r"]).max()
     bow = cache.motion(records["bandai-namco/dataset-1/bow_happy_001"][0])
     assert np.degrees(bow["pelvis_tilt"]).min() < -30 and np.degrees(bow["hip_flexion_r"]).max() > 30  # bent forward
+
+
+def test_a_runner_with_only_raw_c3d_is_solved_into_the_cache(tmp_path, data_root):
+    """A new runner's capture without shipped IK goes through the source's own chain (biomotion.ik.fukuchi_chain)
+    and lands where the shipped IK of the same trial is."""
+    base = data_root / "fukuchi-running"
+    root = tmp_path / "root" / "fukuchi-running"
+    for name in ("c3d/RBDS09runT35.c3d", "c3d/RBDS09static.c3d", "RBDS09", "participantInfo.csv",
+                 "generic-models"):
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).symlink_to(base / name)
+    out = tmp_path / "cache"
+    build_cache(tmp_path / "root", out, progress=False)
+    cache = DatasetCache(out)
+    (record,) = cache.records
+    assert record["clip_id"] == "fukuchi/RBDS09/T35" and record["labels"]["speed"] == 3.5
+    solved = cache.motion(0)
+    assert solved.mask.sum() == 16
+    reference = to_canonical(read_motion(base / "ik/T35/RBDS09_T35_ik_simple.mot"), knee_flipped=True)
+    reference = reference.resample(30.0)
+    for name in ("hip_flexion_r", "knee_angle_r", "ankle_angle_r", "knee_angle_l", "hip_adduction_l"):
+        rms = np.degrees(np.sqrt(np.mean((solved[name] - reference[name][:solved.n_frames]) ** 2)))
+        assert rms < 1.0, name   # the chain reproduces RBDS09 within 0.54 deg (tests/ik/test_fukuchi_chain.py)

@@ -101,9 +101,9 @@ def _load_thread_limited(spec) -> Motion:
 
 
 def _motions(specs: list, workers: int, progress: bool) -> Iterable[Motion]:
-    """Each clip's motion in order; clips whose source retargets them (minutes of IK for a few hundred BVH clips)
-    are loaded by ``workers`` processes."""
-    heavy = sum(SOURCES[s.source].retargeted for s in specs)
+    """Each clip's motion in order; when clips must be solved by IK (minutes for a few hundred BVH clips), by
+    ``workers`` processes."""
+    heavy = sum(spec.retargeted for spec in specs)
     bar = tqdm(total=len(specs), desc="building dataset cache", unit="clip", disable=not progress)
     if workers > 1 and heavy > workers:
         context = multiprocessing.get_context("spawn")   # torch's thread pools do not survive a fork

@@ -36,6 +36,7 @@ class ClipSpec:
     subject: str
     labels: Labels
     profile: Profile = field(default_factory=Profile)
+    retargeted: bool = False  # solved by IK when loaded (slow: the cache loads such clips in parallel)
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,6 @@ class Source:
     description: str = ""
     overground: bool = False  # locomotion speed can be measured from the pelvis path (not on a treadmill)
     treadmill: bool = False  # locomotion on a treadmill at the label's speed (`biomotion.data.placement`)
-    retargeted: bool = False  # clips are solved by IK when loaded (slow: the cache loads them in parallel)
 
     def present(self, data_root: Path) -> bool:
         return (data_root / self.folder).is_dir()
@@ -88,27 +88,60 @@ def _profiles(table: Path) -> dict[str, Profile]:
     return read_subject_table(table) if table.exists() else {}
 
 
-# --- Fukuchi 2017 running: ik/<speed>/<runner>_<speed>_ik_simple.mot ---------------------------------------------
+# --- Fukuchi 2017 running: ik/<speed>/<runner>_<speed>_ik_simple.mot, or its raw C3D where that is absent ---------
+
+def _fukuchi_clip(runner: str, tens: str, tenths: str, path: Path, profiles: dict[str, Profile],
+                  retargeted: bool) -> ClipSpec:
+    speed = float(f"{tens}.{tenths}")
+    return ClipSpec(clip_id=f"fukuchi/{runner}/T{tens}{tenths}", source="fukuchi", path=path, subject=runner,
+                    profile=profiles.get(runner, Profile(subject_id=runner)), retargeted=retargeted,
+                    labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed} m/s"))
+
 
 def _fukuchi_discover(root: Path) -> list[ClipSpec]:
+    """Every shipped IK motion; and every running C3D without one whose runner has the scaled model and the IK
+    setup of that speed (a data root of new runners may hold only their captures)."""
     base = root / "fukuchi-running"
     profiles = _profiles(base / "participantInfo.csv")
-    specs = []
+    specs, solved = [], set()
     for path in sorted(base.glob("ik/T*/*_ik_simple.mot")):
         match = re.match(r"(RBDS\d+)_T(\d)(\d)_ik_simple", path.stem)
-        if not match:
+        if match:
+            specs.append(_fukuchi_clip(*match.groups(), path, profiles, retargeted=False))
+            solved.add(match.groups())
+    from biomotion.ik.fukuchi_chain import runner_files
+
+    for path in sorted(base.glob("c3d/*runT*.c3d")):
+        match = re.fullmatch(r"(RBDS\d+)runT(\d)(\d)", path.stem)
+        if not match or match.groups() in solved:
             continue
-        runner, speed = match.group(1), float(f"{match.group(2)}.{match.group(3)}")
-        specs.append(ClipSpec(clip_id=f"fukuchi/{runner}/T{match.group(2)}{match.group(3)}", source="fukuchi",
-                              path=path, subject=runner, profile=profiles.get(runner, Profile(subject_id=runner)),
-                              labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed} m/s")))
-    return specs
+        runner, tens, tenths = match.groups()
+        files = runner_files(base, runner, f"T{tens}{tenths}")
+        if all(files[k].exists() for k in ("generic", "scale_setup", "ik_setup", "static")) and (
+                base / runner / f"{runner}_simple.osim").exists():
+            specs.append(_fukuchi_clip(runner, tens, tenths, path, profiles, retargeted=True))
+    return sorted(specs, key=lambda spec: spec.clip_id)
+
+
+def _fukuchi_load(spec: ClipSpec) -> Motion:
+    """The shipped IK motion; or the C3D put through the source's own chain (`biomotion.ik.fukuchi_chain`: it
+    reproduces the shipped files within about 1 deg), kept to the shipped files' columns (the runner's simple
+    model) and their knee sign, which is then made canonical like theirs."""
+    if spec.path.suffix.lower() != ".c3d":
+        return to_canonical(read_motion(spec.path), knee_flipped=True)
+    from biomotion.body.model import BodyModel
+    from biomotion.ik.fukuchi_chain import as_simple, solve_trial
+
+    base, runner, speed = spec.path.parents[1], spec.subject, spec.clip_id.rsplit("/", 1)[1]
+    result, _ = solve_trial(base, runner, speed)
+    columns = BodyModel.from_osim(base / runner / f"{runner}_simple.osim").coordinate_names
+    return to_canonical(as_simple(result.motion).select(columns), knee_flipped=True)
 
 
 FUKUCHI = register_source(Source(
-    name="fukuchi", folder="fukuchi-running", discover=_fukuchi_discover,
-    load_motion=lambda spec: to_canonical(read_motion(spec.path), knee_flipped=True),
-    description="Fukuchi 2017 treadmill running, OpenSim IK at 2.5/3.5/4.5 m/s (16 lower-body coordinates)",
+    name="fukuchi", folder="fukuchi-running", discover=_fukuchi_discover, load_motion=_fukuchi_load,
+    description="Fukuchi 2017 treadmill running at 2.5/3.5/4.5 m/s: shipped OpenSim IK, or the raw C3D put through "
+                "the source's processing chain where no IK is shipped (16 lower-body coordinates)",
     treadmill=True))
 
 
@@ -245,7 +278,7 @@ def _bandai_discover(root: Path) -> list[ClipSpec]:
         action = content.replace("-", " ")
         specs.append(ClipSpec(
             clip_id=f"bandai-namco/{dataset}/{content}_{style}_{take}", source="bandai-namco", path=path,
-            subject=f"{dataset}/hips@{x:.0f},{y:.0f},{z:.0f}",
+            subject=f"{dataset}/hips@{x:.0f},{y:.0f},{z:.0f}", retargeted=True,
             labels=Labels(action=action, style=style, text=action if style == "normal" else f"{action}, {style}")))
     return specs
 
@@ -273,7 +306,7 @@ BANDAI = register_source(Source(
     name="bandai-namco", folder="bandai-namco", discover=_bandai_discover, load_motion=_bandai_load,
     description="Bandai-Namco stylised motion (BVH, 30 fps), retargeted onto Rajagopal 2016: locomotion, gestures, "
                 "fighting, dance in styles such as elderly, exhausted, youthful (39 coordinates)",
-    overground=True, retargeted=True))
+    overground=True))
 
 
 def discover_all(data_root: Path, names: Iterable[str] | None = None) -> tuple[list[ClipSpec], list[str]]:

@@ -57,9 +57,22 @@ class Target:
     references: list[Motion]
 
 
-def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float) -> list[Target]:
-    """Every clip of every subject not in ``train_subjects``, cut to ``max_seconds``, with its subject's other
-    clips as references."""
+MAX_TARGETS_PER_SUBJECT = 4
+MAX_REFERENCES = 8
+
+
+def _evenly(indices: list[int], count: int) -> list[int]:
+    """At most ``count`` of ``indices``, evenly spaced (first and last included), in order."""
+    if len(indices) <= count:
+        return list(indices)
+    return [indices[int(round(k))] for k in np.linspace(0, len(indices) - 1, count)]
+
+
+def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float,
+                   per_subject: int = MAX_TARGETS_PER_SUBJECT) -> list[Target]:
+    """Clips of every subject not in ``train_subjects`` (at most ``per_subject`` each, evenly spaced over the
+    subject's clips), cut to ``max_seconds``, with up to `MAX_REFERENCES` of the subject's other clips as
+    references."""
     seen = set(train_subjects)
     by_subject: dict[str, list[int]] = {}
     for i, r in enumerate(cache.records):
@@ -69,11 +82,12 @@ def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float) -> 
     targets = []
     limit = round(max_seconds * cache.rate)
     for subject, indices in by_subject.items():
-        for i in indices:
+        for i in _evenly(indices, per_subject):
             motion = cache.motion(i)
             if motion.n_frames > limit:
                 motion = motion.frames(slice(0, limit))
-            targets.append(Target(i, subject, motion, [cache.motion(j) for j in indices if j != i]))
+            others = _evenly([j for j in indices if j != i], MAX_REFERENCES)
+            targets.append(Target(i, subject, motion, [cache.motion(j) for j in others]))
     return targets
 
 

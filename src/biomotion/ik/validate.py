@@ -12,6 +12,9 @@
   writing a .mot (per case also ``solve_speedup_vs_opensim``: over our solve alone);
 - ``scale_factor_max_rel_err``: the worst relative difference between our ScaleTool-measurement factors from
   each Fukuchi runner's static C3D and the runner's shipped ScaleSet;
+- ``fukuchi_ik_rmse_deg`` / ``fukuchi_ik_rmse_m``: the Fukuchi source's own processing chain reproduced from the
+  raw C3D (`biomotion.ik.fukuchi_chain`) against its shipped ``ik/T35/*_ik_simple.mot``, worst coordinate over
+  the runners present;
 - ``bvh_*``: every Bandai-Namco BVH clip retargeted onto Rajagopal 2016 (`biomotion.ik.validate_bvh`).
 
 Per case the detail holds every coordinate's RMSE and, for coordinates over the bar, how many frames OpenSim's
@@ -34,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.body.model import BodyModel
+from biomotion.ik.fukuchi_chain import validate_fukuchi_chain
 from biomotion.ik.markers import IKResult, evaluate_ik, solve_ik
 from biomotion.ik.scaling import body_scale_factors, scale_static, write_scaled_osim
 from biomotion.ik.setup import CoordinateTask, read_ik_setup, read_scale_setup
@@ -361,6 +365,8 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
     else:
         skipped.append(f"{FUKUCHI}: no runner with a static C3D and a scale setup")
 
+    chain = validate_fukuchi_chain(root) if (root / FUKUCHI / "c3d").is_dir() else {}
+    skipped += chain.pop("skipped", [])
     retargeting = validate_bvh(root, progress=progress) if bvh else {}
     if bvh and not retargeting:
         skipped.append(f"{BANDAI}: no clip (or no {RAJAGOPAL_MODEL}) under the data root")
@@ -382,6 +388,7 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
     if scaling:
         summary["scale_factor_max_rel_err"] = scaling["scale_factor_max_rel_err"]
     summary.update(retargeting)
+    summary.update(chain)
     summary["cases"] = cases
     summary["scaling"] = scaling
     return summary
