@@ -188,6 +188,8 @@ def _check(joint_map: JointMap, model: BodyModel, source: Markers) -> None:
         raise ConfigError(f"the source has no joint(s) {missing} that the joint map uses")
     if not {"hip_r", "hip_l"} <= set(joint_map.centres):
         raise ConfigError("a joint map must map both hips (hip_r, hip_l): they set the heading")
+    if "pelvis_ty" not in model.coordinate_names:
+        raise ConfigError(f"model {model.name!r} has no pelvis_ty coordinate to put the feet on the floor with")
 
 
 def face_forward(source: Markers, joint_map: JointMap) -> Markers:
