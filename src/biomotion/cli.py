@@ -47,7 +47,7 @@ def _data_sources(args: argparse.Namespace) -> int:
 
     for source in SOURCES.values():
         state = "present" if source.present(args.data_root) else "absent"
-        print(f"{source.name:10s} {source.folder + '/':26s} {state:8s} {source.description}")
+        print(f"{source.name:12s} {source.folder + '/':26s} {state:8s} {source.description}")
     return 0
 
 
@@ -356,8 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "skipped per frame); marker weights come from an OpenSim IK setup (--setup) or are 1 for every "
                     "model marker found in the data. Skeletons (BVH, or marker files of joint centres with "
                     "--joint-map): MODEL is the generic model, scaled to each skeleton's segment lengths and fitted "
-                    "to its joint centres (PG-BIG A.5), coordinates filtered at 10 Hz and kept in range, feet put "
-                    "on y = 0; the scaled model is written as <trial>.osim. Writes <trial>.mot per trial and "
+                    "to its joint centres (PG-BIG A.5), coordinates filtered at 10 Hz when the frame rate is at "
+                    "least 40 Hz and kept in range, feet put on y = 0; the scaled model is written as <trial>.osim. Writes <trial>.mot per trial and "
                     "summary.csv (RMS and max marker or joint-centre error, frames dropped); keeps going past a "
                     "bad trial.")
     retarget.add_argument("input", type=Path, help="a .trc/.c3d/.bvh/.bvh.gz file or a folder of them")
@@ -369,7 +369,8 @@ def build_parser() -> argparse.ArgumentParser:
                           help='JSON {"centres": {model joint: skeleton joint}, "toes": {model toe joint: skeleton '
                                'joint}}: treat the input as joint centres (built in: the Bandai-Namco skeleton)')
     retarget.add_argument("--filter", type=float,
-                          help="low-pass (Hz): markers before IK; skeletons: the coordinates (default 10)")
+                          help="low-pass (Hz): markers before IK; skeletons: the coordinates (default 10, applied "
+                               "when the frame rate is at least 4x the cutoff)")
     retarget.add_argument("--out", type=Path, required=True, help="output folder")
     retarget.add_argument("--quiet", action="store_true", help="no progress bar")
     retarget.set_defaults(run=_retarget)
