@@ -12,6 +12,13 @@ torch; OpenSim is needed only to build them.
 Coordinates are normalised per muscle group as ``x = (q - center) / half_range`` (so the sampled box is
 [-1, 1]^k) and expanded in Chebyshev polynomials, which keeps high-degree least-squares fits well conditioned. Outside the sampled ranges the polynomials extrapolate, so
 lengths there are unvalidated; `MusclePaths.ranges` gives the sampled box.
+
+Piecewise paths: where OpenSim's path jumps between configurations (a conditional via point switching on or off,
+a wrap cylinder with a quadrant constraint snapping on or flipping sides), the length is discontinuous or kinked
+and no single polynomial fits it. Such a muscle gets one polynomial per path configuration ("piece") plus a gate
+score polynomial per piece in the same basis (`PathGroup.gates`); at each pose the piece with the highest gate
+score applies. Each piece is still an exact length function, so ``r = -dL/dq`` holds everywhere except on the
+(measure-zero) piece boundaries, where OpenSim's own path jumps too.
 """
 
 from __future__ import annotations
@@ -25,22 +32,45 @@ import torch
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.atomic import atomic_write
 
-FORMAT = "biomotion.muscle_paths/1"
+FORMAT = "biomotion.muscle_paths/2"
+READABLE_FORMATS = ("biomotion.muscle_paths/1", FORMAT)   # /1: no gates
 
 
 @dataclass(frozen=True)
 class PathGroup:
-    """Muscles that span the same coordinates with polynomials of the same monomial basis."""
+    """Muscles that span the same coordinates with polynomials of the same Chebyshev basis.
+
+    Each column of ``coefficients`` is one polynomial of the muscle ``muscles[column]``. A muscle normally has one
+    column; a piecewise muscle has one per piece, and then ``gates`` (same basis) scores the pieces: at a pose the
+    column with the highest gate score among that muscle's columns applies (see the module docstring).
+    """
     coordinates: torch.Tensor   # [k] long, indices into MusclePaths.coordinate_names
     center: torch.Tensor        # [k]
     half_range: torch.Tensor    # [k]
     exponents: torch.Tensor     # [n_terms, k] long: Chebyshev degree of each coordinate in each term
     coefficients: torch.Tensor  # [n_terms, m] length (m) per basis term
     muscles: torch.Tensor       # [m] long, indices into MusclePaths.muscle_names
+    gates: torch.Tensor | None = None   # [n_terms, m] gate score per basis term (None: one column per muscle)
 
     def to(self, dtype: torch.dtype) -> PathGroup:
         return PathGroup(self.coordinates, self.center.to(dtype), self.half_range.to(dtype), self.exponents,
-                         self.coefficients.to(dtype), self.muscles)
+                         self.coefficients.to(dtype), self.muscles,
+                         None if self.gates is None else self.gates.to(dtype))
+
+    def active(self, values: torch.Tensor) -> torch.Tensor | None:
+        """[..., m] 1.0 where a column applies at basis ``values`` [..., n_terms], 0.0 elsewhere (None: all apply).
+        Among a muscle's columns the highest gate score wins; ties go to the first column."""
+        if self.gates is None:
+            return None
+        scores = values @ self.gates.to(values)                                          # [..., m]
+        m, device = len(self.muscles), values.device
+        muscles = self.muscles.to(device)
+        rivals = (muscles[:, None] == muscles[None, :]) & ~torch.eye(m, dtype=torch.bool, device=device)
+        order = torch.arange(m, device=device)
+        earlier = order[:, None] > order[None, :]                                         # [j, i]: i before j
+        mine, theirs = scores[..., :, None], scores[..., None, :]
+        loses = rivals & ((theirs > mine) | ((theirs == mine) & earlier))              # [..., j, i]
+        return (~loses.any(-1)).to(values.dtype)
 
 
 def chebyshev(x: torch.Tensor, degree: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -56,20 +86,31 @@ def chebyshev(x: torch.Tensor, degree: int) -> tuple[torch.Tensor, torch.Tensor]
     return values, derivatives
 
 
-def basis(x: torch.Tensor, exponents: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tensor-product Chebyshev basis ``prod_j T_{e_j}(x_j)`` [..., n_terms] and its derivatives
-    [..., n_terms, k] at normalised coordinates ``x`` [..., k]."""
+def basis_terms(x: torch.Tensor, exponents: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """`basis` with the derivatives laid out [..., k, n_terms] (the layout evaluation wants)."""
     k = x.shape[-1]
     degree = max(int(exponents.max()) if exponents.numel() else 0, 1)
     values, slopes = chebyshev(x, degree)                              # [..., k, d+1]
-    columns = torch.arange(k)
-    factors = values[..., columns, exponents]                           # [..., n_terms, k]
-    factor_slopes = slopes[..., columns, exponents]
-    derivatives = []
-    for j in range(k):  # k <= a handful of coordinates; vectorised over frames and terms
-        others = torch.cat([factors[..., :j], factors[..., j + 1:]], -1).prod(-1)
-        derivatives.append(factor_slopes[..., j] * others)
-    return factors.prod(-1), torch.stack(derivatives, -1)
+    exponents = exponents.to(x.device)
+    factors = [values[..., j, :].index_select(-1, exponents[:, j]) for j in range(k)]      # k x [..., n_terms]
+    factor_slopes = [slopes[..., j, :].index_select(-1, exponents[:, j]) for j in range(k)]
+    # products of all factors but one, from prefix and suffix products (k <= a handful of coordinates)
+    prefix = [torch.ones_like(factors[0])]
+    for j in range(k - 1):
+        prefix.append(prefix[-1] * factors[j])
+    suffix = [torch.ones_like(factors[0])]
+    for j in range(k - 1, 0, -1):
+        suffix.append(suffix[-1] * factors[j])
+    suffix = suffix[::-1]
+    derivatives = torch.stack([factor_slopes[j] * prefix[j] * suffix[j] for j in range(k)], -2)
+    return prefix[-1] * factors[-1], derivatives
+
+
+def basis(x: torch.Tensor, exponents: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Tensor-product Chebyshev basis ``prod_j T_{e_j}(x_j)`` [..., n_terms] and its derivatives
+    [..., n_terms, k] at normalised coordinates ``x`` [..., k]."""
+    values, derivatives = basis_terms(x, exponents)
+    return values, derivatives.transpose(-1, -2)
 
 
 @dataclass(frozen=True)
@@ -110,22 +151,38 @@ class MusclePaths:
             mask[g.muscles[:, None], g.coordinates[None, :]] = True
         return mask
 
+    def _scatter_indices(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Where each group's columns land: muscle indices [C] and flat (muscle, coordinate) indices [sum m*k]."""
+        cached = self.__dict__.get("_scatter")
+        if cached is None:
+            muscles = torch.cat([g.muscles for g in self.groups])
+            flat = torch.cat([(g.muscles[:, None] * self.n_q + g.coordinates[None, :]).reshape(-1)
+                              for g in self.groups])
+            cached = self.__dict__["_scatter"] = (muscles, flat)
+        return cached
+
     def lengths_and_moment_arms(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Musculotendon lengths [..., M] and moment arms ``-dL/dq`` [..., M, n_q] at coordinates ``q``."""
         self._check(q)
         batch = q.shape[:-1]
-        lengths = q.new_zeros(*batch, self.n_muscles)
-        arms = q.new_zeros(*batch, self.n_muscles, self.n_q)
+        length_parts, arm_parts = [], []
         for g in self.groups:
-            x = (q[..., g.coordinates] - g.center.to(q.dtype)) / g.half_range.to(q.dtype)
-            values, derivatives = basis(x, g.exponents)
-            coefficients = g.coefficients.to(q.dtype)
-            lengths = lengths.index_copy(-1, g.muscles, values @ coefficients)
-            dl_dx = torch.einsum("...tk,tm->...mk", derivatives, coefficients)       # [..., m, k]
-            block = -dl_dx / g.half_range.to(q.dtype)
-            rows = arms.new_zeros(*batch, len(g.muscles), self.n_q).index_copy(-1, g.coordinates, block)
-            arms = arms.index_copy(-2, g.muscles, rows)
-        return lengths, arms
+            half = g.half_range.to(q)
+            x = (q[..., g.coordinates.to(q.device)] - g.center.to(q)) / half
+            values, derivatives = basis_terms(x, g.exponents)                               # [..., t], [..., k, t]
+            coefficients = g.coefficients.to(q)
+            column_lengths = values @ coefficients                                          # [..., m]
+            block = -(derivatives @ coefficients).transpose(-1, -2) / half                  # [..., m, k]
+            active = g.active(values)
+            if active is not None:
+                column_lengths = column_lengths * active
+                block = block * active[..., None]
+            length_parts.append(column_lengths)
+            arm_parts.append(block.reshape(*batch, -1))
+        muscles, flat = (index.to(q.device) for index in self._scatter_indices())
+        lengths = q.new_zeros(*batch, self.n_muscles).index_add(-1, muscles, torch.cat(length_parts, -1))
+        arms = q.new_zeros(*batch, self.n_muscles * self.n_q).index_add(-1, flat, torch.cat(arm_parts, -1))
+        return lengths, arms.reshape(*batch, self.n_muscles, self.n_q)
 
     def lengths(self, q: torch.Tensor) -> torch.Tensor:
         return self.lengths_and_moment_arms(q)[0]
@@ -161,6 +218,8 @@ class MusclePaths:
                             f"group{i}.half_range": g.half_range.double(), f"group{i}.exponents": g.exponents,
                             f"group{i}.coefficients": g.coefficients.double().contiguous(),
                             f"group{i}.muscles": g.muscles})
+            if g.gates is not None:
+                tensors[f"group{i}.gates"] = g.gates.double().contiguous()
         metadata = {"format": FORMAT, "model": self.model, "muscles": json.dumps(list(self.muscle_names)),
                     "coordinates": json.dumps(list(self.coordinate_names)), "groups": str(len(self.groups)),
                     "info": json.dumps(self.info)}
@@ -179,12 +238,12 @@ class MusclePaths:
                 tensors = {k: handle.get_tensor(k) for k in handle.keys()}
         except (OSError, ValueError, SafetensorError) as exc:
             raise DataFormatError(path, f"not a readable safetensors file: {exc}") from exc
-        if meta.get("format") != FORMAT:
+        if meta.get("format") not in READABLE_FORMATS:
             raise DataFormatError(path, f"not a muscle-path file (format {meta.get('format')!r})", field="format")
         try:
             groups = tuple(PathGroup(*(tensors[f"group{i}.{name}"] for name in
                                        ("coordinates", "center", "half_range", "exponents", "coefficients",
-                                        "muscles")))
+                                        "muscles")), gates=tensors.get(f"group{i}.gates"))
                            for i in range(int(meta["groups"])))
             return cls(meta["model"], tuple(json.loads(meta["muscles"])), tuple(json.loads(meta["coordinates"])),
                        groups, tensors["ranges"], json.loads(meta["info"])).to(dtype)
