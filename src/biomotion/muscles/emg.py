@@ -500,7 +500,7 @@ def predict_walk_activations(data_root: Path, surrogate: Path | None = SURROGATE
     predicted_surrogate = None
     if surrogate is not None and Path(surrogate).exists():
         predicted_surrogate = _surrogate_activations(Path(surrogate), ik.motion, labeler, data_root)
-        info["surrogate"] = str(surrogate)
+        info["surrogate"] = f"checkpoints/{surrogate.name}"
         lap("surrogate")
     info["seconds"] = seconds
     return Predictions(ik.motion.times, labeler.muscle_names, so.activations.numpy(), predicted_surrogate, info)
@@ -617,7 +617,7 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
         out.update(emg_onoff_agreement_surrogate=round(sur["pooled"], 4),
                    emg_per_muscle_surrogate=sur["per_muscle"],
                    emg_chance_agreement_surrogate=round(sur["chance"], 4),
-                   emg_source_surrogate=f"MuscleSurrogate {surrogate} on the same IK coordinates (30 Hz)")
+                   emg_source_surrogate=f"MuscleSurrogate checkpoints/{surrogate.name} on the same IK coordinates (30 Hz)")
     else:
         out["skipped"].append(f"surrogate variant: checkpoint {surrogate} absent")
     out["emg_detail"] = {name: c["detail"] for name, c in comparisons.items()}
