@@ -358,19 +358,32 @@ def _names(spec) -> list[str]:
 
 
 def reference_metrics(cache, model, *, physics: bool = True) -> dict:
-    """Reference values of real data: every clip of a `DatasetCache`, per source and action and over all clips."""
-    clips = coordinate_set(cache_clips(cache), model, cache.rate, derivatives=physics)
-    scores = score_set(clips, model, physics=physics)
-    groups: dict[str, list[int]] = {}
-    for i, group in enumerate(clips.groups):
-        groups.setdefault(group, []).append(i)
-    rows = {g: summarize_set(clips, model, physics=physics, selection=idx, scores=scores)
-            for g, idx in sorted(groups.items())}
-    rows["all real data"] = summarize_set(clips, model, physics=physics, scores=scores)
+    """Reference values of real data: every clip of a `DatasetCache`, per source and action and over all clips.
+
+    Each source/action group is batched and scored on its own (a batch pads every clip to the longest one: one
+    1900-frame dance among 800 clips would pad them all), and the all-clips row pools the groups' per-clip scores
+    and diversity features."""
+    groups: dict[str, list] = {}
+    for clip in cache_clips(cache):
+        groups.setdefault(clip.group, []).append(clip)
+    rows, pooled, features, specs = {}, {}, [], []
+    for group, members in sorted(groups.items()):
+        clips = coordinate_set(members, model, cache.rate, derivatives=physics)
+        scores = score_set(clips, model, physics=physics)
+        rows[group] = summarize_set(clips, model, physics=physics, scores=scores)
+        specs = set_metrics(clips.kind, model, physics=physics)
+        for key, value in scores.items():
+            pooled.setdefault(key, []).append(value)
+        features.append(diversity_features(clips))
+    scores = {key: torch.cat(values) for key, values in pooled.items()}
+    everything = {spec.key: _record(spec, scores[spec.key]) for spec in specs}
+    distances = pairwise_diversity(torch.cat(features))
+    everything[DIVERSITY.key] = {k: v for k, v in _record(DIVERSITY, distances).items() if k != "values"}
+    rows["all real data"] = everything
     for records in rows.values():
         for record in records.values():
             record.pop("values", None)
-    return {"format": "biomotion-reference-metrics/1", "rate_hz": cache.rate, "clips": len(clips),
+    return {"format": "biomotion-reference-metrics/1", "rate_hz": cache.rate, "clips": len(cache),
             "physics": physics, "groups": rows}
 
 
