@@ -371,6 +371,9 @@ def _solve(model: BodyModel, tracked: Markers) -> Motion:
         values[bad[better]] = retry.motion.values[better]
         cost[bad[better]] = retry.cost[better]
         error[bad[better]] = np.nanmean(retry.errors[better], axis=1)
+    # frames solved apart may land a full turn apart on the unclamped (root) angles: the same pose, unwrapped
+    free_angles = ~clamped & np.array([kind == "rotational" for kind in model.motion_types])
+    values[:, free_angles] = np.unwrap(values[:, free_angles], axis=0)
     return first.motion.with_values(values)
 
 
