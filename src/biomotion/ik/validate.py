@@ -258,25 +258,34 @@ def fukuchi_case(root: Path, runner: str, repeats: int = 1) -> dict:
                     time_range=setup.time_range, repeats=repeats)
 
 
-def rajagopal_case(root: Path, repeats: int = 1) -> dict:
-    """The Rajagopal walk: OpenSim's two scale steps (as SOURCE.md ran them) give the model both IKs use."""
+RAJAGOPAL_SCALE_STEPS = ("scale_setup_walk_scaleOnly.xml", "scale_setup_walk.xml")
+
+
+def scale_rajagopal_walk(root: Path, folder: Path) -> Path:
+    """The Rajagopal pipeline's subject model, ``<folder>/Scale/subject_scaled_walk.osim``, made by OpenSim's
+    ScaleTool with its two walk setups, as the pipeline's SOURCE.md runs them (their relative paths need
+    ``Scale/``, ``ExpData/`` and ``generic_unscaled.osim`` side by side, so those are copied into ``folder``)."""
     import opensim
 
     opensim.Logger.setLevelString("error")
+    shutil.copytree(root / RAJAGOPAL / "Scale", folder / "Scale")
+    shutil.copytree(root / RAJAGOPAL / "ExpData", folder / "ExpData")
+    shutil.copy(root / "opensim-models/Models/Rajagopal/Rajagopal2016.osim", folder / "generic_unscaled.osim")
+    for step in RAJAGOPAL_SCALE_STEPS:
+        with quiet_stdout():
+            done = opensim.ScaleTool(str(folder / "Scale" / step)).run()
+        if not done:
+            raise RuntimeError(f"OpenSim's ScaleTool failed on {step}")
+    return folder / "Scale" / "subject_scaled_walk.osim"
+
+
+def rajagopal_case(root: Path, repeats: int = 1) -> dict:
+    """The Rajagopal walk on the model both IKs use: the pipeline's own scaling (`scale_rajagopal_walk`)."""
     with tempfile.TemporaryDirectory(prefix="biomotion-rajagopal-") as folder:
-        work = Path(folder)
-        shutil.copytree(root / RAJAGOPAL / "Scale", work / "Scale")
-        shutil.copytree(root / RAJAGOPAL / "ExpData", work / "ExpData")
-        shutil.copy(root / "opensim-models/Models/Rajagopal/Rajagopal2016.osim", work / "generic_unscaled.osim")
-        for step in ("scale_setup_walk_scaleOnly.xml", "scale_setup_walk.xml"):
-            with quiet_stdout():
-                done = opensim.ScaleTool(str(work / "Scale" / step)).run()
-            if not done:
-                raise RuntimeError(f"OpenSim's ScaleTool failed on {step}")
+        model = scale_rajagopal_walk(root, Path(folder))
         setup = read_ik_setup(root / RAJAGOPAL / "IK" / "ik_setup_walk.xml")
-        return run_case(work / "Scale" / "subject_scaled_walk.osim", read_trc(setup.file("marker_file")),
-                        weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks,
-                        time_range=setup.time_range, repeats=repeats)
+        return run_case(model, read_trc(setup.file("marker_file")), weights=setup.marker_weights,
+                        coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range, repeats=repeats)
 
 
 def scaling_errors(root: Path, runners: Sequence[str]) -> dict:

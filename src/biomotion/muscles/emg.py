@@ -72,20 +72,17 @@ optimization and 0.689 with the surrogate, below the 0.80 bar; see ``tests/muscl
 
 from __future__ import annotations
 
-import os
-import shutil
-import sys
 import tempfile
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from biomotion.errors import DataFormatError
+from biomotion.ik.validate import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
 
 RAJAGOPAL = "opensim-models/Pipelines/Rajagopal"
 EMG_FILE = f"{RAJAGOPAL}/ExpData/emg_walk_raw.anc"
@@ -93,7 +90,6 @@ MARKER_FILE = f"{RAJAGOPAL}/ExpData/motion_capture_walk.trc"
 GRF_FILE = f"{RAJAGOPAL}/ExpData/grf_walk.mot"
 GRF_LOADS = f"{RAJAGOPAL}/ID/grf_walk.xml"
 IK_SETUP = f"{RAJAGOPAL}/IK/ik_setup_walk.xml"
-SCALE_STEPS = ("scale_setup_walk_scaleOnly.xml", "scale_setup_walk.xml")
 GENERIC_MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 SURROGATE = Path(__file__).resolve().parents[3] / "checkpoints" / "surrogate.safetensors"
 BAR = 0.80
@@ -378,39 +374,6 @@ def compare_on_off(envelopes: Mapping[str, np.ndarray], predicted: Mapping[str, 
 
 # --- the predicted activations ---------------------------------------------------------------------------------------
 
-@contextmanager
-def _quiet_stdout():
-    """Silence what OpenSim's tools print on the process's stdout."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "wb") as null:
-            os.dup2(null.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
-def scaled_walk_model(data_root: Path, folder: Path) -> Path:
-    """The pipeline's subject model, ``<folder>/Scale/subject_scaled_walk.osim``, made by OpenSim's ScaleTool
-    with the two walk setups (their relative paths need ``Scale/``, ``ExpData/`` and ``generic_unscaled.osim``
-    side by side, so those are copied into ``folder``)."""
-    import opensim
-
-    opensim.Logger.setLevelString("error")
-    base = data_root / RAJAGOPAL
-    shutil.copytree(base / "Scale", folder / "Scale")
-    shutil.copytree(base / "ExpData", folder / "ExpData")
-    shutil.copy(data_root / GENERIC_MODEL, folder / "generic_unscaled.osim")
-    for step in SCALE_STEPS:
-        with _quiet_stdout():
-            done = opensim.ScaleTool(str(folder / "Scale" / step)).run()
-        if not done:
-            raise RuntimeError(f"OpenSim's ScaleTool failed on {base / 'Scale' / step}")
-    return folder / "Scale" / "subject_scaled_walk.osim"
-
-
 def external_load_bodies(path: Path, channels: Sequence[str]) -> tuple[str, ...]:
     """The body each GRF channel (``ground_force_r`` ...) is applied to, from an OpenSim ExternalLoads XML whose
     forces are expressed in ground; a `DataFormatError` when a channel has no ExternalForce."""
@@ -464,7 +427,7 @@ def predict_walk_activations(data_root: Path, surrogate: Path | None = SURROGATE
         clock = now
 
     with tempfile.TemporaryDirectory(prefix="biomotion-emg-") as folder:
-        model = BodyModel.from_osim(scaled_walk_model(data_root, Path(folder)))
+        model = BodyModel.from_osim(scale_rajagopal_walk(data_root, Path(folder)))
     lap("scale_opensim")
     setup = read_ik_setup(data_root / IK_SETUP)
     ik = solve_ik(model, read_trc(data_root / MARKER_FILE), weights=setup.marker_weights,
@@ -519,7 +482,7 @@ def _surrogate_activations(checkpoint: Path, motion, labeler, data_root: Path) -
     network = MuscleSurrogate.load(checkpoint)
     if set(network.names) != set(labeler.muscle_names):
         raise ModelError(f"{checkpoint}: the surrogate's muscles are not the Rajagopal model's")
-    height = read_scale_setup(data_root / RAJAGOPAL / "Scale" / SCALE_STEPS[-1]).height / 1000.0
+    height = read_scale_setup(data_root / RAJAGOPAL / "Scale" / RAJAGOPAL_SCALE_STEPS[-1]).height / 1000.0
     clip = motion.select(CANONICAL_COORDINATES).resample(network.config.rate)
     clip = place_clip(clip, labeler.model, height=height if height > 0 else None, treadmill_speed=None)
     with torch.no_grad():
@@ -580,7 +543,7 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
     data_root = Path(data_root)
     started = time.perf_counter()
     needed = [EMG_FILE, MARKER_FILE, GRF_FILE, GRF_LOADS, IK_SETUP, GENERIC_MODEL,
-              *(f"{RAJAGOPAL}/Scale/{s}" for s in SCALE_STEPS)]
+              *(f"{RAJAGOPAL}/Scale/{s}" for s in RAJAGOPAL_SCALE_STEPS)]
     absent = [n for n in needed if not (data_root / n).exists()]
     if absent:
         return {"skipped": [f"EMG check: {', '.join(absent)} not under {data_root}"]}
@@ -655,4 +618,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())
