@@ -154,6 +154,20 @@ def _view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _muscles_label(args: argparse.Namespace) -> int:
+    from biomotion.data.registry import DatasetCache
+    from biomotion.muscles.surrogate_labels import DEFAULT_NAME, labels_for_cache
+
+    cache = DatasetCache(args.cache)
+    out = args.out or Path(args.cache) / DEFAULT_NAME
+    labels = labels_for_cache(cache, args.data_root, out, progress=not args.quiet)
+    info = labels.info
+    print(f"labelled {info['clips']} clips ({info['frames']} frames; {info.get('clips_resumed', 0)} resumed) with "
+          f"{info['muscle_curves']} muscles: converged {100 * info['converged_share']:.1f} % of frames, reserve RMS "
+          f"{info['reserve_rms_nm']:.2f} N·m -> {out}")
+    return 0
+
+
 def _validate(args: argparse.Namespace) -> int:
     from biomotion.validation.run import run_validation
 
@@ -255,6 +269,24 @@ def build_parser() -> argparse.ArgumentParser:
     sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")
     sources.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
     sources.set_defaults(run=_data_sources)
+
+    muscles = verbs.add_parser("muscles", help="muscle activation labels for the cached training set",
+                               description="Muscle work on the dataset cache (biomotion data build).")
+    muscle_verbs = muscles.add_subparsers(dest="muscles_verb", metavar="ACTION", required=True)
+    label = muscle_verbs.add_parser(
+        "label", help="static-optimization activations (80 Rajagopal muscles) and COM terms for every cached clip",
+        description="For every clip of the cache: inverse dynamics on the generic Rajagopal 2016 model with the "
+                    "ground reaction inferred from the motion, batched static optimization (squared activations, "
+                    "the model's Millard 2012 muscles, reserves), and the whole-body COM position, velocity and "
+                    "acceleration. Writes <cache>/surrogate_labels.safetensors and bounds_muscle_activations.json. "
+                    "Each finished clip is kept beside the output until all are done, so an interrupted run "
+                    "resumes; labels already made from this very cache are reused.")
+    label.add_argument("--cache", type=Path, required=True, help="cache folder from biomotion data build")
+    label.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+                       help="folder holding opensim-models/ (the Rajagopal model; default: %(default)s)")
+    label.add_argument("--out", type=Path, help="labels file (default: <cache>/surrogate_labels.safetensors)")
+    label.add_argument("--quiet", action="store_true", help="no progress bar")
+    label.set_defaults(run=_muscles_label)
 
     convert = verbs.add_parser(
         "convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)",

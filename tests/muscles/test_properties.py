@@ -7,6 +7,7 @@ import torch
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.muscles.properties import (
     max_active_force,
+    passive_force,
     read_muscles,
     thelen_active_force_length,
     thelen_force_velocity,
@@ -29,11 +30,20 @@ def test_gait2392_parameters_from_xml():
     assert torch.all(muscles.min_control == 0.01)   # OpenSim 4.6 reports 0.01 for every muscle of this model
 
 
-def test_rajagopal_is_millard_and_refused_by_the_thelen_curves():
+def test_rajagopal_millard_curve_parameters_from_xml():
     muscles = read_muscles(data_path(RAJAGOPAL))
     assert muscles.n_muscles == 80 and muscles.kind == "Millard2012EquilibriumMuscle"
+    i = muscles.names.index("addbrev_r")
+    assert muscles.millard["min_norm_active_fiber_length"][i] == 0.25
+    assert muscles.millard["max_norm_active_fiber_length"][i] == pytest.approx(1.9)
+    assert muscles.millard["eccentric_slope_near_vmax"][i] == pytest.approx(0.15)
+    assert muscles.millard["concentric_curviness"][i] == 0.6            # absent in the file: OpenSim's default
+
+
+def test_millard_passive_force_is_refused():
+    muscles = read_muscles(data_path(RAJAGOPAL))
     with pytest.raises(ModelError, match="Millard2012"):
-        max_active_force(muscles, torch.full((80,), 0.3, dtype=torch.float64), torch.zeros(80, dtype=torch.float64))
+        passive_force(muscles, torch.full((80,), 0.3, dtype=torch.float64))
 
 
 def test_malformed_number_names_the_line(tmp_path):

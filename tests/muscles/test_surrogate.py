@@ -175,3 +175,36 @@ def test_activation_bounds_use_converged_training_frames_only():
     expected = activations[2:20]
     np.testing.assert_allclose(bounds.low, np.percentile(expected, 5, axis=0), rtol=1e-6)
     np.testing.assert_allclose(bounds.high, np.percentile(expected, 95, axis=0), rtol=1e-6)
+
+
+def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_root, capsys):
+    """`biomotion muscles label` on a small real cache (Hamner 2013, 6 clips): activations of the 80 muscles and
+    COM terms per frame; a run that lost some clips' results recomputes only those."""
+    from biomotion.cli import main
+    from biomotion.data.registry import DatasetCache, build_cache
+    from biomotion.muscles.surrogate_labels import COM_COLUMNS, SurrogateLabels, compute_labels
+
+    data_path("Hamner2013")
+    data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
+    cache_folder = tmp_path / "cache"
+    build_cache(data_root, cache_folder, sources=["hamner"], progress=False)
+    assert main(["muscles", "label", "--cache", str(cache_folder), "--data-root", str(data_root), "--quiet"]) == 0
+    assert "labelled 6 clips" in capsys.readouterr().out
+    labels = SurrogateLabels.load(cache_folder / "surrogate_labels.safetensors")
+    cache = DatasetCache(cache_folder)
+    assert labels.activations.shape == (len(cache.values), 80) and labels.com.shape == (len(cache.values), 9)
+    assert labels.info["muscle_curves"] == "Millard2012EquilibriumMuscle"
+    assert labels.info["com_columns"] == list(COM_COLUMNS)
+    assert labels.activations.min() >= 0.01 - 1e-6 and labels.activations.max() <= 1 + 1e-6
+    assert 0.8 < float(np.median(labels.com[:, 1])) < 1.2            # COM height of a standing-size runner, m
+    assert (cache_folder / "bounds_muscle_activations.json").exists()
+    assert not (cache_folder / "surrogate_labels.safetensors.parts").exists()   # cleaned up once complete
+
+    parts = tmp_path / "parts"
+    first = compute_labels(cache, data_root, progress=False, parts=parts)
+    for stale in sorted(parts.glob("*.npz"))[:2]:
+        stale.unlink()
+    again = compute_labels(cache, data_root, progress=False, parts=parts)
+    assert again.info["clips_resumed"] == 4
+    np.testing.assert_array_equal(first.activations, again.activations)
+    np.testing.assert_array_equal(first.com, again.com)

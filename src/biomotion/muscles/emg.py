@@ -12,7 +12,7 @@ predictions of the same trial:
   ``calcn_r``/``calcn_l`` as ``ID/grf_walk.xml`` says; coordinates 6 Hz zero-lag low-pass and quintic-spline
   derivatives, as OpenSim's inverse-dynamics tool), then the surrogate labels' static optimization
   (`biomotion.muscles.surrogate_labels.Labeler`: squared activations, 10 balanced coordinates, reserves, shipped
-  Rajagopal 2016 path functions, Thelen 2003 curves on Rajagopal's muscle parameters) on those torques;
+  Rajagopal 2016 path functions, the model's Millard 2012 curves) on those torques;
 - **surrogate** (secondary, keys ``*_surrogate``): `biomotion.muscles.surrogate.MuscleSurrogate` from
   ``checkpoints/surrogate.safetensors`` on the same IK coordinates, resampled to its 30 Hz and placed like its
   training clips (`biomotion.data.placement.place_clip`, subject height from the scale setup), interpolated back
@@ -66,7 +66,7 @@ clocks (``emg_alignment``: measured lag 0 samples, r = 0.999). No electromechani
 the activation are compared at the same instant (``emg_lead_s`` in the detail reports, per muscle, by how much the
 envelope leads the activation; it is not used for the figure).
 
-Measured (``python -m biomotion.muscles.emg``, 238 frames, 0-2.37 s): pooled agreement 0.764 with static
+Measured (``python -m biomotion.muscles.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
 optimization and 0.689 with the surrogate, below the 0.80 bar; see ``tests/muscles/test_emg.py``.
 """
 

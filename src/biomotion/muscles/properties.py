@@ -13,8 +13,10 @@ Curves, in normalised fibre length l~ = l/l0 and velocity v~ = v/(vmax l0) (posi
   f_V = (1 + c v~ F_len)/(1 + c v~) with c = (2 + 2/A_f)/(F_len - 1), linearly extrapolated (in v~ against f_V)
   beyond v~ = -1 and beyond f_V = ``fv_linear_extrap_threshold`` F_len, as OpenSim does.
 - ``Millard2012EquilibriumMuscle`` (Millard et al. 2013, "Flexing computational muscle: modeling and simulation
-  of musculotendon dynamics", J Biomech Eng 135:021005): OpenSim's default quintic-Bezier curves are not
-  reimplemented here; `max_active_force` refuses this type (see `MuscleParameters.kind`).
+  of musculotendon dynamics", J Biomech Eng 135:021005): the quintic-Bezier active force-length and
+  force-velocity curves of `biomotion.muscles.millard`, built from each muscle's ``ActiveForceLengthCurve`` and
+  ``ForceVelocityCurve`` properties (OpenSim's defaults where absent); its passive curve is not implemented
+  (`passive_force` refuses this type).
 
 Fibres follow the constant-thickness pennation model (l sin(alpha) = l0 sin(alpha0); Zajac 1989, Crit Rev Biomed
 Eng 17:359) with a rigid tendon, as OpenSim's static optimization does (``calcInextensibleTendonActiveFiberForce``
@@ -31,6 +33,7 @@ import torch
 
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io import osim
+from biomotion.muscles import millard
 
 MUSCLE_TYPES = ("Thelen2003Muscle", "Millard2012EquilibriumMuscle")
 
@@ -55,6 +58,7 @@ class MuscleParameters:
     min_control: torch.Tensor
     max_control: torch.Tensor
     thelen: dict[str, torch.Tensor]        # Thelen2003 curve parameters (defaults for other types)
+    millard: dict[str, torch.Tensor]       # Millard2012 curve parameters (defaults for other types)
 
     @property
     def n_muscles(self) -> int:
@@ -77,7 +81,8 @@ class MuscleParameters:
         rows = torch.tensor([index[n] for n in names])
         return MuscleParameters(self.source, tuple(names), tuple(self.kinds[i] for i in rows.tolist()),
                                 *(getattr(self, f)[rows] for f in _TENSOR_FIELDS),
-                                {k: v[rows] for k, v in self.thelen.items()})
+                                {k: v[rows] for k, v in self.thelen.items()},
+                                {k: v[rows] for k, v in self.millard.items()})
 
 
 _TENSOR_FIELDS = ("max_isometric_force", "optimal_fiber_length", "tendon_slack_length", "pennation_at_optimal",
@@ -88,6 +93,9 @@ def read_muscles(path: str | Path, dtype: torch.dtype = torch.float64) -> Muscle
     """Parameters of the enabled muscles of an .osim file (Thelen2003Muscle or Millard2012EquilibriumMuscle)."""
     doc = osim._Doc(Path(path))
     names, kinds, rows, thelen = [], [], [], {k: [] for k in _THELEN_DEFAULTS}
+    curves = {**{k: ("ActiveForceLengthCurve", v) for k, v in millard.ACTIVE_DEFAULTS.items()},
+              **{k: ("ForceVelocityCurve", v) for k, v in millard.VELOCITY_DEFAULTS.items()}}
+    millard_values = {k: [] for k in curves}
     for elem in doc.root.iter():
         if elem.tag not in MUSCLE_TYPES or elem.get("name") in (None, "default"):
             continue
@@ -102,6 +110,9 @@ def read_muscles(path: str | Path, dtype: torch.dtype = torch.float64) -> Muscle
                      doc.scalar(elem, "max_control", "1")])
         for key, default in _THELEN_DEFAULTS.items():
             thelen[key].append(doc.scalar(elem, key, str(default)) if elem.tag == "Thelen2003Muscle" else default)
+        for key, (curve, default) in curves.items():
+            millard_values[key].append(doc.scalar(elem, f"{curve}/{key}", str(default))
+                                       if elem.tag == "Millard2012EquilibriumMuscle" else default)
     if not names:
         raise DataFormatError(path, f"no enabled muscles of a supported type {MUSCLE_TYPES}", field="ForceSet")
     values = torch.tensor(rows, dtype=dtype)
@@ -109,7 +120,8 @@ def read_muscles(path: str | Path, dtype: torch.dtype = torch.float64) -> Muscle
         if row[0] <= 0 or row[1] <= 0 or row[2] < 0 or not 0 <= row[3] < math.pi / 2:
             raise DataFormatError(path, f"muscle {name!r}: non-physical parameters {row[:4]}", field=name)
     return MuscleParameters(str(path), tuple(names), tuple(kinds), *values.T,
-                            {k: torch.tensor(v, dtype=dtype) for k, v in thelen.items()})
+                            {k: torch.tensor(v, dtype=dtype) for k, v in thelen.items()},
+                            {k: torch.tensor(v, dtype=dtype) for k, v in millard_values.items()})
 
 
 # ---- Thelen 2003 curves ---------------------------------------------------------------------------------------
@@ -154,17 +166,25 @@ def fiber_kinematics(muscles: MuscleParameters, lengths: torch.Tensor, speeds: t
 
 
 def max_active_force(muscles: MuscleParameters, lengths: torch.Tensor, speeds: torch.Tensor) -> torch.Tensor:
-    """[..., M] force along the tendon at full activation, F0 f_L(l~) f_V(v~) cos(alpha) with a rigid tendon:
-    the force per unit activation in static optimization (OpenSim's ``calcInextensibleTendonActiveFiberForce``)."""
-    if muscles.kind != "Thelen2003Muscle":
-        raise ModelError(f"{muscles.source}: force-length-velocity curves of {muscles.kind} are not implemented "
-                         "(only Thelen2003Muscle)")
+    """[..., M] force per unit activation with a rigid tendon, as OpenSim's static optimization uses it (its
+    ``calcInextensibleTendonActiveFiberForce`` at activation 1), with the curves of the model's muscle type.
+
+    Thelen 2003: F0 f_L(l~) f_V(v~) cos(alpha), the fibre force along the tendon. Millard 2012: F0 f_L(l~) f_V(v~)
+    without the cos(alpha) projection, because that is what OpenSim 4.6 returns for this type (measured against
+    ``calcInextensibleTendonActiveFiberForce`` at random poses and speeds of Rajagopal 2016: within 0.4 %, the
+    fibre velocity taken along the fibre, dL/dt cos(alpha), in both; tests/muscles/test_millard.py)."""
+    kind = muscles.kind
     fiber, cos_alpha, velocity = fiber_kinematics(muscles, lengths, speeds)
-    p = muscles.thelen
-    active = thelen_active_force_length(fiber / muscles.optimal_fiber_length, p["KshapeActive"])
-    fv = thelen_force_velocity(velocity / (muscles.max_contraction_velocity * muscles.optimal_fiber_length),
-                               p["Af"], p["Flen"], p["fv_linear_extrap_threshold"])
-    return muscles.max_isometric_force * active * fv * cos_alpha
+    norm_length = fiber / muscles.optimal_fiber_length
+    norm_velocity = velocity / (muscles.max_contraction_velocity * muscles.optimal_fiber_length)
+    if kind == "Thelen2003Muscle":
+        p = muscles.thelen
+        active = thelen_active_force_length(norm_length, p["KshapeActive"])
+        fv = thelen_force_velocity(norm_velocity, p["Af"], p["Flen"], p["fv_linear_extrap_threshold"])
+        return muscles.max_isometric_force * active * fv * cos_alpha
+    active = millard.active_force_length_curve(muscles.millard)(norm_length)
+    fv = millard.force_velocity_curve(muscles.millard)(norm_velocity)
+    return muscles.max_isometric_force * active * fv
 
 
 def passive_force(muscles: MuscleParameters, lengths: torch.Tensor) -> torch.Tensor:

@@ -21,25 +21,27 @@ Absent coordinates (the cache mask is False: e.g. Fukuchi has no lumbar or arm c
 coordinates are always recomputed from the knee angle. The surrogate zeroes masked coordinates the same way
 (`biomotion.muscles.surrogate`), so its input matches what the labels were computed from.
 
-The Rajagopal model's muscles are ``Millard2012EquilibriumMuscle``; `biomotion.muscles.properties` reads them with
-Thelen 2003 curve defaults but implements force-length-velocity curves for ``Thelen2003Muscle`` only, so where
-Millard's curves are unavailable the labels use the Thelen 2003 curves with default shape parameters on the
-Rajagopal muscle parameters (F0, l0, tendon slack, pennation, vmax). Which curves were used is recorded in the
-labels file (``muscle_curves``). Activations are not low-pass filtered afterwards (PG-BIG filters theirs at 6 Hz;
+The Rajagopal model's muscles are ``Millard2012EquilibriumMuscle``: forces per unit activation come from their own
+Millard 2012 active force-length and force-velocity curves (`biomotion.muscles.millard`, each muscle's curve
+properties from the .osim), as in OpenSim's static optimization. The muscle type is recorded in the labels file
+(``muscle_curves``). Activations are not low-pass filtered afterwards (PG-BIG filters theirs at 6 Hz;
 ours come from 6 Hz-filtered kinematics already).
 
-    python -m biomotion.muscles.surrogate_labels --cache build/dataset --data-root ../shared/data \\
-        --out build/dataset/surrogate_labels.safetensors
+    biomotion muscles label --cache build/dataset --data-root ../shared/data
+
+writes ``<cache>/surrogate_labels.safetensors`` (activations of the 80 muscles, convergence, COM position, velocity
+and acceleration per frame) and ``bounds_muscle_activations.json``; each clip's result is kept in
+``surrogate_labels.safetensors.parts/`` until the whole cache is done, so an interrupted run resumes.
 """
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
+import shutil
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -50,11 +52,7 @@ from biomotion.errors import BiomotionError, DataFormatError, ModelError
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
 from biomotion.muscles.geometry import MusclePaths, shipped_paths
-from biomotion.muscles.properties import (
-    MuscleParameters,
-    max_active_force,
-    read_muscles,
-)
+from biomotion.muscles.properties import MuscleParameters, read_muscles
 from biomotion.muscles.static_optimization import (
     StaticOptimizationResult,
     optimize_activations,
@@ -76,18 +74,6 @@ class LabelSettings:
     reserve_bound: float = 100.0          # |control| <= 100: up to 1000 N·m
     tolerance: float = 1e-6               # N·m on the torque balance
     max_iterations: int = 200
-
-
-def _with_curves(muscles: MuscleParameters) -> tuple[MuscleParameters, str]:
-    """The muscles and the name of the curves `max_active_force` will use for them: their own type when it is
-    implemented, otherwise Thelen 2003 (see the module docstring)."""
-    probe = muscles.optimal_fiber_length + muscles.tendon_slack_length
-    try:
-        max_active_force(muscles, probe[None], torch.zeros_like(probe)[None])
-        return muscles, muscles.kind
-    except ModelError:
-        thelen = replace(muscles, kinds=("Thelen2003Muscle",) * muscles.n_muscles)
-        return thelen, f"Thelen2003Muscle (standing in for {muscles.kind})"
 
 
 @dataclass(frozen=True)
@@ -113,12 +99,12 @@ class Labeler:
         paths = shipped_paths("rajagopal2016")
         if tuple(model.coordinate_names) != paths.coordinate_names:
             raise ModelError("the shipped Rajagopal muscle paths and the model disagree on the coordinates")
-        muscles, curves = _with_curves(read_muscles(path).select(paths.muscle_names))
+        muscles = read_muscles(path).select(paths.muscle_names)
         spanned = paths.spanned().any(0)
         dependent = {c.dependent for c in model.couplers}
         coordinates = tuple(n for j, n in enumerate(paths.coordinate_names)
                             if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent)
-        return cls(model, paths, muscles, coordinates, curves, settings)
+        return cls(model, paths, muscles, coordinates, muscles.kind, settings)
 
     @property
     def muscle_names(self) -> tuple[str, ...]:
@@ -132,6 +118,16 @@ class Labeler:
 
     def kinematics_and_torques(self, motion: Motion) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Filtered q, qdot [T, n_q] in model order and inverse-dynamics torques [T, n_balanced] (inferred GRF)."""
+        q, qd, torques, _ = self._prepare(motion)
+        return q, qd, torques
+
+    def label(self, motion: Motion) -> tuple[StaticOptimizationResult, np.ndarray]:
+        """Static optimization of one clip and its whole-body COM position, velocity and acceleration [T, 9]
+        (m, m/s, m/s², ground frame of the generic model, from the same filtered coordinates)."""
+        q, qd, torques, com = self._prepare(motion)
+        return self.solve(q, qd, torques), com
+
+    def _prepare(self, motion: Motion) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray]:
         from biomotion.analysis import analyze, model_motion
 
         motion = self.prepare(motion)
@@ -145,7 +141,8 @@ class Labeler:
         q = torch.tensor(result.motion.values, dtype=torch.float64)
         qd = torch.tensor(np.ascontiguousarray(qd), dtype=torch.float64)
         torques = torch.tensor(result.torques, dtype=torch.float64)[:, self.paths.select(self.coordinates)]
-        return q, qd, torques
+        com = np.concatenate([result.com, result.com_velocity, result.com_acceleration], axis=1)
+        return q, qd, torques, com
 
     def solve(self, q: torch.Tensor, qd: torch.Tensor, torques: torch.Tensor) -> StaticOptimizationResult:
         """Static optimization of every frame at once."""
@@ -167,13 +164,17 @@ class SurrogateLabels:
     converged: np.ndarray             # [N_frames_total] bool: the frame's torque balance met the tolerance
     muscle_names: tuple[str, ...]
     info: dict                        # settings, balanced coordinates, curves, cache fingerprint, timings
+    com: np.ndarray | None = None     # [N_frames_total, 9] COM position, velocity, acceleration (COM_COLUMNS)
 
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
         """safetensors (atomic) with muscle names and ``info`` in the metadata."""
         from safetensors.numpy import save
 
-        blob = save({"activations": np.ascontiguousarray(self.activations, dtype=np.float32),
-                     "converged": self.converged.astype(np.uint8)},
+        arrays = {"activations": np.ascontiguousarray(self.activations, dtype=np.float32),
+                  "converged": self.converged.astype(np.uint8)}
+        if self.com is not None:
+            arrays["com"] = np.ascontiguousarray(self.com, dtype=np.float32)
+        blob = save(arrays,
                     metadata={"format": FORMAT, "muscles": json.dumps(list(self.muscle_names)),
                               "info": json.dumps(self.info), **(metadata or {})})
         with atomic_write(path, "wb") as handle:
@@ -191,7 +192,7 @@ class SurrogateLabels:
                                   field="format")
         arrays = load_file(str(path))
         return cls(arrays["activations"], arrays["converged"].astype(bool), tuple(json.loads(meta["muscles"])),
-                   json.loads(meta["info"]))
+                   json.loads(meta["info"]), arrays.get("com"))
 
 
 def cache_fingerprint(cache) -> str:
@@ -199,27 +200,52 @@ def cache_fingerprint(cache) -> str:
     return hashlib.sha256(np.ascontiguousarray(cache.values).tobytes()).hexdigest()
 
 
+#: Columns of `SurrogateLabels.com`.
+COM_COLUMNS = ("com_x", "com_y", "com_z", "com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
+
+
 def compute_labels(cache, data_root: str | Path, settings: LabelSettings = LabelSettings(), *,
-                   progress: bool = True) -> SurrogateLabels:
-    """Labels of every clip of ``cache`` (a `biomotion.data.registry.DatasetCache`, all splits)."""
+                   progress: bool = True, parts: str | Path | None = None) -> SurrogateLabels:
+    """Labels of every clip of ``cache`` (a `biomotion.data.registry.DatasetCache`, all splits).
+
+    With ``parts`` (a folder), each clip's result is written there as it is done (``<index>.npz``, atomically,
+    tagged with the cache fingerprint and settings) and clips already there are read back instead of solved,
+    so an interrupted run resumes where it stopped."""
     labeler = Labeler.from_data_root(data_root, settings)
     n_total = len(cache.values)
     activations = np.zeros((n_total, len(labeler.muscle_names)), dtype=np.float32)
+    com = np.zeros((n_total, len(COM_COLUMNS)), dtype=np.float32)
     converged = np.zeros(n_total, dtype=bool)
     covered = np.zeros(n_total, dtype=bool)
     reserve_sq, started = 0.0, time.perf_counter()
-    so_seconds = 0.0
-    for i in tqdm(range(len(cache)), desc="surrogate labels", unit="clip", disable=not progress):
+    so_seconds, resumed = 0.0, 0
+    tag = json.dumps({"cache_sha256": cache_fingerprint(cache), "settings": asdict(settings),
+                      "muscles": list(labeler.muscle_names)}, sort_keys=True)
+    folder = Path(parts) if parts is not None else None
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+    for i in tqdm(range(len(cache)), desc="muscle labels", unit="clip", disable=not progress):
         record = cache.records[i]
         rows = slice(record["offset"], record["offset"] + record["n_frames"])
-        q, qd, torques = labeler.kinematics_and_torques(cache.motion(i))
-        tic = time.perf_counter()
-        result = labeler.solve(q, qd, torques)
-        so_seconds += time.perf_counter() - tic
-        activations[rows] = result.activations.numpy()
-        converged[rows] = result.converged.numpy()
+        part = folder / f"{i:06d}.npz" if folder is not None else None
+        stored = _read_part(part, tag) if part is not None else None
+        if stored is None:
+            tic = time.perf_counter()
+            result, clip_com = labeler.label(cache.motion(i))
+            so_seconds += time.perf_counter() - tic
+            stored = {"activations": result.activations.numpy().astype(np.float32), "com": clip_com,
+                      "converged": result.converged.numpy(),
+                      "reserve_sq": np.array(float(result.reserve_torques.pow(2).sum()))}
+            if part is not None:
+                with atomic_write(part, "wb") as handle:
+                    np.savez(handle, tag=np.array(tag), **stored)
+        else:
+            resumed += 1
+        activations[rows] = stored["activations"]
+        com[rows] = stored["com"]
+        converged[rows] = stored["converged"]
         covered[rows] = True
-        reserve_sq += float(result.reserve_torques.pow(2).sum())
+        reserve_sq += float(stored["reserve_sq"])
     if not covered.all():
         raise BiomotionError(f"{cache.folder}: {int((~covered).sum())} frames belong to no clip")
     seconds = time.perf_counter() - started
@@ -230,16 +256,31 @@ def compute_labels(cache, data_root: str | Path, settings: LabelSettings = Label
         "model": MODEL_FILE,
         "ground_reaction": "inferred from kinematics (analyze without measured forces)",
         "absent_coordinates": "filled with 0 (knee_beta from its coupler)",
+        "com_columns": list(COM_COLUMNS),
         "cache": str(cache.folder),
         "cache_sha256": cache_fingerprint(cache),
         "clips": len(cache),
+        "clips_resumed": resumed,
         "frames": n_total,
         "converged_share": float(converged.mean()),
         "reserve_rms_nm": float(np.sqrt(reserve_sq / (n_total * len(labeler.coordinates)))),
         "seconds": round(seconds, 1),
         "so_seconds": round(so_seconds, 1),
     }
-    return SurrogateLabels(activations, converged, labeler.muscle_names, info)
+    return SurrogateLabels(activations, converged, labeler.muscle_names, info, com)
+
+
+def _read_part(path: Path, tag: str) -> dict | None:
+    """A clip's stored result, or None when absent, unreadable or made for another cache or settings."""
+    if not path.exists():
+        return None
+    try:
+        with np.load(path) as stored:
+            if str(stored["tag"]) != tag:
+                return None
+            return {k: stored[k] for k in ("activations", "com", "converged", "reserve_sq")}
+    except (OSError, KeyError, ValueError):
+        return None
 
 
 def labels_for_cache(cache, data_root: str | Path, path: str | Path | None = None, *,
@@ -251,8 +292,10 @@ def labels_for_cache(cache, data_root: str | Path, path: str | Path | None = Non
     labels = SurrogateLabels.load(path) if path.exists() else None
     if labels is None or labels.info.get("cache_sha256") != cache_fingerprint(cache) or len(
             labels.activations) != len(cache.values):
-        labels = compute_labels(cache, data_root, progress=progress)
+        parts = path.with_name(path.name + ".parts")
+        labels = compute_labels(cache, data_root, progress=progress, parts=parts)
         labels.save(path)
+        shutil.rmtree(parts, ignore_errors=True)
     activation_bounds(cache, labels).save(path.parent / BOUNDS_NAME)
     return labels
 
@@ -269,27 +312,3 @@ def activation_bounds(cache, labels: SurrogateLabels):
     keep = rows & labels.converged
     return PercentileBounds.from_samples(labels.activations[keep], labels.muscle_names,
                                          quantity="muscle_activations", unit="1")
-
-
-def main(argv: list[str] | None = None) -> int:
-    from biomotion.data.registry import DatasetCache
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", required=True, type=Path)
-    parser.add_argument("--data-root", type=Path, default=Path("../shared/data"))
-    parser.add_argument("--out", type=Path, default=None, help=f"default: <cache>/{DEFAULT_NAME}")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(1)
-    try:
-        cache = DatasetCache(args.cache)
-        labels = compute_labels(cache, args.data_root)
-        labels.save(args.out or args.cache / DEFAULT_NAME)
-    except BiomotionError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(json.dumps({k: v for k, v in labels.info.items() if k != "settings"}, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

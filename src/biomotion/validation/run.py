@@ -39,7 +39,9 @@ def run_validation(what: str, data_root: Path, json_path: Path, progress: bool =
               "muscles": lambda root, progress: validate_muscles(root)}
     report = {"check": what, "data_root": str(data_root), "biomotion": __version__,
               "python": platform.python_version(), "skipped": skipped}
-    report.update(checks[what](data_root, progress=progress))
+    result = checks[what](data_root, progress=progress)
+    report["skipped"] += result.pop("skipped", [])
+    report.update(result)
     report["seconds"] = round(time.perf_counter() - started, 1)
     with atomic_write(json_path) as handle:
         json.dump(report, handle, indent=1)
