@@ -98,3 +98,19 @@ def test_rajagopal_force_per_activation_matches_opensim():
                             torch.tensor(speeds, dtype=torch.float64)).numpy()
     relative = np.abs(ours - np.array(reference)) / np.maximum(np.abs(reference), 1.0)
     assert relative.max() < 5e-3      # measured 3.5e-3 over 20 poses (eccentric fibres; 1e-6 when isometric)
+
+
+def test_passive_curve_matches_opensim_and_refuses_other_strains():
+    opensim = pytest.importorskip("opensim")
+    opensim.Logger.setLevelString("error")
+    from biomotion.muscles.millard import passive_force_length_curve
+
+    reference_curve = opensim.FiberForceLengthCurve()          # the defaults every Rajagopal muscle uses
+    curve = passive_force_length_curve({"strain_at_zero_force": torch.zeros(1, dtype=torch.float64),
+                                        "strain_at_one_norm_force": torch.full((1,), 0.7, dtype=torch.float64)})
+    lengths = np.linspace(0.8, 2.0, 601)
+    reference = np.array([reference_curve.calcValue(float(x)) for x in lengths])
+    np.testing.assert_allclose(curve(torch.tensor(lengths)[:, None])[:, 0].numpy(), reference, atol=1e-10)
+    with pytest.raises(ModelError, match="default strains"):
+        passive_force_length_curve({"strain_at_zero_force": torch.zeros(1, dtype=torch.float64),
+                                    "strain_at_one_norm_force": torch.full((1,), 0.5, dtype=torch.float64)})

@@ -40,10 +40,14 @@ def test_rajagopal_millard_curve_parameters_from_xml():
     assert muscles.millard["concentric_curviness"][i] == 0.6            # absent in the file: OpenSim's default
 
 
-def test_millard_passive_force_is_refused():
+def test_millard_passive_force_is_zero_below_optimal_and_grows():
     muscles = read_muscles(data_path(RAJAGOPAL))
-    with pytest.raises(ModelError, match="Millard2012"):
-        passive_force(muscles, torch.full((80,), 0.3, dtype=torch.float64))
+    i = muscles.names.index("vaslat_r")
+    slack, optimal = float(muscles.tendon_slack_length[i]), float(muscles.optimal_fiber_length[i])
+    lengths = torch.full((3, 80), 0.3, dtype=torch.float64)
+    lengths[:, i] = torch.tensor([slack + 0.9 * optimal, slack + 1.3 * optimal, slack + 1.6 * optimal])
+    force = passive_force(muscles, lengths)[:, i]
+    assert float(force[0]) == 0.0 and 0 < float(force[1]) < float(force[2])
 
 
 def test_malformed_number_names_the_line(tmp_path):

@@ -24,8 +24,10 @@ Curve construction (the knot points and slopes of each corner) follows OpenSim 4
   ``isometric_slope``), 0.9 and 1 (``max_eccentric_velocity_force_multiplier``), with the concentric and
   eccentric slopes at and near vmax and the two curvinesses;
 - passive force-length (``FiberForceLengthCurve``): two corners from strain e0 (force 0) through a foot of
-  slope k_low to strain e_iso (force 1, slope k_iso); when the file gives no stiffness or curviness, OpenSim's
-  values in use: k_iso = 2 / (e_iso - e0), k_low = 0.2, curviness 0.75.
+  slope k_low to strain e_iso (force 1, slope k_iso). The file gives only the strains (every muscle of Rajagopal
+  2016 and its descendants uses OpenSim's defaults 0 and 0.7); OpenSim then derives k_low, k_iso and the
+  curviness from a reference fibre, which for those strains gives k_low = 0.2, k_iso = 1/0.35, curviness 0.75
+  (read off OpenSim 4.6). Other strains are refused rather than guessed.
 
 The tests compare every curve with OpenSim's own ``calcValue`` (tests/muscles/test_millard.py).
 """
@@ -193,12 +195,13 @@ def force_velocity_curve(p: dict[str, torch.Tensor]) -> SegmentedCurve:
 
 
 def passive_force_length_curve(p: dict[str, torch.Tensor]) -> SegmentedCurve:
-    """OpenSim's ``FiberForceLengthCurve`` (``createFiberForceLengthCurve``) for parameters [M], stiffnesses and
-    curviness as OpenSim uses them when the file leaves them out (module docstring)."""
+    """OpenSim's ``FiberForceLengthCurve`` (``createFiberForceLengthCurve``) for parameters [M], with the
+    stiffnesses and curviness OpenSim uses for the default strains (module docstring)."""
     e0, e_iso = p["strain_at_zero_force"], p["strain_at_one_norm_force"]
-    if bool((e_iso <= e0).any()):
-        raise ModelError("passive force-length curve needs strain_at_one_norm_force > strain_at_zero_force")
-    k_iso = 2 / (e_iso - e0)
+    if bool(((e0 != 0) | ((e_iso - 0.7).abs() > 1e-12)).any()):
+        raise ModelError("passive force-length curve: only OpenSim's default strains (0 at zero force, 0.7 at one "
+                         "normalised force) are implemented")
+    k_iso = torch.full_like(e0, 1 / 0.35)
     k_low = torch.full_like(e0, 0.2)
     k = _rescaled(torch.full_like(e0, 0.75))
     x0, x_iso = 1 + e0, 1 + e_iso

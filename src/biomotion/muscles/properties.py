@@ -15,8 +15,8 @@ Curves, in normalised fibre length l~ = l/l0 and velocity v~ = v/(vmax l0) (posi
 - ``Millard2012EquilibriumMuscle`` (Millard et al. 2013, "Flexing computational muscle: modeling and simulation
   of musculotendon dynamics", J Biomech Eng 135:021005): the quintic-Bezier active force-length and
   force-velocity curves of `biomotion.muscles.millard`, built from each muscle's ``ActiveForceLengthCurve`` and
-  ``ForceVelocityCurve`` properties (OpenSim's defaults where absent); its passive curve is not implemented
-  (`passive_force` refuses this type).
+  ``ForceVelocityCurve`` properties (OpenSim's defaults where absent), and its ``FiberForceLengthCurve`` for
+  `passive_force`.
 
 Fibres follow the constant-thickness pennation model (l sin(alpha) = l0 sin(alpha0); Zajac 1989, Crit Rev Biomed
 Eng 17:359) with a rigid tendon, as OpenSim's static optimization does (``calcInextensibleTendonActiveFiberForce``
@@ -94,7 +94,8 @@ def read_muscles(path: str | Path, dtype: torch.dtype = torch.float64) -> Muscle
     doc = osim._Doc(Path(path))
     names, kinds, rows, thelen = [], [], [], {k: [] for k in _THELEN_DEFAULTS}
     curves = {**{k: ("ActiveForceLengthCurve", v) for k, v in millard.ACTIVE_DEFAULTS.items()},
-              **{k: ("ForceVelocityCurve", v) for k, v in millard.VELOCITY_DEFAULTS.items()}}
+              **{k: ("ForceVelocityCurve", v) for k, v in millard.VELOCITY_DEFAULTS.items()},
+              **{k: ("FiberForceLengthCurve", v) for k, v in millard.PASSIVE_DEFAULTS.items()}}
     millard_values = {k: [] for k in curves}
     for elem in doc.root.iter():
         if elem.tag not in MUSCLE_TYPES or elem.get("name") in (None, "default"):
@@ -188,10 +189,12 @@ def max_active_force(muscles: MuscleParameters, lengths: torch.Tensor, speeds: t
 
 
 def passive_force(muscles: MuscleParameters, lengths: torch.Tensor) -> torch.Tensor:
-    """[..., M] passive fibre force along the tendon (N), rigid tendon."""
-    if muscles.kind != "Thelen2003Muscle":
-        raise ModelError(f"{muscles.source}: passive curve of {muscles.kind} is not implemented")
+    """[..., M] passive fibre force along the tendon (N), rigid tendon, with the curve of the model's muscle type
+    (not part of static optimization's balance, as in OpenSim)."""
     fiber, cos_alpha, _ = fiber_kinematics(muscles, lengths, torch.zeros_like(lengths))
+    if muscles.kind == "Millard2012EquilibriumMuscle":
+        curve = millard.passive_force_length_curve(muscles.millard)
+        return muscles.max_isometric_force * cos_alpha * curve(fiber / muscles.optimal_fiber_length)
     p = muscles.thelen
     return muscles.max_isometric_force * cos_alpha * thelen_passive_force_length(
         fiber / muscles.optimal_fiber_length, p["KshapePassive"], p["FmaxMuscleStrain"])
