@@ -243,14 +243,48 @@ class _Kinematics:
                                        for d in range(len(chains))] for c in range(len(chains))], dtype=torch.bool)
         # free coordinates that only turn rotation axes with unit slope: a 2 pi change gives the same pose
         independent = {c.independent for c in self.couplers}
-        self.periodic = torch.tensor([
-            not bool(model.clamped[c]) and c not in independent and any(a.coordinate == c for a in axes)
+        turning = torch.tensor([
+            c not in independent and any(a.coordinate == c for a in axes)
             and all(a.rotation and abs(abs(slope) - 1.0) < 1e-12 and i not in nonlinear_set
                     for i, (a, slope) in enumerate(zip(axes, slopes)) if a.coordinate == c)
             for c in free], dtype=torch.bool)
+        clamped = model.clamped[free]
+        self.periodic = turning & ~clamped
+        # clamped to a whole turn ([-pi, pi] and the like): every pose is in range, so the limit is only where the
+        # circle is cut; solving across it (and wrapping back after) keeps a frame off a limit it could go round
+        span = (model.ranges[free, 1] - model.ranges[free, 0]).to(_F64)
+        self.full_turn = turning & clamped & (span >= 2 * math.pi - 1e-6)
+        self.ball_joints = self._ball_joints(model, order, free, slopes, intercepts, nonlinear_set)
         self.task_base = torch.zeros(self.n_q, self.n_z, dtype=_F64)
         self.task_base[self.free, torch.arange(self.n_z)] = 1.0
         self.dependents = dependents
+
+    def _ball_joints(self, model: BodyModel, order: Sequence[int], free: Sequence[int], slopes: Sequence[float],
+                     intercepts: Sequence[float], nonlinear: set[int]) -> list[tuple[tuple[int, int, int], float, float]]:
+        """Joints that turn by three rotations about mutually orthogonal axes, each the amount s q + c (s = +-1) of
+        its own free coordinate, and that translate independently of them (shoulders, usually): their pose has a
+        second set of angles, (a + pi, pi - b, c + pi) in the rotation amounts (Tait-Bryan). Per joint the three
+        z columns, and the middle axis's slope and intercept."""
+        column = {c: k for k, c in enumerate(free)}
+        found = []
+        index = 0
+        for j in order:
+            axes = model.joints[j].axes
+            numbers = list(range(index, index + len(axes)))
+            index += len(axes)
+            rotations = [(a, n) for a, n in zip(axes, numbers) if a.rotation]
+            if len(rotations) != 3 or any(n in nonlinear or a.coordinate not in column
+                                          or abs(abs(slopes[n]) - 1.0) > 1e-12 for a, n in rotations):
+                continue
+            coordinates = [a.coordinate for a, _ in rotations]
+            directions = torch.stack([a.axis.to(_F64) for a, _ in rotations])
+            moved = any(a.coordinate in coordinates for a in axes if not a.rotation)
+            if len(set(coordinates)) < 3 or moved or not torch.allclose(directions @ directions.T,
+                                                                          torch.eye(3, dtype=_F64), atol=1e-9):
+                continue
+            middle = rotations[1][1]
+            found.append((tuple(column[c] for c in coordinates), float(slopes[middle]), float(intercepts[middle])))
+        return found
 
     # coordinates ------------------------------------------------------------------------------------------------
     def coordinates(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -722,11 +756,12 @@ def _setup(model: BodyModel, markers: Markers, weights: Mapping[str, float] | No
     visible = torch.isfinite(positions).all(-1)
     observed = torch.where(visible[..., None], positions, torch.zeros_like(positions))
     columns, task_w, targets = _task_targets(model, coordinate_tasks, markers.times, coordinate_data)
-    clamped = model.clamped[free]
+    kinematics = _Kinematics(model, model_index, free)
+    clamped = model.clamped[free] & ~kinematics.full_turn
     infinite = torch.full((len(free),), math.inf, dtype=_F64)
     lower = torch.where(clamped, model.ranges[free, 0].to(_F64), -infinite)
     upper = torch.where(clamped, model.ranges[free, 1].to(_F64), infinite)
-    problem = _Problem(_Kinematics(model, model_index, free), observed, torch.as_tensor(w, dtype=_F64) * visible,
+    problem = _Problem(kinematics, observed, torch.as_tensor(w, dtype=_F64) * visible,
                        torch.tensor(columns, dtype=torch.long), torch.tensor(task_w, dtype=_F64),
                        torch.as_tensor(targets, dtype=_F64), lower, upper)
     return _Setup(model, markers, problem, free, model_index, w, positions)
@@ -773,7 +808,64 @@ def solve_ik(model: BodyModel, markers: Markers, *, weights: Mapping[str, float]
         z = _interpolate(coarse, z_coarse, count)
     z, cost, converged, iterations = _levenberg_marquardt(problem, z, max_iterations, tolerance)
     z, _ = _propagate(problem, z, cost, min(max_iterations, _COARSE_ITERATIONS), tolerance)
-    return _result(setup, _unwrap(z, problem.kinematics.periodic, setup.model.defaults[free]), converged, iterations)
+    if initial is None:   # a given start already chose its branches
+        z = _continuous_branches(problem, z, setup.model.defaults[free].to(_F64))
+    z = _unwrap(z, problem.kinematics.periodic, setup.model.defaults[free])
+    return _result(setup, _into_turn(z, problem.kinematics.full_turn, setup.model.ranges[free, 0]), converged,
+                   iterations)
+
+
+def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Tensor) -> torch.Tensor:
+    """Pick, for every ball joint (`_Kinematics._ball_joints`), the set of angles that keeps its trajectory
+    continuous: the two sets give the same pose and objective, so frames solved apart can land on either, and a
+    limb then flips between them (OpenSim's sequential warm start stays on one). The first angle is made
+    continuous modulo pi (numpy's unwrap with period pi), frames it moves by an odd number of half turns take the
+    other set, and the whole trajectory then takes the set whose middle angle is nearer the default pose (the
+    anatomical one). A frame keeps its angles where the other set is out of range or changes the objective."""
+    kin = problem.kinematics
+    if not kin.ball_joints or z.shape[0] == 0:
+        return z
+    _, cost, _, _ = problem.evaluate(z, derivatives=False)
+    for (a, b, c), slope, intercept in kin.ball_joints:
+        columns = [a, b, c]
+
+        def other(values: torch.Tensor) -> torch.Tensor:
+            out = values.clone()
+            out[:, a] = values[:, a] + math.pi
+            out[:, c] = values[:, c] + math.pi
+            out[:, b] = (math.pi - 2 * intercept) / slope - values[:, b]
+            return _nearest_in_range(out, columns, problem.lower, problem.upper, values)
+
+        alternative = other(z)
+        _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
+        valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
+            (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12)
+        first = z[:, a].numpy()
+        turns = np.round((np.unwrap(first, period=math.pi) - first) / math.pi).astype(int)
+        switch = torch.as_tensor(turns % 2 == 1)
+        options = [torch.where((chosen & valid)[:, None], alternative, z) for chosen in (switch, ~switch)]
+        distance = [float((option[:, b] - defaults[b]).abs().mean()) for option in options]
+        z = options[int(distance[1] < distance[0])]
+    return z
+
+
+def _in_range(values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
+    part = values[:, columns]
+    return ((part >= lower[columns] - 1e-12) & (part <= upper[columns] + 1e-12)).all(-1)
+
+
+def _nearest_in_range(values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor, upper: torch.Tensor,
+                      reference: torch.Tensor) -> torch.Tensor:
+    """Each of ``columns`` shifted by whole turns to the representative nearest ``reference`` that is in range
+    (nearest overall where none is)."""
+    out = values.clone()
+    for k in columns:
+        shifts = torch.arange(-2, 3, dtype=_F64) * 2 * math.pi
+        options = values[:, k, None] + shifts                                   # [T, 5]
+        inside = (options >= lower[k] - 1e-12) & (options <= upper[k] + 1e-12)
+        distance = (options - reference[:, k, None]).abs() + (~inside) * 1e6
+        out[:, k] = options.gather(1, distance.argmin(1, keepdim=True))[:, 0]
+    return out
 
 
 def _unwrap(z: torch.Tensor, periodic: torch.Tensor, defaults: torch.Tensor) -> torch.Tensor:
@@ -800,6 +892,17 @@ def evaluate_ik(model: BodyModel, markers: Markers, motion: Motion, *, weights: 
     setup = _setup(model, markers, weights, coordinate_tasks, coordinate_data, time_range)
     count = setup.markers.n_frames
     return _result(setup, _start_from(setup, motion), torch.zeros(count, dtype=torch.bool), 0)
+
+
+def _into_turn(z: torch.Tensor, full_turn: torch.Tensor, lower: torch.Tensor) -> torch.Tensor:
+    """Whole-turn-range coordinates (solved without their limits) brought back into [lower, lower + 2 pi)."""
+    if not bool(full_turn.any()):
+        return z
+    columns = full_turn.nonzero().squeeze(-1)
+    low = lower[columns].to(_F64)
+    z = z.clone()
+    z[:, columns] = low + torch.remainder(z[:, columns] - low, 2 * math.pi)
+    return z
 
 
 def _start_from(setup: _Setup, motion: Motion) -> torch.Tensor:
