@@ -828,15 +828,11 @@ def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Ten
     _, cost, _, _ = problem.evaluate(z, derivatives=False)
     for (a, b, c), slope, intercept in kin.ball_joints:
         columns = [a, b, c]
-
-        def other(values: torch.Tensor) -> torch.Tensor:
-            out = values.clone()
-            out[:, a] = values[:, a] + math.pi
-            out[:, c] = values[:, c] + math.pi
-            out[:, b] = (math.pi - 2 * intercept) / slope - values[:, b]
-            return _nearest_in_range(out, columns, problem.lower, problem.upper, values)
-
-        alternative = other(z)
+        alternative = z.clone()
+        alternative[:, a] = z[:, a] + math.pi
+        alternative[:, c] = z[:, c] + math.pi
+        alternative[:, b] = (math.pi - 2 * intercept) / slope - z[:, b]
+        alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
         _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
         valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
             (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12)

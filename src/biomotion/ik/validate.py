@@ -26,7 +26,8 @@ own objective is at least 1 % above ours there (OpenSim stopping short or in ano
 OpenSim runs to ``ORACLE_ACCURACY`` rather than the setups' ``accuracy`` (1e-5 in every setup here): the issue's
 comparison is between two solutions of the same IK problem, and at 1e-5 OpenSim's optimizer stops before the
 optimum where the objective is shallow. The speed figure times OpenSim's run at the setup's own accuracy (how it
-is used), a second run beside the converged one. Measured on OpenCap Subject4 walking1 (our solution fixed; OpenSim's
+is used), a second run beside the converged one. Measured on OpenCap Subject4 walking1 with `opensim_ik` at each
+accuracy against the same `solve_ik` solution (OpenSim's
 accuracy 1e-5 / 1e-7 / 1e-9): worst coordinate RMSE 7.6 / 0.17 / 0.002 deg (pronation-supination, which only the
 wrist markers' small offsets pin down), OpenSim's mean objective 2.7 % / 0.03 % / 0.0003 % above ours, its run
 7 / 13 / 17 s.

@@ -350,6 +350,17 @@ def _solve_on_reference(paths: MusclePaths, muscles, reference: OpenSimStaticOpt
                         balanced: tuple[str, ...], reserves: dict[str, float], reserve_bound: float = 1.0
                         ) -> tuple[StaticOptimizationResult, float]:
     """Our SO given OpenSim's q, qdot and inverse-dynamics torques (coordinates in ``reference`` order)."""
+    q, qdot = _states_in_path_order(paths, reference)
+    torques = torch.from_numpy(reference.torques[:, [reference.coordinate_names.index(c) for c in balanced]])
+    tic = time.perf_counter()
+    result = optimize_activations(paths, muscles, q, qdot, torques, balanced, reserves,
+                                  reserve_bound=reserve_bound)
+    return result, time.perf_counter() - tic
+
+
+def _states_in_path_order(paths: MusclePaths, reference: OpenSimStaticOptimization
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+    """OpenSim's q, qdot [T, n_q] in ``paths`` coordinate order (coordinates it does not report at 0)."""
     known = [c for c in reference.coordinate_names if c in paths.coordinate_names]
     columns = paths.select(known)
     rows = [reference.coordinate_names.index(c) for c in known]
@@ -357,11 +368,7 @@ def _solve_on_reference(paths: MusclePaths, muscles, reference: OpenSimStaticOpt
     qdot = torch.zeros_like(q)
     q[:, columns] = torch.from_numpy(reference.q[:, rows])
     qdot[:, columns] = torch.from_numpy(reference.qdot[:, rows])
-    torques = torch.from_numpy(reference.torques[:, [reference.coordinate_names.index(c) for c in balanced]])
-    tic = time.perf_counter()
-    result = optimize_activations(paths, muscles, q, qdot, torques, balanced, reserves,
-                                  reserve_bound=reserve_bound)
-    return result, time.perf_counter() - tic
+    return q, qdot
 
 
 def static_optimization_agreement(result: StaticOptimizationResult, reference: OpenSimStaticOptimization,
@@ -460,12 +467,7 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
     # the torque OpenSim's activations give with our muscle model, against the torque our solver balanced
     paths = shipped_paths("rajagopal2016")
     muscles = muscles.select(paths.muscle_names)
-    q = torch.zeros(len(reference.q), paths.n_q, dtype=torch.float64)
-    qdot = torch.zeros_like(q)
-    known = [c for c in reference.coordinate_names if c in paths.coordinate_names]
-    rows = [reference.coordinate_names.index(c) for c in known]
-    q[:, paths.select(known)] = torch.from_numpy(reference.q[:, rows])
-    qdot[:, paths.select(known)] = torch.from_numpy(reference.qdot[:, rows])
+    q, qdot = _states_in_path_order(paths, reference)
     lengths, arms = paths.lengths_and_moment_arms(q)
     forces = max_active_force(muscles, lengths, -(arms @ qdot[..., None])[..., 0])
     theirs = torch.from_numpy(reference.activations[:, [reference.muscle_names.index(m) for m in paths.muscle_names]])
