@@ -268,7 +268,36 @@ def summary(result: Analysis) -> dict:
         out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate[keep], measured_vertical[keep],
                                                                       weight)
         out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
+        distance = zmp_to_plate_cop(result, keep)
+        out["zmp_vs_plate_cop"] = {"frames": int(distance.size),
+                                   "rmse_m": float(np.sqrt(np.mean(distance ** 2))) if distance.size else None,
+                                   "median_m": float(np.median(distance)) if distance.size else None}
     return out
+
+
+ZMP_MIN_LOAD_BW = 0.2
+"""Body weights the plates must carry for a frame's ZMP-to-CoP comparison: near touch-down and lift-off both
+points are ratios of small numbers (moment over vertical force) and say nothing about either estimate."""
+
+
+def zmp_to_plate_cop(result: Analysis, keep: np.ndarray | None = None) -> np.ndarray:
+    """Horizontal distance (m) between the ZMP from kinematics and the plates' combined centre of pressure, on the
+    frames of ``keep`` (default `plate_frames`: every supporting foot on a plate) where the plates carry at least
+    `ZMP_MIN_LOAD_BW` body weights.
+
+    On level ground the centre of pressure of the total ground reaction is the ZMP (Sardain & Bessonnet 2004,
+    IEEE Trans. Syst. Man Cybern. A 34(5):630, "Forces acting on a biped robot. Center of pressure - zero moment
+    point"), so the distance measures how well the kinematics (segment masses, inertias, accelerations) predict
+    the measured one. The plates' combined CoP is their CoPs weighted by vertical force (plates level with each
+    other, as in the sources here)."""
+    if result.measured is None:
+        raise ModelError("the ZMP-to-CoP distance needs measured forces (analyze with plates)")
+    keep = plate_frames(result) if keep is None else keep
+    vertical = result.measured.force[..., 1]
+    total = vertical.sum(1)
+    loaded = keep & (total >= ZMP_MIN_LOAD_BW * result.body_weight)
+    cop = (np.nan_to_num(result.measured.cop) * vertical[..., None]).sum(1)[loaded] / total[loaded, None]
+    return np.linalg.norm((result.zmp[loaded] - cop)[:, [0, 2]], axis=1)
 
 
 def zmp_inside_support(result: Analysis) -> float:

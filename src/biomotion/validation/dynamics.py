@@ -8,7 +8,10 @@ Figures (keys of the JSON report, issue 3):
 - ``id_ref_rmse_rel``: end to end (our filtering and differentiation vs OpenSim's InverseDynamicsTool run fresh on
   the same model, coordinates, GRF and 6 Hz filter): RMSE / peak |moment| per coordinate whose peak > 10 N·m;
 - ``grf_vertical_r2``, ``grf_vertical_rmse_bw``, ``grf_com_baseline_rmse_bw``: vertical GRF inferred from
-  kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners and OpenCap Subject4 trials.
+  kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners and OpenCap Subject4 trials;
+- ``zmp_cop_rmse_m`` (and ``zmp_cop_rmse_m_per_source``): the ZMP from kinematics against the plates' combined
+  centre of pressure on the same trials (`biomotion.analysis.zmp_to_plate_cop`), the real-data check of the ZMP
+  that the balance metrics use. Not an issue bar.
 
 Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK times come from the C3D, OpenCap's
 ``_ik.mot`` and ``_grf.mot`` share their time base), so no offset is applied or estimated. (Checked without the
@@ -35,7 +38,7 @@ import torch
 from tqdm import tqdm
 
 from biomotion.analysis import analyze, model_motion, plate_frames, torque_labels, unwrapped, \
-    vertical_agreement
+    vertical_agreement, zmp_to_plate_cop
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
@@ -232,6 +235,7 @@ def _grf_cases(data_root: Path) -> list[tuple[str, Path, Path, object]]:
 def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bool = True) -> dict:
     """Vertical GRF inferred from kinematics vs plates, per trial and pooled over all evaluated frames."""
     rows, pooled = [], {"ours": [], "base": [], "plates": [], "weight": []}
+    zmp_distances: dict[str, list[np.ndarray]] = {}
     for name, model_path, motion_path, load_forces in tqdm(_grf_cases(data_root), desc="GRF vs plates",
                                                            unit="trial", disable=not progress):
         model = BodyModel.from_osim(model_path)
@@ -246,20 +250,29 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
         ours = result.inferred.force[keep, :, 1].sum(1)
         base = float(model.total_mass) * (9.80665 + result.com_acceleration[keep, 1])
         a, b = vertical_agreement(ours, plates, weight), vertical_agreement(base, plates, weight)
+        zmp = zmp_to_plate_cop(result, keep)
+        zmp_distances.setdefault(name.split("/")[0], []).append(zmp)
         rows.append({"trial": name, "frames": int(keep.sum()), "frames_left_out": int((~keep).sum()),
                      "r2": a["r2"], "rmse_bw": a["rmse_bw"], "baseline_r2": b["r2"], "baseline_rmse_bw": b["rmse_bw"],
-                     "analysis_seconds": seconds})
+                     "zmp_cop_frames": int(zmp.size), "zmp_cop_rmse_m": _rms(zmp), "analysis_seconds": seconds})
         for key, value in (("ours", ours / weight), ("base", base / weight), ("plates", plates / weight)):
             pooled[key].append(value)
     if not rows:
         return {"grf_vertical_r2": None, "grf_vertical_rmse_bw": None, "grf_com_baseline_rmse_bw": None,
-                "grf_trials": []}
+                "zmp_cop_rmse_m": None, "grf_trials": []}
     plates = np.concatenate(pooled["plates"])
     ours = vertical_agreement(np.concatenate(pooled["ours"]), plates, 1.0)
     base = vertical_agreement(np.concatenate(pooled["base"]), plates, 1.0)
     return {"grf_vertical_r2": ours["r2"], "grf_vertical_rmse_bw": ours["rmse_bw"],
             "grf_com_baseline_r2": base["r2"], "grf_com_baseline_rmse_bw": base["rmse_bw"],
-            "grf_cutoff_hz": cutoff_hz, "grf_frames": int(len(plates)), "grf_trials": rows}
+            "grf_cutoff_hz": cutoff_hz, "grf_frames": int(len(plates)),
+            "zmp_cop_rmse_m": _rms(np.concatenate([d for ds in zmp_distances.values() for d in ds])),
+            "zmp_cop_rmse_m_per_source": {source: _rms(np.concatenate(ds)) for source, ds in zmp_distances.items()},
+            "grf_trials": rows}
+
+
+def _rms(x: np.ndarray) -> float | None:
+    return float(np.sqrt(np.mean(x ** 2))) if x.size else None
 
 
 def validate_kinematics(data_root: Path, progress: bool = True) -> dict:

@@ -69,6 +69,18 @@ def _bvh_markdown(rows: list[dict]) -> list[str]:
     return lines + [""]
 
 
+ZMP_NOTE = ("The ZMP comes from the kinematics alone (`biomotion.body.balance.zero_moment_point`), the CoP from the "
+            "plates, on frames with every supporting foot on a plate and at least 0.2 body weights on the plates "
+            "(`biomotion.analysis.zmp_to_plate_cop`). The Fukuchi runners' models lump head, arms and trunk into the "
+            "pelvis (37.9 of RBDS001's 62 kg) and their markers cover pelvis and legs only: the upper body's own "
+            "motion is missing from the whole-body moment, which is why their ZMP lies far from the plates' CoP; "
+            "OpenCap's full-body models put it within a few cm.")
+
+
+def _cm(value: float | None) -> str:
+    return "–" if value is None else f"{100.0 * value:.1f}"
+
+
 def markdown(report: dict, command: str) -> str:
     """Tables of a validation report, for docs/results/."""
     lines = [f"# Validation: {report['check']}", "", f"Produced by `{command}` (biomotion {report['biomotion']}, "
@@ -77,10 +89,16 @@ def markdown(report: dict, command: str) -> str:
     lines += ["| figure | value |", "|---|---|"] + [f"| `{k}` | {v:.6g} |" for k, v in scalars] + [""]
     if report.get("grf_trials"):
         lines += ["## Vertical GRF inferred from kinematics vs force plates", "",
-                  "| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) |",
-                  "|---|---|---|---|---|---|---|"]
+                  "| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) "
+                  "| ZMP to plate CoP RMS (cm), frames |",
+                  "|---|---|---|---|---|---|---|---|"]
         lines += [f"| {r['trial']} | {r['frames']} | {r['frames_left_out']} | {r['r2']:.3f} | {r['rmse_bw']:.3f} | "
-                  f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} |" for r in report["grf_trials"]]
+                  f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} | {_cm(r.get('zmp_cop_rmse_m'))}, "
+                  f"{r.get('zmp_cop_frames', 0)} |" for r in report["grf_trials"]]
+        if report.get("zmp_cop_rmse_m_per_source"):
+            lines += ["", "ZMP to plate CoP per source (RMS, cm): " + ", ".join(
+                f"{source} {_cm(value)}" for source, value in report["zmp_cop_rmse_m_per_source"].items())
+                + ". " + ZMP_NOTE]
         lines.append("")
     if report.get("id_ref_rmse_rel_per_trial"):
         lines += ["## Inverse dynamics end to end vs OpenSim's InverseDynamicsTool (RMSE / peak, peak > 10 N·m)", "",
