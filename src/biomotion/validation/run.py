@@ -89,8 +89,8 @@ def markdown(report: dict, command: str) -> str:
     lines += ["| figure | value |", "|---|---|"] + [f"| `{k}` | {v:.6g} |" for k, v in scalars] + [""]
     if report.get("grf_trials"):
         lines += ["## Vertical GRF inferred from kinematics vs force plates", "",
-                  "| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) "
-                  "| ZMP to plate CoP RMS (cm), frames |",
+                  ("| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) "
+                   "| ZMP to plate CoP RMS (cm), frames |"),
                   "|---|---|---|---|---|---|---|---|"]
         lines += [f"| {r['trial']} | {r['frames']} | {r['frames_left_out']} | {r['r2']:.3f} | {r['rmse_bw']:.3f} | "
                   f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} | {_cm(r.get('zmp_cop_rmse_m'))}, "
