@@ -42,6 +42,17 @@ def _data_build(args: argparse.Namespace) -> int:
     return 0
 
 
+def _data_augment(args: argparse.Namespace) -> int:
+    from biomotion.data.augment import time_warped_cache
+
+    manifest = time_warped_cache(args.cache, args.out, args.time_warp, split=args.split, progress=not args.quiet)
+    counts = manifest["counts"]
+    print(f"wrote {counts['clips']} clips ({manifest['augmentation']['copies']} time-warped copies of the "
+          f"{args.split} split at x{', x'.join(f'{f:g}' for f in args.time_warp)}) in "
+          f"{manifest['build_seconds']:.1f} s -> {args.out}")
+    return 0
+
+
 def _data_sources(args: argparse.Namespace) -> int:
     from biomotion.data.sources import SOURCES
 
@@ -266,6 +277,20 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--report", type=Path, help="also write the counts as a Markdown table (docs/results/)")
     build.add_argument("--quiet", action="store_true", help="no progress bar")
     build.set_defaults(run=_data_build)
+    augment = data_verbs.add_parser(
+        "augment", help="add time-warped copies of the training clips (for the muscle surrogate)",
+        description="Copy a cache and append its training-split clips played faster or slower (--time-warp "
+                    "factors; 1.25 = 25 % faster), resampled at the cache rate. Validation and test clips are "
+                    "left as they are. Label the result with `biomotion muscles label` and train the surrogate "
+                    "on it (see biomotion.data.augment).")
+    augment.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    augment.add_argument("--out", type=Path, required=True, help="new cache folder to write")
+    augment.add_argument("--time-warp", type=float, nargs="+", default=[0.8, 0.9, 1.1, 1.25], metavar="F",
+                         help="speed factors of the copies (default: %(default)s)")
+    augment.add_argument("--split", default="train", choices=("train", "val", "test"),
+                         help="split whose clips are copied (default: %(default)s)")
+    augment.add_argument("--quiet", action="store_true", help="no progress bar")
+    augment.set_defaults(run=_data_augment)
     sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")
     sources.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
     sources.set_defaults(run=_data_sources)

@@ -1,0 +1,92 @@
+"""Time-warped copies of a cache's training clips, for training the muscle-activation surrogate on more motions.
+
+The surrogate's labels are a deterministic function of the kinematics (`biomotion.muscles.surrogate_labels`:
+inverse dynamics with the ground reaction inferred from the motion, then static optimization), so any plausible
+motion with its own labels is a valid training pair. Playing a clip ``f`` times faster (its pelvis travels the
+same path in 1/f of the time) gives new velocities and accelerations — and so new torques and activations — from
+the same poses; with f in 0.8-1.25 the clips stay within the speeds people move at. Measured on the lab cache
+(Fukuchi, OpenCap, Hamner, Schreiber; 111 training clips plus their copies at 0.8, 0.9, 1.1 and 1.25, the same
+12-minute training): held-out pooled R² 0.863 -> 0.871, mean per muscle 0.834 -> 0.843.
+
+Only clips of the ``split`` (default the training split) are copied, so validation and test clips stay the real
+ones; copies keep their subject, hence their split. Each copy is the clip's values on the time axis divided by
+``f``, resampled at the cache rate by `biomotion.motion.Motion.resample` (anti-alias low-pass when the copy is
+faster, as `biomotion.data.registry.build_cache` resamples the sources). A copy's ``clip_id`` is
+``<clip_id>@x<f>``; its record keeps the original's fields, with ``labels.speed`` multiplied by ``f``, the text
+label marked, and ``augmentation`` = {"time_warp": f, "from": clip_id}. The bounds files are the original
+cache's (the real clips' percentiles); the surrogate's activation bounds come from its own labels.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from biomotion.data.registry import ARRAYS, MANIFEST, ClipRecord, DatasetCache, _counts
+from biomotion.errors import ConfigError
+from biomotion.io.atomic import atomic_write
+
+MIN_FRAMES = 20
+"""Copies shorter than this (frames) are not written: too short for the surrogate's training windows to mean much."""
+
+
+def time_warped_cache(cache: str | Path, out: str | Path, factors: Sequence[float], *, split: str = "train",
+                      progress: bool = True) -> dict:
+    """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips played ``factors`` times
+    faster; returns the new manifest. Files are written atomically, the manifest last."""
+    factors = tuple(float(f) for f in factors)
+    if not factors or any(not np.isfinite(f) or f <= 0 or f == 1.0 for f in factors):
+        raise ConfigError(f"time-warp factors must be positive and not 1, got {list(factors)}")
+    source, out = DatasetCache(cache), Path(out)
+    if out.resolve() == source.folder.resolve():
+        raise ConfigError(f"--out must differ from --cache ({out})")
+    started = time.perf_counter()
+    values, masks = [source.values], [source.masks.astype(np.uint8)]
+    records = list(source.records)
+    offset = int(source.values.shape[0])
+    chosen = source.indices(split=split)
+    if not chosen:
+        raise ConfigError(f"the cache {source.folder} has no {split!r} clips to warp")
+    for index in tqdm(chosen, desc="time warp", unit="clip", disable=not progress):
+        motion, record = source.motion(index), source.records[index]
+        for factor in factors:
+            warped = replace(motion, times=motion.times[0] + (motion.times - motion.times[0]) / factor)
+            copy = warped.resample(source.rate)
+            if copy.n_frames < MIN_FRAMES:
+                continue
+            labels = dict(record["labels"])
+            if labels.get("speed") is not None:
+                labels["speed"] = round(labels["speed"] * factor, 4)
+            if labels.get("text"):
+                labels["text"] = f"{labels['text']} (time-warped x{factor:g})"
+            records.append({**record, "clip_id": f"{record['clip_id']}@x{factor:g}", "labels": labels,
+                            "offset": offset, "n_frames": copy.n_frames, "start_time": float(copy.times[0]),
+                            "augmentation": {"time_warp": factor, "from": record["clip_id"]}})
+            values.append(copy.values.astype(np.float32))
+            masks.append(source.masks[index].astype(np.uint8)[None])
+            offset += copy.n_frames
+    from safetensors.numpy import save_file
+
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / f".{ARRAYS}.tmp"
+    save_file({"values": np.concatenate(values), "masks": np.concatenate(masks)}, str(tmp))
+    tmp.replace(out / ARRAYS)
+    for bounds in source.folder.glob("bounds_*.json"):
+        if bounds.name != "bounds_muscle_activations.json":   # written with the labels of this cache
+            shutil.copyfile(bounds, out / bounds.name)
+    fields = ClipRecord.__dataclass_fields__
+    manifest = {**source.manifest, "clips": records,
+                "counts": _counts([ClipRecord(**{k: r[k] for k in fields}) for r in records]),
+                "augmentation": {"time_warp": list(factors), "split": split, "from": str(source.folder),
+                                 "copies": len(records) - len(source.records)},
+                "build_seconds": round(time.perf_counter() - started, 2)}
+    with atomic_write(out / MANIFEST) as handle:
+        json.dump(manifest, handle, indent=1)
+    return manifest
