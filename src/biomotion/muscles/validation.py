@@ -25,7 +25,14 @@
 - ``surrogate_ms_per_clip``, ``surrogate_speedup_vs_opensim``: the shipped surrogate on the same walk clip (after
   model load) against OpenSim's static optimization of it, measured in the same run;
 - ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
-  trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``.
+  trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
+- ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
+  (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
+  under the data root whose subject the split rule holds out of training (val and test): mean R² over the muscles
+  whose labels vary (`biomotion.muscles.train_surrogate.agreement`), pooled R² and RMSE beside it. On a data root of
+  new subjects, those the rule would put in training are left out too (the surrogate keeps no list of its
+  subjects). ``surrogate_com_vel_r2`` stays None: the surrogate predicts activations only, the COM terms come from
+  the body model's kinematics exactly.
 """
 
 from __future__ import annotations
@@ -523,4 +530,55 @@ def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5
     check = emg_check(data_root, surrogate=surrogate)
     report["skipped"] += check.pop("skipped", [])
     report.update(check)
+    report.update(surrogate_figures(data_root, surrogate, report["skipped"]))
     return report
+
+
+#: Sources of the surrogate's training cache (checkpoints/surrogate.md): the motion-capture ones, not Bandai-Namco.
+SURROGATE_SOURCES = ("fukuchi", "opencap", "hamner", "schreiber")
+
+
+def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str]) -> dict:
+    """The shipped surrogate against fresh static-optimization labels of the held-out clips under ``data_root``
+    (see the module docstring); appends to ``skipped`` what it could not do."""
+    from biomotion.data.sources import SOURCES
+    from biomotion.evaluation.clips import build_temporary_cache
+    from biomotion.muscles.surrogate import MuscleSurrogate
+    from biomotion.muscles.surrogate_labels import Labeler
+    from biomotion.muscles.train_surrogate import agreement
+
+    empty = {"surrogate_r2": None, "surrogate_rmse": None, "surrogate_com_vel_r2": None}
+    if surrogate is None or not Path(surrogate).exists():
+        skipped.append(f"surrogate agreement: no surrogate checkpoint at {surrogate}")
+        return empty
+    if not (data_root / RAJAGOPAL_MODEL).exists():
+        skipped.append(f"surrogate agreement: {RAJAGOPAL_MODEL} not under {data_root}")
+        return empty
+    present = [name for name in SURROGATE_SOURCES if SOURCES[name].present(data_root)]
+    if not present:
+        skipped.append(f"surrogate agreement: none of {', '.join(SURROGATE_SOURCES)} under {data_root}")
+        return empty
+    started = time.perf_counter()
+    handle, cache = build_temporary_cache(data_root, sources=present)
+    with handle:
+        held_out = [i for i in range(len(cache)) if cache.records[i]["split"] != "train"]
+        if not held_out:
+            skipped.append("surrogate agreement: every subject under the data root falls in the training split")
+            return empty
+        model = MuscleSurrogate.load(surrogate).eval()
+        labeler = Labeler.from_data_root(data_root)
+        predicted, reference = [], []
+        for i in held_out:
+            motion = cache.motion(i)
+            labels, _ = labeler.label(motion)
+            keep = labels.converged.numpy()
+            with torch.no_grad():
+                out = model(torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None])
+            predicted.append(out[0].numpy()[keep])
+            reference.append(labels.activations.numpy()[keep])
+        scores = agreement(np.concatenate(predicted), np.concatenate(reference), model.names)
+        subjects = sorted({f"{cache.records[i]['source']}/{cache.records[i]['subject']}" for i in held_out})
+    return {**empty, "surrogate_r2": scores["r2_mean_per_muscle"], "surrogate_rmse": scores["rmse"],
+            "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_held_out_clips": len(held_out),
+            "surrogate_held_out_subjects": subjects, "surrogate_held_out_frames": scores["frames"],
+            "surrogate_seconds": round(time.perf_counter() - started, 1)}
