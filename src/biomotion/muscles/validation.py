@@ -545,7 +545,7 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
     from biomotion.evaluation.clips import build_temporary_cache
     from biomotion.muscles.surrogate import MuscleSurrogate
     from biomotion.muscles.surrogate_labels import Labeler
-    from biomotion.muscles.train_surrogate import agreement
+    from biomotion.muscles.train_surrogate import evaluate
 
     empty = {"surrogate_r2": None, "surrogate_rmse": None, "surrogate_com_vel_r2": None}
     if surrogate is None or not Path(surrogate).exists():
@@ -565,18 +565,15 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
         if not held_out:
             skipped.append("surrogate agreement: every subject under the data root falls in the training split")
             return empty
-        model = MuscleSurrogate.load(surrogate).eval()
+        model = MuscleSurrogate.load(surrogate)
         labeler = Labeler.from_data_root(data_root)
-        predicted, reference = [], []
+        clips = []
         for i in held_out:
             motion = cache.motion(i)
             labels, _ = labeler.label(motion)
-            keep = labels.converged.numpy()
-            with torch.no_grad():
-                out = model(torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None])
-            predicted.append(out[0].numpy()[keep])
-            reference.append(labels.activations.numpy()[keep])
-        scores = agreement(np.concatenate(predicted), np.concatenate(reference), model.names)
+            clips.append((torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None],
+                          labels.activations, labels.converged))
+        scores = evaluate(model, clips)
         subjects = sorted({f"{cache.records[i]['source']}/{cache.records[i]['subject']}" for i in held_out})
     return {**empty, "surrogate_r2": scores["r2_mean_per_muscle"], "surrogate_rmse": scores["rmse"],
             "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_held_out_clips": len(held_out),
