@@ -47,3 +47,11 @@ def mirror_coordinates(values: np.ndarray, mask: np.ndarray | None = None,
 def mirror_labels(values: np.ndarray, names: Sequence[str]) -> np.ndarray:
     """Per-muscle values [..., M] of the mirrored motion: each muscle takes its counterpart's."""
     return values[..., mirror_permutation(names)]
+
+
+def mirror_ground_vectors(values: np.ndarray) -> np.ndarray:
+    """Ground-frame vectors [..., 3k] (consecutive x, y, z triples, e.g. COM velocity then acceleration) of the
+    mirror image: every z component changes sign."""
+    if values.shape[-1] % 3:
+        raise ValueError(f"expected x, y, z triples in the last axis; got {values.shape[-1]} values")
+    return values * np.tile(np.array([1, 1, -1], dtype=values.dtype), values.shape[-1] // 3)

@@ -18,7 +18,10 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
   along T (the edge frames copy their neighbour's value);
 
 standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
-replicate padding; receptive field 1 + 4 (1 + depth) frames), a 1x1 head and a sigmoid. Masked coordinates are
+replicate padding; receptive field 1 + 4 (1 + depth) frames) shared by two 1x1 heads: the activations (sigmoid)
+and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
+A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2), de-standardised with
+the ``com_mean``/``com_std`` buffers of the training labels. Masked coordinates are
 set to 0 before anything else, which is also how the labels treated absent coordinates
 (`biomotion.muscles.surrogate_labels`). Everything is differentiable with respect to q.
 
@@ -46,6 +49,8 @@ N_COORDS = len(CANONICAL_COORDINATES)
 FORMAT = "biomotion-muscle-surrogate/1"
 _COUPLED = ("knee_angle_r_beta", "knee_angle_l_beta")
 _NO_POSITION = ("pelvis_tx", "pelvis_tz", "pelvis_rotation")
+#: The COM head's outputs: whole-body COM velocity and acceleration in the ground frame (m/s, m/s^2).
+COM_OUTPUTS = ("com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
 #: Canonical indices whose positions / derivatives are features.
 POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED + _NO_POSITION)
 DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED)
@@ -100,11 +105,13 @@ class _Block(nn.Module):
 
 
 class MuscleSurrogate(nn.Module):
-    """Canonical coordinates q [B, T, 39] (+ mask [B, 39]) -> muscle activations [B, T, M] in (0, 1).
+    """Canonical coordinates q [B, T, 39] (+ mask [B, 39]) -> muscle activations [B, T, M] in (0, 1) and COM
+    velocity and acceleration [B, T, 6].
 
     See the module docstring (PG-BIG Sec. 3.3 guidance, A.8 surrogate). ``names``: the M muscle names;
-    buffers ``mean``/``std`` (feature standardisation) and ``low``/``high`` (5th/95th percentile activation
-    bounds per muscle, PG-BIG Table 1) are set from the training split by `set_normalisation`/`set_bounds`.
+    buffers ``mean``/``std`` (feature standardisation), ``low``/``high`` (5th/95th percentile activation
+    bounds per muscle, PG-BIG Table 1) and ``com_mean``/``com_std`` (COM output scale) are set from the
+    training split by `set_normalisation`, `set_bounds` and `set_com_scale`.
     """
 
     def __init__(self, names: Sequence[str], config: SurrogateConfig | None = None) -> None:
@@ -117,10 +124,13 @@ class MuscleSurrogate(nn.Module):
         self.stem = nn.Conv1d(N_FEATURES, w, k, padding=k // 2, padding_mode="replicate")
         self.blocks = nn.Sequential(*[_Block(w, k, config.dropout) for _ in range(config.depth)])
         self.head = nn.Conv1d(w, len(self.names), 1)
+        self.com_head = nn.Conv1d(w, len(COM_OUTPUTS), 1)
         self.register_buffer("mean", torch.zeros(N_FEATURES))
         self.register_buffer("std", torch.ones(N_FEATURES))
         self.register_buffer("low", torch.zeros(len(self.names)))
         self.register_buffer("high", torch.ones(len(self.names)))
+        self.register_buffer("com_mean", torch.zeros(len(COM_OUTPUTS)))
+        self.register_buffer("com_std", torch.ones(len(COM_OUTPUTS)))
 
     @property
     def n_muscles(self) -> int:
@@ -170,16 +180,43 @@ class MuscleSurrogate(nn.Module):
         self.low.copy_(torch.quantile(a, low, dim=0).to(self.low.dtype))
         self.high.copy_(torch.quantile(a, high, dim=0).to(self.high.dtype))
 
+    @torch.no_grad()
+    def set_com_scale(self, com: torch.Tensor) -> None:
+        """``com_mean``/``com_std`` buffers from training labels [N, 6] (`COM_OUTPUTS`): the COM head predicts
+        (com - com_mean) / com_std."""
+        if com.ndim != 2 or com.shape[1] != len(COM_OUTPUTS):
+            raise ModelError(f"COM scale needs labels [N, {len(COM_OUTPUTS)}]; got {tuple(com.shape)}")
+        c = com.double()
+        std = c.std(0)
+        self.com_mean.copy_(c.mean(0).to(self.com_mean.dtype))
+        self.com_std.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).to(self.com_std.dtype))
+
     # -- model ----------------------------------------------------------------------------------------------
+    def _trunk(self, q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """Shared hidden sequence [B, width, T]."""
+        return F.gelu(self.blocks(self.stem(self.features(q, mask).transpose(1, 2))))
+
     def logits(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Pre-sigmoid outputs [B, T, M]."""
-        x = self.stem(self.features(q, mask).transpose(1, 2))
-        return self.head(F.gelu(self.blocks(x))).transpose(1, 2)
+        """Pre-sigmoid activation outputs [B, T, M]."""
+        return self.head(self._trunk(q, mask)).transpose(1, 2)
 
     def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
         """Activations [B, T, M] in (0, 1) from canonical coordinates q [B, T, 39] (mask [B, 39] optional:
         masked coordinates are treated as 0)."""
         return torch.sigmoid(self.logits(q, mask))
+
+    def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`) in one pass."""
+        hidden = self._trunk(q, mask)
+        return torch.sigmoid(self.head(hidden)).transpose(1, 2), self._com(hidden)
+
+    def com(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and m/s^2)."""
+        return self._com(self._trunk(q, mask))
+
+    def _com(self, hidden: torch.Tensor) -> torch.Tensor:
+        return self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
 
     # -- persistence ----------------------------------------------------------------------------------------
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:

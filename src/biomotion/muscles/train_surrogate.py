@@ -6,16 +6,19 @@
 Labels come from `biomotion.muscles.surrogate_labels` (``--labels``, default ``<cache>/surrogate_labels.safetensors``;
 computed and written there when missing or made from another cache). Training uses the train split only:
 windows of ``data.window`` frames, L1 loss on the activations (BIGE's surrogate loss) over frames whose static
-optimization converged, AdamW with linear warm-up then cosine decay over the run (the run's progress is the larger
-of iterations done and time used when ``--minutes`` is given), gradient clipping. The ``low``/``high`` bounds are
-the 5th/95th percentiles of the train-split labels (PG-BIG Table 1).
+optimization converged plus ``train.com_weight`` times the smooth-L1 (PG-BIG A.8's loss) of the standardised
+COM velocity and acceleration over all real frames, AdamW with linear warm-up then cosine decay over the run (the
+run's progress is the larger of iterations done and time used when ``--minutes`` is given), gradient clipping.
+The ``low``/``high`` bounds are the 5th/95th percentiles of the train-split labels (PG-BIG Table 1).
 
 Validation (PG-BIG A.8, Table 7) runs the surrogate on each whole val clip and compares with the labels on
 converged frames: pooled R^2 (1 - SSE / SST summed over all muscles, SST around each muscle's mean), RMSE and
 MAE, the mean of per-muscle R^2 over muscles whose label std exceeds ``data.min_label_std``, and the per-muscle
-R^2/RMSE of the muscles PG-BIG lists (soleus and vasti). Pooled R^2 over all clips also credits the variation
-between clips (speeds, subjects), so the card adds the stricter within-clip R^2 (SST around each clip's own
-muscle means), averaged over clips with at least 30 converged frames. The card also times a 3 s clip (90
+R^2/RMSE of the muscles PG-BIG lists (soleus and vasti); for the COM head, R^2 per component of velocity and
+acceleration over all frames and their mean over the three axes (PG-BIG A.8 reports 0.94 and 0.91), with RMSE.
+Pooled R^2 over all clips also credits the variation between clips (speeds, subjects), so the card adds the
+stricter within-clip R^2 (SST around each clip's own muscle means), averaged over clips with at least 30
+converged frames. The card also times a 3 s clip (90
 frames): the surrogate (forward, and forward + backward as guidance uses it) against the static-optimization
 solve and the whole label pipeline (inverse dynamics with inferred ground reaction + static optimization), one
 CPU thread.
@@ -33,16 +36,18 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 import yaml
 from tqdm import tqdm
 
-from biomotion.data.mirror import mirror_coordinates, mirror_labels
+from biomotion.data.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.guidance.losses import activation
 from biomotion.models.cards import environment, write_card
-from biomotion.muscles.surrogate import MuscleSurrogate, SurrogateConfig
+from biomotion.muscles.surrogate import COM_OUTPUTS, MuscleSurrogate, SurrogateConfig
 from biomotion.muscles.surrogate_labels import (
+    COM_COLUMNS,
     DEFAULT_NAME,
     Labeler,
     SurrogateLabels,
@@ -53,15 +58,20 @@ from biomotion.muscles.surrogate_labels import (
 KEY_MUSCLES = ("soleus_l", "soleus_r", "vasint_l", "vasint_r", "vaslat_l", "vaslat_r", "vasmed_l", "vasmed_r")
 CLIP_FRAMES = 90  # a 3 s clip at 30 Hz (PG-BIG A.8 timing)
 WITHIN_CLIP_FRAMES = 30  # clips with at least this many converged frames get a within-clip R^2
+#: Columns of the labels' COM array (`COM_COLUMNS`) that the COM head predicts (`COM_OUTPUTS`).
+COM_LABEL_COLUMNS = [COM_COLUMNS.index(name) for name in COM_OUTPUTS]
 
 
 def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int
-                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Training windows of ``split``: q [N, length, 39], masks [N, 39], target activations [N, length, M] and
-    frame weights [N, length] (1 on converged real frames). Window starts every ``stride`` frames, the last flush
-    with the clip's end; a clip shorter than ``length`` gives one window padded by repeating its last frame
-    (weight 0 on the padding)."""
-    qs, masks, targets, weights = [], [], [], []
+                 ) -> tuple[torch.Tensor, ...]:
+    """Training windows of ``split``: q [N, length, 39], masks [N, 39], target activations [N, length, M],
+    activation weights [N, length] (1 on converged real frames), COM targets [N, length, 6] (`COM_OUTPUTS`) and
+    COM weights [N, length] (1 on real frames). Window starts every ``stride`` frames, the last flush with the
+    clip's end; a clip shorter than ``length`` gives one window padded by repeating its last frame (weight 0 on
+    the padding)."""
+    if labels.com is None:
+        raise BiomotionError("the surrogate labels hold no COM terms; recompute them with `biomotion muscles label`")
+    qs, masks, targets, weights, coms, reals = [], [], [], [], [], []
     for i in cache.indices(split=split):
         record = cache.records[i]
         n, offset = record["n_frames"], record["offset"]
@@ -75,23 +85,26 @@ def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, lengt
         qs.append(cache.values[rows])
         targets.append(labels.activations[rows])
         weights.append(labels.converged[rows] & real)
+        coms.append(labels.com[rows][..., COM_LABEL_COLUMNS])
+        reals.append(real)
         masks.append(np.repeat(cache.masks[i][None], len(rows), 0))
     if not qs:
         raise BiomotionError(f"no {split} clips in {cache.folder}")
     as_tensor = (lambda parts, dtype: torch.from_numpy(np.ascontiguousarray(np.concatenate(parts), dtype=dtype)))
     return (as_tensor(qs, np.float32), as_tensor(masks, bool), as_tensor(targets, np.float32),
-            as_tensor(weights, np.float32))
+            as_tensor(weights, np.float32), as_tensor(coms, np.float32), as_tensor(reals, np.float32))
 
 
 def clip_arrays(cache: DatasetCache, labels: SurrogateLabels, split: str) -> list[tuple]:
-    """Per clip of ``split``: (q [1, T, 39], mask [1, 39], target [T, M], converged [T] bool)."""
+    """Per clip of ``split``: (q [1, T, 39], mask [1, 39], target [T, M], converged [T] bool, COM [T, 6])."""
     out = []
     for i in cache.indices(split=split):
         record = cache.records[i]
         rows = slice(record["offset"], record["offset"] + record["n_frames"])
         out.append((torch.from_numpy(cache.values[rows].astype(np.float32))[None],
                     torch.from_numpy(cache.masks[i])[None], torch.from_numpy(labels.activations[rows]),
-                    torch.from_numpy(labels.converged[rows])))
+                    torch.from_numpy(labels.converged[rows]),
+                    torch.from_numpy(labels.com[rows][:, COM_LABEL_COLUMNS].astype(np.float32))))
     return out
 
 
@@ -120,15 +133,33 @@ def agreement(predicted: np.ndarray, reference: np.ndarray, names: tuple[str, ..
     }
 
 
+def com_agreement(predicted: np.ndarray, reference: np.ndarray) -> dict:
+    """R^2 and RMSE of COM velocity and acceleration [N, 6] (`COM_OUTPUTS`) against the labels: per component
+    (SST around the component's mean), and their mean over the three axes as PG-BIG A.8 aggregates them
+    ("COM velocity and acceleration ... mean R^2"); RMSE over all three components."""
+    predicted, reference = predicted.astype(np.float64), reference.astype(np.float64)
+    error = predicted - reference
+    r2 = 1 - (error ** 2).sum(0) / np.maximum(((reference - reference.mean(0)) ** 2).sum(0), 1e-12)
+    out = {f"{name}_r2": float(v) for name, v in zip(COM_OUTPUTS, r2)}
+    for key, part in (("vel", slice(0, 3)), ("acc", slice(3, 6))):
+        out[f"com_{key}_r2"] = float(r2[part].mean())
+        out[f"com_{key}_rmse"] = float(np.sqrt((error[:, part] ** 2).mean()))
+    return out
+
+
 @torch.no_grad()
 def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02) -> dict:
-    """`agreement` of the surrogate run on each whole clip, over converged frames of all clips."""
+    """`agreement` of the surrogate run on each whole clip, over converged frames of all clips, and
+    `com_agreement` of its COM head over all frames."""
     was_training = model.training
     model.eval()
-    predicted, reference, within = [], [], []
-    for q, mask, target, converged in clips:
-        predicted.append(model(q, mask)[0][converged].numpy())
+    predicted, reference, within, com_predicted, com_reference = [], [], [], [], []
+    for q, mask, target, converged, com in clips:
+        activations, com_hat = model.predict(q, mask)
+        predicted.append(activations[0][converged].numpy())
         reference.append(target[converged].numpy())
+        com_predicted.append(com_hat[0].numpy())
+        com_reference.append(np.asarray(com))
         if len(reference[-1]) >= WITHIN_CLIP_FRAMES:
             within.append(agreement(predicted[-1], reference[-1], model.names, min_std)["r2_pooled"])
     model.train(was_training)
@@ -136,6 +167,7 @@ def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02) 
     scores.update({"r2_within_clip_mean": float(np.mean(within)) if within else float("nan"),
                    "r2_within_clip_median": float(np.median(within)) if within else float("nan"),
                    "clips_within": len(within)})
+    scores.update(com_agreement(np.concatenate(com_predicted), np.concatenate(com_reference)))
     return scores
 
 
@@ -207,14 +239,16 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     if abs(cache.rate - model_cfg.rate) > 1e-6:
         raise ConfigError(f"surrogate rate {model_cfg.rate} Hz differs from the cache's {cache.rate} Hz")
     labels = labels_for_cache(cache, data_root, labels_path, progress=progress)
-    q, mask, target, weight = make_windows(cache, labels, "train", window, stride)
+    q, mask, target, weight, com, com_weight = make_windows(cache, labels, "train", window, stride)
     if data_cfg.get("mirror", False):  # left-right mirror images with left-right swapped labels
         q_m, mask_m = mirror_coordinates(q.numpy(), mask.numpy())
-        q = torch.cat([q, torch.from_numpy(np.ascontiguousarray(q_m))])
-        mask = torch.cat([mask, torch.from_numpy(np.ascontiguousarray(mask_m))])
-        target = torch.cat([target, torch.from_numpy(np.ascontiguousarray(mirror_labels(target.numpy(),
-                                                                                         labels.muscle_names)))])
+        as_tensor = (lambda array: torch.from_numpy(np.ascontiguousarray(array)))
+        q = torch.cat([q, as_tensor(q_m)])
+        mask = torch.cat([mask, as_tensor(mask_m)])
+        target = torch.cat([target, as_tensor(mirror_labels(target.numpy(), labels.muscle_names))])
+        com = torch.cat([com, as_tensor(mirror_ground_vectors(com.numpy()))])
         weight = torch.cat([weight, weight])
+        com_weight = torch.cat([com_weight, com_weight])
     val_clips = clip_arrays(cache, labels, "val")
     train_clips = clip_arrays(cache, labels, "train")
     model = MuscleSurrogate(labels.muscle_names, model_cfg)
@@ -223,6 +257,8 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
                                  for r in (cache.records[i] for i in cache.indices(split="train"))])
     train_rows = train_rows[labels.converged[train_rows]]
     model.set_bounds(torch.from_numpy(labels.activations[train_rows]))
+    model.set_com_scale(com[com_weight > 0])
+    com_loss_weight = float(train_cfg.get("com_weight", 1.0))
     optimiser = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=float(train_cfg["weight_decay"]))
     total = int(iterations or train_cfg["iterations"])
     budget = 60 * minutes if minutes else math.inf
@@ -239,20 +275,27 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         for group in optimiser.param_groups:
             group["lr"] = learning_rate(max(step / total, elapsed / budget), step, lr, warmup)
         pick = torch.randint(len(q), (batch,), generator=generator)
-        predicted = model(q[pick], mask[pick])
-        w = weight[pick].unsqueeze(-1)
-        loss = ((predicted - target[pick]).abs() * w).sum() / (w.sum() * model.n_muscles).clamp_min(1)
+        predicted, com_hat = model.predict(q[pick], mask[pick])
+        w, w_com = weight[pick].unsqueeze(-1), com_weight[pick].unsqueeze(-1)
+        loss_activation = ((predicted - target[pick]).abs() * w).sum() / (w.sum() * model.n_muscles).clamp_min(1)
+        com_error = F.smooth_l1_loss((com_hat - com[pick]) / model.com_std, torch.zeros_like(com_hat),
+                                     reduction="none")
+        loss_com = (com_error * w_com).sum() / (w_com.sum() * len(COM_OUTPUTS)).clamp_min(1)
+        loss = loss_activation + com_loss_weight * loss_com
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), float(train_cfg["grad_clip"]))
         optimiser.step()
         if step % 20 == 0:
-            bar.set_postfix(l1=f"{loss.item():.4f}")
+            bar.set_postfix(l1=f"{loss_activation.item():.4f}", com=f"{loss_com.item():.4f}")
         if (step + 1) % int(train_cfg["eval_every"]) == 0:
             m = evaluate(model, val_clips, min_std)
             history.append({"step": step + 1, "seconds": round(time.monotonic() - started, 1),
-                            "train_l1": loss.item(), "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"]})
-            bar.set_postfix(l1=f"{loss.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}")
+                            "train_l1": loss_activation.item(), "train_com": loss_com.item(),
+                            "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"],
+                            "val_com_vel_r2": m["com_vel_r2"]})
+            bar.set_postfix(l1=f"{loss_activation.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}",
+                            com_vel_r2=f"{m['com_vel_r2']:.3f}")
     else:
         step = total
     train_seconds = time.monotonic() - started
@@ -301,7 +344,8 @@ def _markdown(card: dict) -> str:
     m, t, s, d, lab = (card["metrics_val"], card["metrics_train"], card["speed_3s_clip"], card["data"],
                        card["labels"])
     rows = ("r2_pooled", "rmse", "mae", "r2_mean_per_muscle", "r2_median_per_muscle", "muscles_in_mean",
-            "r2_within_clip_mean", "r2_within_clip_median", "clips_within")
+            "r2_within_clip_mean", "r2_within_clip_median", "clips_within", "com_vel_r2", "com_vel_rmse",
+            "com_acc_r2", "com_acc_rmse", *(f"{name}_r2" for name in COM_OUTPUTS))
     worst = sorted(m["per_muscle_r2"].items(), key=lambda kv: kv[1])[:5]
     return (
         f"# Muscle-activation surrogate: {card['weights']}\n\n{card['model']}.\n\n"
@@ -314,7 +358,8 @@ def _markdown(card: dict) -> str:
         f"muscle curves {lab['muscle_curves']}; absent coordinates {lab['absent_coordinates']}; "
         f"{100 * lab['converged_share']:.2f} % of frames converged, reserve RMS {lab['reserve_rms_nm']:.1f} N·m; "
         f"computed in {lab['seconds']} s ({lab['so_seconds']} s in the solver)\n\n"
-        "Agreement with the static-optimization labels (converged frames, whole clips):\n\n"
+        "Agreement with the static-optimization labels (converged frames, whole clips; COM rows: all frames, "
+        "m/s and m/s²):\n\n"
         "| metric | val before training | val | train |\n|---|---|---|---|\n"
         + "".join(f"| {k} | {card['metrics_val_before'][k]:.4g} | {m[k]:.4g} | {t[k]:.4g} |\n" for k in rows)
         + "\n| key muscle (PG-BIG Table 7) | val R² | val RMSE |\n|---|---|---|\n"
