@@ -11,7 +11,10 @@ filtered at 6 Hz and differentiated with quintic splines (`biomotion.analysis.mo
 - biomotion: `inverse_dynamics` on all frames in one call, float64, without autograd, with autograd on (q
   requires grad: the forward pass that records the graph), and forward plus backward (the gradient of the summed
   torques with respect to q); float32 with autograd; best wall-clock time of ``--repeats`` runs, at each number
-  of torch intra-op threads in ``--threads`` (`biomotion.body.kinematics.torch_threads`).
+  of torch intra-op threads in ``--threads`` (`biomotion.body.kinematics.torch_threads`); and the same function
+  compiled by ``torch.compile`` (inductor, static shapes; it fuses the many small elementwise operations the
+  recursion over the tree is made of into generated C++ loops, and needs a C++ compiler), autograd on and forward
+  plus backward, its one-off compile time reported beside the table.
 - Pinocchio: a model of the same size built from the BodyModel: the same bodies, masses and inertias at the same
   joint placements (default pose), a free-flyer root for the pelvis, each CustomJoint coordinate as one revolute
   joint about the first rotation axis it drives (or one prismatic joint along its translation axis), welded bodies
@@ -105,6 +108,31 @@ def ours(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float]:
         "autograd on, float32": frames / best_time(lambda: inverse_dynamics(model32, q32, qd32, qdd32), repeats),
         "no autograd, 4x frames in one batch": 4 * frames / best_time(batch4, repeats),
     }
+
+
+def compile_inverse_dynamics(model: BodyModel, q, qd, qdd):
+    """(``torch.compile``d `inverse_dynamics` of ``model`` with autograd on, seconds the first call took), or
+    (None, why) when this machine cannot compile (no C++ compiler, unsupported platform)."""
+    compiled = torch.compile(lambda a, b, c: inverse_dynamics(model, a, b, c), dynamic=False)
+    q_grad = q.clone().requires_grad_()
+    start = time.perf_counter()
+    try:
+        torques = compiled(q_grad, qd, qdd)
+    except Exception as error:  # inductor raises many kinds (compiler missing, codegen failure)
+        return None, f"{type(error).__name__}: {str(error).splitlines()[0][:120]}"
+    seconds = time.perf_counter() - start
+    if not torch.allclose(torques.detach(), inverse_dynamics(model, q, qd, qdd), atol=1e-8):
+        raise RuntimeError("the compiled inverse dynamics differs from the eager one")
+    return compiled, seconds
+
+
+def compiled_speeds(compiled, q, qd, qdd, repeats: int) -> dict[str, float]:
+    """Frames/s of the compiled inverse dynamics (see `compile_inverse_dynamics`), in the current thread setting."""
+    frames = q.shape[0]
+    q_grad = q.clone().requires_grad_()
+    return {"compiled, autograd on (forward)": frames / best_time(lambda: compiled(q_grad, qd, qdd), repeats),
+            "compiled, forward + backward (d/dq)": frames / best_time(
+                lambda: compiled(q_grad, qd, qdd).sum().backward(), repeats)}
 
 
 def whole_chain(motion, model: BodyModel, plates, repeats: int) -> float:
@@ -316,7 +344,7 @@ def machine() -> str:
 
 
 def report(args, trial: str, model: BodyModel, frames: int, speeds: dict[int, dict[str, float]],
-           chain: dict[int, float], pin_result, opensim_result, grf) -> str:
+           chain: dict[int, float], pin_result, opensim_result, grf, compile_note: str) -> str:
     base = pin_result["rnea"] if pin_result else None
 
     def ratio(value: float) -> str:
@@ -357,6 +385,7 @@ def report(args, trial: str, model: BodyModel, frames: int, speeds: dict[int, di
         lines += [f"Pinocchio model built from the BodyModel: nq {pin_result['nq']}, nv {pin_result['nv']} "
                   f"(= our {model.n_q} coordinates), {pin_result['joints']} joints, {pin_result['mass']:.2f} kg "
                   "(see the benchmark's docstring for the approximation). Pinocchio runs single-threaded.", ""]
+    lines += [compile_note, ""]
     lines += ["Accuracy is not measured here: tests/body checks every model against OpenSim's inverse dynamics "
               "solver to 1e-4 N·m (measured about 1e-12).", ""]
     lines += [
@@ -408,9 +437,16 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.data_root)
     model, motion, coordinates, q, qd, qdd, plates = load_trial(root, args.trial)
     speeds, chain = {}, {}
+    with torch_threads(1):
+        compiled, compile_seconds = compile_inverse_dynamics(model, q, qd, qdd)
+    compile_note = (f"`torch.compile` rows: the first call compiled for {compile_seconds:.1f} s (once per model and "
+                    "frame count; the result equals the eager function to 1e-8 N·m)." if compiled is not None else
+                    f"`torch.compile` rows left out: it failed here ({compile_seconds}).")
     for threads in args.threads:
         with torch_threads(threads):
             speeds[threads] = ours(model, q, qd, qdd, args.repeats)
+            if compiled is not None:
+                speeds[threads].update(compiled_speeds(compiled, q, qd, qdd, args.repeats))
             chain[threads] = whole_chain(motion, model, plates, args.repeats)
         print(f"{threads} thread(s): {speeds[threads]}, analyze {chain[threads]:.0f} frames/s", file=sys.stderr)
     with torch_threads(1):
@@ -423,7 +459,8 @@ def main(argv: list[str] | None = None) -> int:
         except ImportError:
             opensim_result = None
         grf = force_inference(model, q, qd, qdd, args.repeats)
-    text = report(args, args.trial, model, q.shape[0], speeds, chain, pin_result, opensim_result, grf)
+    text = report(args, args.trial, model, q.shape[0], speeds, chain, pin_result, opensim_result, grf,
+                  compile_note)
     with atomic_write(args.out) as handle:
         handle.write(text)
     print(text)
