@@ -111,13 +111,16 @@ def ours(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float]:
 
 
 def compile_inverse_dynamics(model: BodyModel, q, qd, qdd):
-    """(``torch.compile``d `inverse_dynamics` of ``model`` with autograd on, seconds the first call took), or
-    (None, why) when this machine cannot compile (no C++ compiler, unsupported platform)."""
-    compiled = torch.compile(lambda a, b, c: inverse_dynamics(model, a, b, c), dynamic=False)
-    q_grad = q.clone().requires_grad_()
+    """({dtype: ``torch.compile``d `inverse_dynamics` of ``model`` in float64 and float32, autograd on}, seconds
+    the first float64 call took), or (None, why) when this machine cannot compile (no C++ compiler, unsupported
+    platform)."""
+    compiled = {}
+    for dtype in (torch.float64, torch.float32):
+        typed = model.to(dtype)
+        compiled[dtype] = torch.compile(lambda a, b, c, m=typed: inverse_dynamics(m, a, b, c), dynamic=False)
     start = time.perf_counter()
     try:
-        torques = compiled(q_grad, qd, qdd)
+        torques = compiled[torch.float64](q.clone().requires_grad_(), qd, qdd)
     except Exception as error:  # inductor raises many kinds (compiler missing, codegen failure)
         return None, f"{type(error).__name__}: {str(error).splitlines()[0][:120]}"
     seconds = time.perf_counter() - start
@@ -129,10 +132,13 @@ def compile_inverse_dynamics(model: BodyModel, q, qd, qdd):
 def compiled_speeds(compiled, q, qd, qdd, repeats: int) -> dict[str, float]:
     """Frames/s of the compiled inverse dynamics (see `compile_inverse_dynamics`), in the current thread setting."""
     frames = q.shape[0]
+    f64, f32 = compiled[torch.float64], compiled[torch.float32]
     q_grad = q.clone().requires_grad_()
-    return {"compiled, autograd on (forward)": frames / best_time(lambda: compiled(q_grad, qd, qdd), repeats),
+    q32, qd32, qdd32 = q.float().requires_grad_(), qd.float(), qdd.float()
+    return {"compiled, autograd on (forward)": frames / best_time(lambda: f64(q_grad, qd, qdd), repeats),
             "compiled, forward + backward (d/dq)": frames / best_time(
-                lambda: compiled(q_grad, qd, qdd).sum().backward(), repeats)}
+                lambda: f64(q_grad, qd, qdd).sum().backward(), repeats),
+            "compiled, autograd on, float32": frames / best_time(lambda: f32(q32, qd32, qdd32), repeats)}
 
 
 def whole_chain(motion, model: BodyModel, plates, repeats: int) -> float:
