@@ -15,10 +15,10 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
 - l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with
   l_omega 10 and l_foot 1 guidance slowed the legs while the pelvis kept its speed, and sliding *rose* (foot
-  contact velocity 0.59 -> 0.73 m/s, skate 26 -> 43 %); with these weights it falls to 0.39 m/s and 19 %, jerk
-  494 -> 290 m/s^3, floating 3.4 -> 2.0 cm. l_speed 100 holds the requested speed (`losses.locomotion_speed`).
+  contact velocity 0.59 -> 0.73 m/s, skate 26 -> 45 %); with these weights it falls to 0.39 m/s and 18 %, jerk
+  494 -> 293 m/s^3, floating 3.4 -> 1.9 cm. l_speed 100 holds the requested speed (`losses.locomotion_speed`).
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
-  much of the gains (jerk 390 m/s^3, foot contact velocity 0.47 m/s, skate 28 %, floating 2.3 cm), so the decoder
+  much of the gains (jerk 399 m/s^3, foot contact velocity 0.46 m/s, skate 29 %, floating 2.2 cm), so the decoder
   reads the refined latents.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
