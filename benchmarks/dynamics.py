@@ -238,7 +238,9 @@ def opensim_inverse_dynamics(root: Path, trial: str, coordinates) -> dict[str, f
     osim.Logger.setLevelString("error")
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
-        write_motion(folder / "coordinates.mot", coordinates)
+        # radians: from degrees OpenSim 4.6 leaves the coupled knee_angle_*_beta speeds in deg/s
+        # (biomotion.muscles.validation.rajagopal_walk_inputs)
+        write_motion(folder / "coordinates.mot", coordinates, in_degrees=False)
         forces = "".join(EXTERNAL_FORCE.format(body=body, k=k) for k, body in ((1, "calcn_r"), (2, "calcn_l")))
         (folder / "loads.xml").write_text(EXTERNAL_LOADS.format(
             forces=forces, datafile=(root / SUBJECT / "ID" / f"{trial}_grf.mot").resolve()))
