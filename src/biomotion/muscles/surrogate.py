@@ -21,9 +21,9 @@ standardised with mean/std buffers from the training split, then a Conv1d stem a
 replicate padding; receptive field 1 + 4 (1 + depth) frames) shared by two 1x1 heads: the activations (sigmoid)
 and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
 A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2), de-standardised with
-the ``com_mean``/``com_std`` buffers of the training labels. Masked coordinates are
-set to 0 before anything else, which is also how the labels treated absent coordinates
-(`biomotion.muscles.surrogate_labels`). Everything is differentiable with respect to q.
+the ``com_mean``/``com_std`` buffers of the training labels. Masked coordinates are set to 0 before anything
+else, which is also how the labels treated absent coordinates (`biomotion.muscles.surrogate_labels`). Everything
+is differentiable with respect to q.
 
 Buffers ``low``/``high`` hold the 5th/95th percentile of each muscle's training-split labels (PG-BIG Table 1
 activation bounds); ``names`` are the muscle names. `MuscleSurrogate.save`/`load` keep the config and names in
@@ -207,16 +207,11 @@ class MuscleSurrogate(nn.Module):
 
     def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`) in one pass."""
+        """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and
+        m/s^2) in one pass."""
         hidden = self._trunk(q, mask)
-        return torch.sigmoid(self.head(hidden)).transpose(1, 2), self._com(hidden)
-
-    def com(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and m/s^2)."""
-        return self._com(self._trunk(q, mask))
-
-    def _com(self, hidden: torch.Tensor) -> torch.Tensor:
-        return self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
+        com = self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
+        return torch.sigmoid(self.head(hidden)).transpose(1, 2), com
 
     # -- persistence ----------------------------------------------------------------------------------------
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
