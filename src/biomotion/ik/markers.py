@@ -809,40 +809,80 @@ def solve_ik(model: BodyModel, markers: Markers, *, weights: Mapping[str, float]
     z, cost, converged, iterations = _levenberg_marquardt(problem, z, max_iterations, tolerance)
     z, _ = _propagate(problem, z, cost, min(max_iterations, _COARSE_ITERATIONS), tolerance)
     if initial is None:   # a given start already chose its branches
-        z = _continuous_branches(problem, z, setup.model.defaults[free].to(_F64))
+        z = _continuous_branches(problem, z, setup.model.defaults[free].to(_F64), setup.model.ranges[free, 0])
     z = _unwrap(z, problem.kinematics.periodic, setup.model.defaults[free])
     return _result(setup, _into_turn(z, problem.kinematics.full_turn, setup.model.ranges[free, 0]), converged,
                    iterations)
 
 
-def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Tensor) -> torch.Tensor:
+def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Tensor,
+                         turn_start: torch.Tensor) -> torch.Tensor:
     """Pick, for every ball joint (`_Kinematics._ball_joints`), the set of angles that keeps its trajectory
     continuous: the two sets give the same pose and objective, so frames solved apart can land on either, and a
     limb then flips between them (OpenSim's sequential warm start stays on one). The first angle is made
     continuous modulo pi (numpy's unwrap with period pi), frames it moves by an odd number of half turns take the
     other set, and the whole trajectory then takes the set whose middle angle is nearer the default pose (the
-    anatomical one). A frame keeps its angles where the other set is out of range or changes the objective."""
+    anatomical one). A frame keeps its angles where the other set is out of range or changes the objective.
+    Last, `_switch_at_cuts` moves to the other set where a whole-turn angle crosses its range's cut."""
     kin = problem.kinematics
     if not kin.ball_joints or z.shape[0] == 0:
         return z
     _, cost, _, _ = problem.evaluate(z, derivatives=False)
-    for (a, b, c), slope, intercept in kin.ball_joints:
-        columns = [a, b, c]
-        alternative = z.clone()
-        alternative[:, a] = z[:, a] + math.pi
-        alternative[:, c] = z[:, c] + math.pi
-        alternative[:, b] = (math.pi - 2 * intercept) / slope - z[:, b]
-        alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
-        _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
-        valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
-            (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12)
+    for joint in kin.ball_joints:
+        (a, b, _), _, _ = joint
+        alternative, valid = _other_set(problem, z, cost, joint)
         first = z[:, a].numpy()
         turns = np.round((np.unwrap(first, period=math.pi) - first) / math.pi).astype(int)
         switch = torch.as_tensor(turns % 2 == 1)
         options = [torch.where((chosen & valid)[:, None], alternative, z) for chosen in (switch, ~switch)]
         distance = [float((option[:, b] - defaults[b]).abs().mean()) for option in options]
         z = options[int(distance[1] < distance[0])]
+        cut = [k for k in joint[0] if bool(kin.full_turn[k])]
+        if cut:
+            alternative, valid = _other_set(problem, z, cost, joint)
+            z = _switch_at_cuts(z, torch.where(valid[:, None], alternative, z), cut, turn_start)
     return z
+
+
+def _other_set(problem: _Problem, z: torch.Tensor, cost: torch.Tensor,
+               joint: tuple[tuple[int, int, int], float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+    """A ball joint's second set of angles (a + pi, pi - b, c + pi in the rotation amounts) for every frame of
+    ``z``, each angle the in-range representative nearest ``z``'s, and [T] whether it is usable: in range and
+    with the same objective as ``cost`` (the pose's)."""
+    (a, b, c), slope, intercept = joint
+    columns = [a, b, c]
+    alternative = z.clone()
+    alternative[:, a] = z[:, a] + math.pi
+    alternative[:, c] = z[:, c] + math.pi
+    alternative[:, b] = (math.pi - 2 * intercept) / slope - z[:, b]
+    alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
+    _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
+    valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
+        (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12)
+    return alternative, valid
+
+
+def _switch_at_cuts(z: torch.Tensor, other: torch.Tensor, cut: Sequence[int], turn_start: torch.Tensor
+                    ) -> torch.Tensor:
+    """Follow ``z`` until one of a ball joint's whole-turn angles (``cut``, clamped to [lower, lower + 2 pi],
+    solved across the limit) crosses its range's cut, then follow ``other`` (the joint's second set of angles)
+    until it crosses one, and so on. OpenSim cannot cross a clamped limit: its sequential solve sits at the
+    limit until it falls into the other set, where it stays. Measured on OpenCap Subject4's asymmetric drop
+    jumps, where a shoulder passes overhead: the frames whose shoulder angles differ from OpenSim's by over 1 deg
+    went from 46/46 (left/right, DJAsym1), 45/24 (DJAsym2) and 19/103 (DJAsym3) to 38/39, 25/24 and 19/20; what is
+    left are the frames where OpenSim sits at the limit."""
+    options = (z, other)
+    low = turn_start[list(cut)].to(z.dtype)
+    # solved without the limit, the angles may sit whole turns away: a crossing is a half-turn step once wrapped
+    crossing = [(torch.remainder(option[:, cut] - low, 2 * math.pi).diff(dim=0).abs() > math.pi).any(-1)
+                for option in options]
+    out, start, current = z.clone(), 0, 0
+    while start < z.shape[0]:   # one pass per crossing, not per frame
+        later = crossing[current][start:].nonzero()
+        end = start + int(later[0]) + 1 if later.numel() else z.shape[0]
+        out[start:end] = options[current][start:end]
+        start, current = end, 1 - current
+    return out
 
 
 def _in_range(values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
