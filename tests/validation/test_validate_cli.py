@@ -48,3 +48,15 @@ def test_validate_kinematics_on_one_model_and_an_empty_root(tmp_path):
     assert report["fk_models"] == 1 and report["fk_max_err_m"] <= 1e-5
     assert main(["validate", "kinematics", "--data-root", str(tmp_path / "missing"), "--json",
                  str(tmp_path / "x.json"), "--quiet"]) == 2
+
+
+def test_markdown_lists_the_surrogates_worst_muscles_first():
+    from biomotion.validation.run import markdown
+
+    per_muscle = {f"m{i}": 0.5 + 0.01 * i for i in range(12)}
+    report = {"check": "muscles", "biomotion": "x", "seconds": 1.0, "skipped": [], "surrogate_r2": 0.6,
+              "surrogate_r2_per_muscle": per_muscle}
+    text = markdown(report, "biomotion validate muscles")
+    section = text.split("lowest R²")[1]
+    assert "| m0 | 0.500 |" in section and "| m9 | 0.590 |" in section
+    assert "| m10 |" not in section                                 # ten rows only

@@ -29,7 +29,8 @@
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
   (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
   under the data root whose subject the split rule holds out of training (val and test): mean R² over the muscles
-  whose labels vary (`biomotion.muscles.train_surrogate.agreement`), pooled R² and RMSE beside it. On a data root of
+  whose labels vary (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each
+  one's R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. On a data root of
   new subjects, those the rule would put in training are left out too (the surrogate keeps no list of its
   subjects). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
   against the labels' whole-body COM velocity (acceleration), R² per ground axis over all frames of those clips,
@@ -582,7 +583,10 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
         scores = evaluate(model, clips)
         subjects = sorted({f"{cache.records[i]['source']}/{cache.records[i]['subject']}" for i in held_out})
     return {**empty, "surrogate_r2": scores["r2_mean_per_muscle"], "surrogate_rmse": scores["rmse"],
-            "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_com_vel_r2": scores["com_vel_r2"],
+            "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_muscles_in_mean": scores["muscles_in_mean"],
+            "surrogate_r2_per_muscle": {name: round(value, 4) for name, value in sorted(
+                scores["per_muscle_r2"].items(), key=lambda item: item[1])},   # worst first: where to work next
+            "surrogate_com_vel_r2": scores["com_vel_r2"],
             "surrogate_com_vel_rmse": scores["com_vel_rmse"], "surrogate_com_acc_r2": scores["com_acc_r2"],
             "surrogate_com_acc_rmse": scores["com_acc_rmse"], "surrogate_held_out_clips": len(held_out),
             "surrogate_held_out_subjects": subjects, "surrogate_held_out_frames": scores["frames"],

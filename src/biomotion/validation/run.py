@@ -100,6 +100,10 @@ def markdown(report: dict, command: str) -> str:
                 f"{source} {_cm(value)}" for source, value in report["zmp_cop_rmse_m_per_source"].items())
                 + ". " + ZMP_NOTE]
         lines.append("")
+    if report.get("surrogate_r2_per_muscle"):
+        worst = list(report["surrogate_r2_per_muscle"].items())[:10]
+        lines += ["## Surrogate vs static-optimization labels: the ten muscles with the lowest R² (held-out clips)", "",
+                  "| muscle | R² |", "|---|---|"] + [f"| {name} | {value:.3f} |" for name, value in worst] + [""]
     if report.get("id_ref_rmse_rel_per_trial"):
         lines += ["## Inverse dynamics end to end vs OpenSim's InverseDynamicsTool (RMSE / peak, peak > 10 N·m)", "",
                   "| trial | worst coordinate | RMSE / peak | coordinates over 2 % |", "|---|---|---|---|"]
