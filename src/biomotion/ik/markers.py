@@ -834,13 +834,13 @@ def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Ten
         first = z[:, a].numpy()
         turns = np.round((np.unwrap(first, period=math.pi) - first) / math.pi).astype(int)
         switch = torch.as_tensor(turns % 2 == 1)
-        options = [torch.where((chosen & valid)[:, None], alternative, z) for chosen in (switch, ~switch)]
-        distance = [float((option[:, b] - defaults[b]).abs().mean()) for option in options]
-        z = options[int(distance[1] < distance[0])]
+        taken = [chosen & valid for chosen in (switch, ~switch)]
+        distance = [float((torch.where(t[:, None], alternative, z)[:, b] - defaults[b]).abs().mean()) for t in taken]
+        took = taken[int(distance[1] < distance[0])]
+        chosen = torch.where(took[:, None], alternative, z)
+        other = torch.where((valid & ~took)[:, None], alternative, z)   # the set not taken, where usable
         cut = [k for k in joint[0] if bool(kin.full_turn[k])]
-        if cut:
-            alternative, valid = _other_set(problem, z, cost, joint)
-            z = _switch_at_cuts(z, torch.where(valid[:, None], alternative, z), cut, turn_start)
+        z = _switch_at_cuts(chosen, other, cut, turn_start) if cut else chosen
     return z
 
 
