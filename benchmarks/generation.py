@@ -6,8 +6,9 @@
 Timed in one process with one torch thread (the `biomotion` CLI's setting), median of ``--repeats`` runs after
 one warm-up, for the example profile running at 3.5 m/s with no reference clip: sampling the codes and decoding
 (no guidance), the whole guided generation (sampling + 40 guidance iterations through decoder, body model and
-muscle surrogate), and, side by side for the muscle term, one evaluation of the surrogate against the static
-optimization it replaces (our batched SO on the canonical model with inferred ground reaction) on the same clip.
+muscle surrogate, then foot planting), and, side by side for the muscle term, one evaluation of the surrogate
+against the static optimization it replaces (our batched SO on the canonical model with inferred ground reaction)
+on the same clip.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> None:
         so = static_optimization_seconds(args.data_root, q[0].detach(), generator.rate)
     rows = [("load tokenizer, prior, surrogate, body model (once)", load),
             (f"sample + decode a {args.seconds:g} s clip, no guidance", unguided),
-            (f"sample + decode + guidance (40 iterations), {args.seconds:g} s clip", guided),
+            (f"sample + decode + guidance (40 iterations) + foot planting, {args.seconds:g} s clip", guided),
             ("muscle term: surrogate activations, one evaluation", surrogate),
             ("muscle term: static optimization (ID + SO), one evaluation", so)]
     text = (f"# Generation speed\n\nCommand: `python benchmarks/generation.py --seconds {args.seconds:g} "

@@ -9,6 +9,8 @@ label, and generates a clip as long as the target (at most ``max_seconds``). Var
 
 - ``reference``: the real target clips;
 - ``full``: profile + references, with guidance (PG-BIG);
+- ``no_planting``: the same sample after latent guidance, before foot planting (`biomotion.guidance.planting`),
+  which shows what the coordinate-space stage adds;
 - ``no_guidance``: the same sample before guidance (w/o Guidance);
 - ``no_priming``: profile + references through the subject profiler only, the prior's context not primed with
   the reference's codes, with guidance;
@@ -41,8 +43,9 @@ from biomotion.errors import BiomotionError
 from biomotion.generation.actions import ActionRequest
 from biomotion.motion import Motion
 
-VARIANTS = ("reference", "full", "no_guidance", "no_priming", "no_personalization", "population")
-LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_guidance": "w/o Guidance",
+VARIANTS = ("reference", "full", "no_planting", "no_guidance", "no_priming", "no_personalization", "population")
+LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_planting": "w/o Foot planting",
+          "no_guidance": "w/o Guidance",
           "no_priming": "w/o Reference priming", "no_personalization": "w/o Personalization",
           "population": "Population (T2M-GPT-kind)"}
 
@@ -116,6 +119,7 @@ def generate_variants(targets: list[Target], cache, generator, population, *, se
         baseline = population.generate(request, seconds=seconds, seed=seed + k, guidance=False)
         out["reference"].append(t.motion)
         out["full"].append(_motion(full.q[0], generator.rate))
+        out["no_planting"].append(_motion(full.unplanted[0], generator.rate))
         out["no_guidance"].append(_motion(full.unguided[0], generator.rate))
         out["no_priming"].append(_motion(unprimed.q[0], generator.rate))
         out["no_personalization"].append(_motion(generic.q[0], generator.rate))

@@ -58,7 +58,8 @@ TEMPERATURE = 0.7
 @dataclass
 class Generated:
     """K generated clips in canonical coordinates at the canonical size, on the floor: ``q`` [K, T, 39] (guided
-    when guidance ran), ``unguided`` [K, T, 39], the codes [K, N], guidance history and the request."""
+    when guidance ran), ``unguided`` [K, T, 39], ``unplanted`` [K, T, 39] (after latent guidance, before foot
+    planting; ``q`` when either did not run), the codes [K, N], guidance history and the request."""
 
     q: torch.Tensor
     unguided: torch.Tensor
@@ -66,6 +67,11 @@ class Generated:
     rate: float
     action: ActionRequest
     history: list[dict[str, float]] = field(default_factory=list)
+    unplanted: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.unplanted is None:
+            self.unplanted = self.q
 
     def motions(self, height: float | None = None, guided: bool = True) -> list[Motion]:
         """Each clip as a canonical `Motion`; pelvis translations scaled to a person of ``height`` (m)."""
@@ -191,4 +197,5 @@ class Generator:
             height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
             speed = action.speed * GENERIC_HEIGHT / height
         result = guide(z0, speed)
-        return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history)
+        return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history,
+                         result.unplanted[:, :frames])
