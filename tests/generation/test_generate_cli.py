@@ -44,6 +44,9 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
                                             "text": metrics["request"]["action"]["text"]}
     # the weighted physics terms (Table 1 + ground) fall from the sample to the guided clip
     assert metrics["guidance_last_iteration"]["guidance"] < metrics["guidance_first_iteration"]["guidance"]
+    planting = metrics["foot_planting"]
+    assert 0 < planting["mean_change_deg"] <= planting["max_change_deg"] < 45
+    assert 0 < planting["frames_changed_over_1deg"] <= 1
     printed = capsys.readouterr().out
     assert "generated 1 x 1.5 s of 'run'" in printed and "at 3.5 m/s" in printed
 

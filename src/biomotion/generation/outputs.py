@@ -4,7 +4,8 @@ Per clip: ``motion.mot`` (OpenSim coordinates of the scaled model, degrees, coup
 (the same motion as a BVH skeleton of the model's bodies), ``grf.mot`` + ``grf_loads.xml`` (ground reaction
 inferred from the motion alone, PhysPT Eq. 4-5), ``torques.sto`` (inverse dynamics with that ground reaction),
 ``com_zmp.sto``, ``activations.sto`` (muscle surrogate, PG-BIG Sec. 3.3), ``metrics.json`` (the physics metrics of
-`biomotion eval` plus the guidance terms before and after guidance) and plots. ``model.osim`` (the person's model)
+`biomotion eval` plus the guidance terms before and after latent guidance and how much foot planting changed the
+legs) and plots. ``model.osim`` (the person's model)
 is written once per request. Files are written atomically by the writers they come from.
 """
 
@@ -31,6 +32,20 @@ def physics_metrics(motion: Motion, model) -> dict[str, dict]:
     records = summarize_set(clips, model, physics=True)
     return {k: {"label": r["label"], "unit": r["unit"], "value": r["mean"]} for k, r in records.items()
             if k != "diversity"}
+
+
+def planting_changes(generated) -> list[dict]:
+    """Per sample, how much foot planting (`biomotion.guidance.planting`) changed the legs: the largest and the
+    mean absolute change of a leg coordinate (deg) and the share of frames it changed by more than 1 deg; empty
+    when planting did not run."""
+    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.guidance.planting import leg_columns
+
+    change = (generated.q - generated.unplanted)[..., leg_columns(CANONICAL_COORDINATES)].abs().rad2deg()
+    if not bool((change > 0).any()):
+        return []
+    return [{"max_change_deg": float(c.max()), "mean_change_deg": float(c.mean()),
+             "frames_changed_over_1deg": float((c.amax(-1) > 1.0).float().mean())} for c in change.detach()]
 
 
 def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: np.ndarray | None,
@@ -117,11 +132,12 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
                        generated.history[-1], "guidance_iterations": len(generated.history)}
     geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry")
                      if p.is_dir())
+    planting = planting_changes(generated)
     result = {}
     for k, motion in enumerate(motions):
         folder = out if len(motions) == 1 else out / f"sample_{k + 1:02d}"
         extra = {"request": {**(request or {}), "sample": k + 1, "action": asdict(generated.action)},
-                 **guide_terms}
+                 **guide_terms, **({"foot_planting": planting[k]} if planting else {})}
         result[folder.name] = write_clip(folder, motion, model, model_file.resolve(),
                                          None if activations is None else activations[k], names, extra,
                                          figures=figures, geometry=geometry)
