@@ -68,7 +68,7 @@ class GuidanceConfig:
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 100.0
     contact_height: float = 0.05  # m, a foot point of the unguided sample this low is in contact (metrics' 5 cm)
-    planting: PlantingConfig | None = field(default_factory=PlantingConfig)  # last stage; None skips it
+    planting: PlantingConfig | None = PlantingConfig()  # the last stage (immutable settings); None skips it
 
     def alpha(self, k: int) -> float:
         """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
@@ -88,9 +88,9 @@ class Kinematics:
 
 @dataclass
 class GuidanceResult:
-    """Guided coordinates [B, T, 39] (canonical, on the floor; feet planted unless planting is off), the decoded
-    latents before planting ``unplanted``, final latents, per-iteration batch means: the total loss, ``guidance``
-    (the weighted physics sum, without the schedule's alpha) and each term."""
+    """Guided coordinates [B, T, 39] (canonical, on the floor; feet planted unless planting is off), the same
+    before planting (``unplanted``: the decoded final latents), final latents, per-iteration batch means: the total
+    loss, ``guidance`` (the weighted physics sum, without the schedule's alpha) and each term."""
 
     q: torch.Tensor
     unplanted: torch.Tensor
