@@ -101,6 +101,19 @@ def test_cli_build_on_a_subset_data_root(tmp_path, data_root):
     assert main(["data", "build", "--data-root", str(tmp_path / "nothing"), "--out", str(out), "--quiet"]) == 2
 
 
+def test_excluded_subjects_are_left_out_unread(tmp_path, data_root):
+    """`biomotion eval generation` builds only the people a model never saw; excluding everyone is an error."""
+    from biomotion.errors import BiomotionError
+
+    manifest = build_cache(data_root, tmp_path / "some", sources=["schreiber"], progress=False,
+                           exclude_subjects=["schreiber/2014001", "schreiber/2014004"])
+    subjects = {c["subject"] for c in manifest["clips"]}
+    assert subjects and not subjects & {"2014001", "2014004"}
+    everyone = {f"schreiber/{s}" for s in subjects | {"2014001", "2014004"}}
+    with pytest.raises(BiomotionError, match="excluded subject"):
+        build_cache(data_root, tmp_path / "none", sources=["schreiber"], progress=False, exclude_subjects=everyone)
+
+
 def test_percentile_bounds_are_stored_with_the_cache(cache):
     from biomotion.metrics.bounds import PercentileBounds
 

@@ -63,3 +63,14 @@ def test_speed_error_is_measured_at_the_persons_size():
     # a 1.87 m person: 3.4 m/s at the generic size is 3.74 m/s at theirs
     errors = speed_errors([motion, motion, motion], [3.74, None, 3.4], [1.87, 1.87, None])
     assert errors[0] == pytest.approx(0.0, abs=1e-9) and math.isnan(errors[1]) and errors[2] == pytest.approx(0.0)
+
+
+def test_manipulation_bar_needs_every_field_measured():
+    row = lambda ok: {"as_documented": ok}  # noqa: E731
+    table = _table()
+    met = {"fields": {"age": row(True), "style": row(True)}, "skipped": {}}
+    assert done_when(table, {}, met)["manipulation_moves_every_field_as_documented"] is True
+    missed = {"fields": {"age": row(True), "level": row(False)}, "skipped": {"style": "no such label"}}
+    assert done_when(table, {}, missed)["manipulation_moves_every_field_as_documented"] is False
+    unmeasured = {"fields": {"age": row(True)}, "skipped": {"style": "no such label"}}
+    assert done_when(table, {}, unmeasured)["manipulation_moves_every_field_as_documented"] is None

@@ -21,7 +21,7 @@ import multiprocessing
 import os
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -119,8 +119,12 @@ def _motions(specs: list, workers: int, progress: bool) -> Iterable[Motion]:
 
 
 def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT_RATE,
-                sources: Iterable[str] | None = None, progress: bool = True, workers: int | None = None) -> dict:
+                sources: Iterable[str] | None = None, progress: bool = True, workers: int | None = None,
+                exclude_subjects: Collection[str] = ()) -> dict:
     """Build the cache in ``out`` from every source present under ``data_root``; returns the manifest.
+
+    ``exclude_subjects`` ("source/subject" keys) leaves those people's clips out unread (`biomotion eval
+    generation` needs only the subjects a model never saw, and retargeting the others would cost minutes).
 
     A clip that fails to load stops the build with its file named (malformed data is an error, not a skip);
     sources absent from the data root are listed under ``skipped``. Files are written atomically, the manifest
@@ -130,6 +134,11 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     data_root, out = Path(data_root), Path(out)
     started = time.perf_counter()
     specs, skipped = discover_all(data_root, sources)
+    excluded = set(exclude_subjects)
+    kept = [spec for spec in specs if f"{spec.source}/{spec.subject}" not in excluded]
+    if specs and not kept:
+        raise BiomotionError(f"every clip under {data_root} belongs to an excluded subject ({len(excluded)} excluded)")
+    specs = kept
     if not specs:
         raise BiomotionError(f"no clips found under {data_root}; skipped: {'; '.join(skipped) or 'none'}")
     model = _placement_model(data_root)

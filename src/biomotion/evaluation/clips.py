@@ -16,7 +16,7 @@ Bandai-Namco skeleton), and the COM comes from Winter's segment table (Winter 20
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -261,12 +261,12 @@ def load_clip_set(spec: str | Path | Sequence[str | Path], data_root: str | Path
     return coordinate_set(coordinate_file_clips(files), model, rate, derivatives=derivatives)
 
 
-def build_temporary_cache(data_root: str | Path, sources: Sequence[str] | None = None
-                          ) -> tuple[tempfile.TemporaryDirectory, object]:
-    """A dataset cache of every registered source under ``data_root`` (or only ``sources``), in a temporary folder
-    (kept alive by the returned handle)."""
+def build_temporary_cache(data_root: str | Path, sources: Sequence[str] | None = None,
+                          exclude_subjects: Collection[str] = ()) -> tuple[tempfile.TemporaryDirectory, object]:
+    """A dataset cache of every registered source under ``data_root`` (or only ``sources``), without the
+    ``exclude_subjects`` ("source/subject"), in a temporary folder (kept alive by the returned handle)."""
     from biomotion.data.registry import DatasetCache, build_cache
 
     folder = tempfile.TemporaryDirectory(prefix="biomotion-eval-")
-    build_cache(data_root, folder.name, sources=sources, progress=False)
+    build_cache(data_root, folder.name, sources=sources, progress=False, exclude_subjects=exclude_subjects)
     return folder, DatasetCache(folder.name)
