@@ -363,8 +363,8 @@ def manipulation_study(generator, base: dict, action: ActionRequest, *, samples:
             for change in (low, high)]
         fields[name] = _row(f"{_describe(low)} -> {_describe(high)}", measure, *means, sign, source)
     vocabulary = generator.bundle.vocabulary
+    known = set(vocabulary.texts)
     for name, low, high, measure, sign, source in STYLE_MANIPULATIONS:
-        known = set(vocabulary.texts)
         if low not in known or high not in known:
             skipped[name] = f"the generator knows no label {low!r} or {high!r}"
             continue
@@ -392,7 +392,6 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
                     checkpoints: str | Path | None = None, max_seconds: float = 6.0, seed: int = 0,
                     manipulation_samples: int = 8, progress: bool = True, command: str = "") -> dict:
     """Run the whole evaluation on ``data_root``'s unseen subjects; write the JSON (and Markdown) report."""
-    from biomotion.data.sources import discover_all
     from biomotion.evaluation.clips import body_model, build_temporary_cache
     from biomotion.evaluation.harness import write_json, write_text
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
@@ -402,11 +401,11 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
     population = Generator.load(data_root, checkpoints, population=True, surrogate=False)
     # the sources the generator learnt from: it knows their actions and how their people are described
     trained_sources = sorted({key.split("/", 1)[0] for key in generator.bundle.train_subjects})
-    seen = set(generator.bundle.train_subjects)
-    specs, _ = discover_all(Path(data_root), trained_sources)
-    if not any(f"{spec.source}/{spec.subject}" not in seen for spec in specs):
-        raise BiomotionError(f"no unseen subject under {data_root}: every subject there was in the training set")
-    handle, cache = build_temporary_cache(data_root, sources=trained_sources, exclude_subjects=seen)
+    try:
+        handle, cache = build_temporary_cache(data_root, sources=trained_sources,
+                                              exclude_subjects=generator.bundle.train_subjects)
+    except BiomotionError as error:  # nothing left once the training subjects are left out
+        raise BiomotionError(f"no unseen subject under {data_root}: {error}") from error
     with handle:
         targets = unseen_targets(cache, generator.bundle.train_subjects, max_seconds)
         if not targets:
