@@ -52,6 +52,18 @@ def test_cubed_activations_satisfy_the_kkt_conditions():
         torch.testing.assert_close(columns @ lam, 3 * a[k][free] ** 2, rtol=0, atol=1e-6)
 
 
+def test_a_frame_the_bounds_cannot_balance_stops_early_and_leaves_the_others_unchanged():
+    arms, forces, torques, reserves = _feasible_problem()
+    alone = solve_static_optimization(arms, forces, torques, reserves)
+    impossible = torques.clone()
+    impossible[7] = 1e6   # far beyond every actuator's reach: no activation in [0.01, 1] balances it
+    result = solve_static_optimization(arms, forces, impossible, reserves, max_iterations=100)
+    others = torch.arange(len(torques)) != 7
+    assert not bool(result.converged[7]) and bool(result.converged[others].all())
+    torch.testing.assert_close(result.activations[others], alone.activations[others], rtol=0, atol=1e-12)
+    assert result.iterations < 100   # it stalls out instead of running the whole batch to max_iterations
+
+
 def test_bad_shapes_and_unactuated_coordinates_are_refused():
     arms, forces, torques, reserves = _feasible_problem(frames=2)
     with pytest.raises(ModelError, match="shapes"):

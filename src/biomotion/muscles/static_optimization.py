@@ -16,7 +16,10 @@ The per-frame problem is convex with a separable objective, so it is solved in t
 lambda, one per balanced coordinate; Bertsekas 1999, "Nonlinear Programming", 6.1): for given lambda the minimiser
 of each actuator's term is w_i = clip(sign(s_i) (|s_i|/p)^(1/(p-1)), lo_i, hi_i) with s = B^T lambda, and the
 concave dual is maximised by a semismooth Newton method with a backtracking line search (Qi & Sun 1993,
-Math Program 58:353). All frames are solved together: one batched [T, C, C] linear solve per iteration.
+Math Program 58:353). All frames are solved together: one batched [T, C, C] linear solve per iteration over the
+frames still iterating. A frame leaves the batch once balanced, or once its imbalance stops falling (the bounded
+actuators cannot balance it: a filter's end effect, a missing reserve), so one such frame no longer keeps the
+whole trial iterating to ``max_iterations``.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ import torch
 from biomotion.errors import ModelError
 from biomotion.muscles.geometry import MusclePaths
 from biomotion.muscles.properties import MuscleParameters, max_active_force
+
+STALL_ITERATIONS = 15   # a frame whose torque imbalance has not dropped by STALL_GAIN in this many iterations
+STALL_GAIN = 0.01       # stops: the bounded actuators cannot balance it (it is reported as not converged)
 
 
 @dataclass(frozen=True)
@@ -118,39 +124,54 @@ def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tenso
     lam = torques.new_zeros(t, c)
     s = lam.new_zeros(t, m + c)
     w, slope = _actuator_response(s, lower, upper, exponent)
+    # the frames still iterating: a frame leaves when balanced, or when its imbalance has not dropped by
+    # STALL_GAIN in STALL_ITERATIONS iterations (the bounds cannot balance it); the rest iterate on their own
+    live = torch.arange(t)
+    best = torch.full((t,), torch.inf, dtype=dtype)
+    since_best = torch.zeros(t, dtype=torch.long)
     iterations = 0
     for iterations in range(1, max_iterations + 1):
-        gradient = torques - _apply(b, w)                                  # dual ascent direction
+        b_l, tau_l, lam_l, s_l, w_l, slope_l = b[live], torques[live], lam[live], s[live], w[live], slope[live]
+        gradient = tau_l - _apply(b_l, w_l)                                # dual ascent direction
         imbalance = gradient.abs().amax(-1)
-        active = imbalance > tolerance
-        if not bool(active.any()):
+        improved = imbalance < (1 - STALL_GAIN) * best[live]
+        best[live] = torch.where(improved, imbalance, best[live])
+        since_best[live] = torch.where(improved, 0, since_best[live] + 1)
+        keep = (imbalance > tolerance) & (since_best[live] < STALL_ITERATIONS)
+        if not bool(keep.any()):
             break
+        if not bool(keep.all()):
+            live = live[keep]
+            b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance = (
+                x[keep] for x in (b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance))
+        n, scale_l, damping_l = len(live), scale[live], damping[live]
         # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
-        mu = damping * scale * imbalance + 1e-12 * scale ** 2
-        hessian = (b * slope[:, None, :]) @ b.transpose(-1, -2) + mu[:, None, None] * eye
+        mu = damping_l * scale_l * imbalance + 1e-12 * scale_l ** 2
+        hessian = (b_l * slope_l[:, None, :]) @ b_l.transpose(-1, -2) + mu[:, None, None] * eye
         step = torch.linalg.solve(hessian, gradient)
-        value = _dual_value(lam, w, s, torques, exponent)
+        value = _dual_value(lam_l, w_l, s_l, tau_l, exponent)
         slope_along = (gradient * step).sum(-1)
-        alpha = torch.ones(t, dtype=dtype)
-        accepted = torch.zeros(t, dtype=torch.bool)
-        new = (lam, s, w, slope)
+        alpha = torch.ones(n, dtype=dtype)
+        accepted = torch.zeros(n, dtype=torch.bool)
+        new = (lam_l, s_l, w_l, slope_l)
         for _ in range(30):  # backtracking on the concave dual; frames accept independently
-            trial = lam + alpha[:, None] * step
-            s_trial = _apply_transposed(b, trial)
+            trial = lam_l + alpha[:, None] * step
+            s_trial = _apply_transposed(b_l, trial)
             w_trial, slope_trial = _actuator_response(s_trial, lower, upper, exponent)
-            gain = _dual_value(trial, w_trial, s_trial, torques, exponent) >= value + 1e-4 * alpha * slope_along
+            gain = _dual_value(trial, w_trial, s_trial, tau_l, exponent) >= value + 1e-4 * alpha * slope_along
             # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
-            drop = (torques - _apply(b, w_trial)).abs().amax(-1) <= 0.5 * imbalance
-            take = (gain | drop) & ~accepted & active
+            drop = (tau_l - _apply(b_l, w_trial)).abs().amax(-1) <= 0.5 * imbalance
+            take = (gain | drop) & ~accepted
             new = tuple(torch.where(take.view(-1, *([1] * (x.dim() - 1))), y, x)
                         for x, y in zip(new, (trial, s_trial, w_trial, slope_trial)))
             accepted = accepted | take
-            if bool(accepted[active].all()):
+            if bool(accepted.all()):
                 break
             alpha = torch.where(accepted, alpha, alpha / 2)
-        lam, s, w, slope = new
+        lam[live], s[live], w[live], slope[live] = new
         full = accepted & (alpha == 1)
-        damping = torch.where(accepted, torch.where(full, damping / 3, damping), damping * 10).clamp(1e-9, 1e6)
+        damping[live] = torch.where(accepted, torch.where(full, damping_l / 3, damping_l),
+                                    damping_l * 10).clamp(1e-9, 1e6)
     residual = _apply(b, w) - torques
     activations, controls = w[:, :m], w[:, m:]
     return StaticOptimizationResult(activations, activations * max_forces, controls,
