@@ -1,0 +1,244 @@
+"""The whole analysis chain — marker IK, inverse dynamics, static optimization — side by side with OpenSim 4.6 on
+one trial; writes docs/results/analysis_chain.md.
+
+    python benchmarks/analysis_chain.py [--data-root ../shared/data] [--repeats 3] [--threads 1 2]
+
+The project's speed north star: IK + ID + SO of a trial at >= 300 frames/s on 2 CPU cores at OpenSim's accuracy.
+Trial: the gait2392 subject01 walk (`Pipelines/Gait2392_Simbody`), every stage on ``subject01_simbody.osim``:
+
+- OpenSim: ``InverseKinematicsTool`` with the trial's IK setup (marker weights, coordinate tasks, time range,
+  accuracy), then ``InverseDynamicsTool`` and ``AnalyzeTool`` + ``StaticOptimization`` on OpenSim's own IK
+  result (6 Hz, ``subject01_walk1_grf.xml``, squared activations with muscle physiology, step interval 1,
+  ``gait2392_SO_Residual_Actuators.xml``); each tool's ``run()`` timed once (OpenSim is single-threaded).
+- biomotion: `biomotion.ik.solve_ik` on the same markers and setup; the same 6 Hz filter and spline derivatives
+  as OpenSim's ID tool (`Motion.smoothed`) and batched `inverse_dynamics` with the same plate loads; batched
+  `optimize_activations` with the shipped gait2392 path functions and the residual actuators as pelvis reserves
+  (`biomotion.muscles.validation.gait_static_optimization`). Best wall time of ``--repeats`` runs per torch
+  thread count, after one warm-up run.
+
+Accuracy, each chain end to end from the same markers: joint angles (RMSE, deg), joint torques (RMSE / peak on
+coordinates whose peak exceeds 10 N·m) and activations (R² per muscle against OpenSim's, mean and worst).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.analysis import loads_on_frames, model_motion, torque_labels, unwrapped
+from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
+from biomotion.body.model import BodyModel
+from biomotion.ik import solve_ik
+from biomotion.ik.setup import read_ik_setup
+from biomotion.ik.validate import opensim_ik
+from biomotion.io.atomic import atomic_write
+from biomotion.io.mot import read_ground_reaction, read_storage, write_motion
+from biomotion.io.trc import read_trc
+from biomotion.muscles.geometry import shipped_paths
+from biomotion.muscles.properties import read_muscles
+from biomotion.muscles.static_optimization import optimize_activations
+from biomotion.muscles.validation import GAIT, GAIT_MODEL, RESIDUALS, opensim_static_optimization, r_squared
+from biomotion.validation.oracle import run_inverse_dynamics_tool
+
+REPO = Path(__file__).resolve().parents[1]
+CUTOFF_HZ = 6.0
+PLATES = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}   # subject01_walk1_grf.xml
+NORTH_STAR_FPS = 300.0
+
+
+def opensim_chain(root: Path, folder: Path) -> dict:
+    """OpenSim's three tools in sequence on the walk; seconds per tool, its q, torques and activations."""
+    setup = read_ik_setup(root / GAIT / "subject01_Setup_IK.xml")
+    model = (root / GAIT_MODEL).resolve()
+    ik = opensim_ik(model, setup.file("marker_file"), weights=setup.marker_weights,
+                    coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range, accuracy=setup.accuracy)
+    coordinates = write_motion(folder / "opensim_ik.mot", ik.motion)
+    start, end = float(ik.motion.times[0]), float(ik.motion.times[-1])
+    loads = (root / GAIT / "subject01_walk1_grf.xml").resolve()
+    began = time.perf_counter()
+    torques = read_storage(run_inverse_dynamics_tool(model, coordinates, loads, folder / "id", start, end))
+    id_seconds = time.perf_counter() - began
+    so = opensim_static_optimization(model, coordinates.resolve(), loads,
+                                     (root / GAIT / "gait2392_SO_Residual_Actuators.xml").resolve(), start, end,
+                                     workdir=folder)
+    return {"setup": setup, "ik": ik.motion, "torques": torques, "so": so,
+            "seconds": {"ik": ik.seconds, "id": id_seconds, "so": so.seconds}}
+
+
+def biomotion_chain(root: Path, setup, model: BodyModel, markers, forces, paths, muscles) -> dict:
+    """Our three stages in sequence; seconds per stage and what each produced."""
+    began = time.perf_counter()
+    ik = solve_ik(model, markers, weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks,
+                  time_range=setup.time_range)
+    after_ik = time.perf_counter()
+    coordinates, qd, qdd = unwrapped(model_motion(ik.motion, model), model).smoothed(CUTOFF_HZ)
+    on_frames = loads_on_frames(forces, coordinates.times)
+    loads = [ExternalLoad(on_frames.bodies[j], torch.from_numpy(on_frames.force[:, j]),
+                          torch.from_numpy(np.nan_to_num(on_frames.cop[:, j])),
+                          torch.from_numpy(on_frames.moment[:, j])) for j in range(on_frames.n_channels)]
+    q, qd_t, qdd_t = (torch.from_numpy(np.ascontiguousarray(a)) for a in (coordinates.values, qd, qdd))
+    with torch.no_grad():
+        tau = inverse_dynamics(model, q, qd_t, qdd_t, loads)
+    after_id = time.perf_counter()
+    balanced = [n for n, locked in zip(model.coordinate_names, model.locked.tolist()) if not locked]
+    order = [model.coordinate_names.index(n) for n in paths.coordinate_names]
+    result = optimize_activations(paths, muscles, q[:, order], qd_t[:, order],
+                                  tau[:, [model.coordinate_names.index(n) for n in balanced]], balanced, RESIDUALS)
+    done = time.perf_counter()
+    return {"ik": ik.motion, "q": coordinates, "torques": tau.numpy(), "so": result,
+            "seconds": {"ik": after_ik - began, "id": after_id - after_ik, "so": done - after_id}}
+
+
+def accuracy(model: BodyModel, ours: dict, theirs: dict, trim: float = 0.0) -> dict:
+    """Angles (the two IK results), torques and activations of our chain against OpenSim's, on OpenSim's frames
+    inside our trial, leaving out ``trim`` seconds at each end: OpenSim's ID and SO tools resample the IK onto
+    their own time grid (126 frames from 8 ms before the IK's first frame here) and pad the ends their own way,
+    so the first and last frames of the two chains are not the same computation."""
+    first, last = ours["q"].times[0] + trim, ours["q"].times[-1] - trim
+    reference = theirs["ik"].select(model.coordinate_names)
+    rotational = [c for c, kind in enumerate(model.motion_types)
+                  if kind == "rotational" and not bool(model.locked[c])]
+    frames = (reference.times >= first) & (reference.times <= last)
+    ours_ik = ours["ik"].select(model.coordinate_names)
+    ours_q = np.stack([np.interp(reference.times[frames], ours_ik.times, ours_ik.values[:, c])
+                       for c in range(model.n_q)], 1)
+    difference = (ours_q - reference.values[frames])[:, rotational]
+    angle_rmse = np.degrees(np.sqrt(np.mean(difference ** 2, axis=0)))
+    torque_errors = {}
+    table = theirs["torques"]
+    frames = (table.times >= first) & (table.times <= last)
+    for c, label in enumerate(torque_labels(model)):
+        if label in table.labels:
+            expected = table.data[:, table.labels.index(label)]
+            got = np.interp(table.times[frames], ours["q"].times, ours["torques"][:, c])
+            peak = float(np.abs(expected).max())
+            if peak > 10.0:
+                torque_errors[label] = float(np.sqrt(np.mean((got - expected[frames]) ** 2)) / peak)
+    so = theirs["so"]
+    result = ours["so"]
+    frames = (so.times >= first) & (so.times <= last)
+    activations = result.activations.numpy()[:, [result.muscle_names.index(m) for m in so.muscle_names]]
+    ours_a = np.stack([np.interp(so.times[frames], ours["q"].times, activations[:, k])
+                       for k in range(activations.shape[1])], 1)
+    r2 = r_squared(ours_a, so.activations[frames])
+    return {"trim_s": trim, "frames": int(frames.sum()), "angle_rmse_deg_max": float(angle_rmse.max()),
+            "angle_worst": model.coordinate_names[rotational[int(angle_rmse.argmax())]],
+            "torque_rmse_rel_max": max(torque_errors.values()),
+            "torque_worst": max(torque_errors, key=torque_errors.get),
+            "activation_r2_mean": float(r2.mean()), "activation_r2_median": float(np.median(r2)),
+            "activation_r2_min": float(r2.min()), "activation_worst": so.muscle_names[int(r2.argmin())]}
+
+
+def report(frames: int, theirs: dict, timings: dict[int, dict], figures: tuple[dict, dict], converged: str,
+           repeats: int) -> str:
+    os_seconds = theirs["seconds"]
+    os_total = sum(os_seconds.values())
+    fps = lambda seconds: frames / seconds
+    lines = [
+        "# Whole analysis chain: IK + inverse dynamics + static optimization vs OpenSim 4.6",
+        "",
+        f"gait2392 subject01 walk, {frames} frames ({theirs['ik'].times[0]:.2f}-{theirs['ik'].times[-1]:.2f} s at "
+        f"60 Hz), `subject01_simbody.osim`. Produced by `python benchmarks/analysis_chain.py --repeats {repeats}`; "
+        "each chain runs from the same markers end to end (see the script's docstring). OpenSim's tools are "
+        "single-threaded and timed once; ours is the best of the repeats after a warm-up run. Absolute times vary "
+        "with the machine and its load; the ratios, measured in the same run, are the result.",
+        "",
+        f"Machine: {platform.processor() or platform.machine()}, load average "
+        f"{', '.join(f'{x:.1f}' for x in _load())}; Python {platform.python_version()}, torch {torch.__version__}; "
+        f"{time.strftime('%Y-%m-%d')}.",
+        "",
+        "| stage | OpenSim 4.6 (ms/frame) | " + " | ".join(f"biomotion, {t} thread{'s' * (t > 1)} (ms/frame)"
+                                                          for t in timings) + " |",
+        "|---|---|" + "---|" * len(timings),
+    ]
+    for stage, label in (("ik", "inverse kinematics"), ("id", "inverse dynamics (6 Hz, plates)"),
+                         ("so", "static optimization")):
+        lines.append(f"| {label} | {1000 * os_seconds[stage] / frames:.2f} | "
+                     + " | ".join(f"{1000 * t[stage] / frames:.2f}" for t in timings.values()) + " |")
+    lines.append(f"| **whole chain** | {1000 * os_total / frames:.1f} | "
+                 + " | ".join(f"**{1000 * sum(t.values()) / frames:.2f}**" for t in timings.values()) + " |")
+    lines.append(f"| frames/s | {fps(os_total):.1f} | "
+                 + " | ".join(f"**{fps(sum(t.values())):.0f}**" for t in timings.values()) + " |")
+    lines.append(f"| ratio to OpenSim | 1 | "
+                 + " | ".join(f"{os_total / sum(t.values()):.0f}x" for t in timings.values()) + " |")
+    best = max(fps(sum(t.values())) for t in timings.values())
+    lines += [
+        "",
+        f"North star: {NORTH_STAR_FPS:.0f} frames/s on 2 cores. Best measured here: {best:.0f} frames/s "
+        f"({'met' if best >= NORTH_STAR_FPS else 'not met'}).",
+        "",
+        "Accuracy of our chain against OpenSim's, both run from the same markers; frames of OpenSim's outputs "
+        "inside our trial, all of them and without the first and last 0.05 s (see `accuracy` in the script):",
+        "",
+        "| figure | all frames | without the ends |",
+        "|---|---|---|",
+    ]
+    whole, inner = figures
+    lines += [
+        f"| frames compared (SO) | {whole['frames']} | {inner['frames']} |",
+        f"| joint angles, worst coordinate RMSE (deg) | {whole['angle_rmse_deg_max']:.3f} ({whole['angle_worst']}) | "
+        f"{inner['angle_rmse_deg_max']:.3f} ({inner['angle_worst']}) |",
+        f"| joint torques, worst RMSE / peak (peak > 10 N·m) | {100 * whole['torque_rmse_rel_max']:.2f} % "
+        f"({whole['torque_worst']}) | {100 * inner['torque_rmse_rel_max']:.2f} % ({inner['torque_worst']}) |",
+        f"| activations, mean R² over {len(theirs['so'].muscle_names)} muscles | {whole['activation_r2_mean']:.4f} | "
+        f"{inner['activation_r2_mean']:.4f} |",
+        f"| activations, median R² | {whole['activation_r2_median']:.4f} | {inner['activation_r2_median']:.4f} |",
+        f"| activations, worst muscle R² | {whole['activation_r2_min']:.3f} ({whole['activation_worst']}) | "
+        f"{inner['activation_r2_min']:.3f} ({inner['activation_worst']}) |",
+        f"| our static optimization: balanced frames | {converged} | |",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _load() -> tuple[float, ...]:
+    try:
+        import os
+        return os.getloadavg()
+    except OSError:
+        return (float("nan"),) * 3
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data-root", default=str(REPO.parent / "shared" / "data"))
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--out", default=str(REPO / "docs" / "results" / "analysis_chain.md"))
+    args = parser.parse_args(argv)
+    root = Path(args.data_root)
+
+    with tempfile.TemporaryDirectory(prefix="biomotion-chain-") as folder:
+        theirs = opensim_chain(root, Path(folder))
+    setup = theirs["setup"]
+    model = BodyModel.from_osim(root / GAIT_MODEL)
+    markers = read_trc(setup.file("marker_file"))
+    forces = read_ground_reaction(root / GAIT / "subject01_walk1_grf.mot")
+    forces = forces.assign([PLATES.get(name) for name in forces.names]).select(list(PLATES))
+    paths = shipped_paths("gait2392_subject01")
+    muscles = read_muscles(root / GAIT_MODEL)
+    timings, ours = {}, None
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        biomotion_chain(root, setup, model, markers, forces, paths, muscles)   # warm-up
+        runs = [biomotion_chain(root, setup, model, markers, forces, paths, muscles) for _ in range(args.repeats)]
+        best = min(runs, key=lambda run: sum(run["seconds"].values()))
+        timings[threads], ours = best["seconds"], best
+    frames = int(ours["q"].n_frames)
+    figures = accuracy(model, ours, theirs), accuracy(model, ours, theirs, trim=0.05)
+    converged = f"{int(ours['so'].converged.sum())}/{len(ours['so'].converged)}"
+    text = report(frames, theirs, timings, figures, converged, args.repeats)
+    with atomic_write(args.out) as handle:
+        handle.write(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
