@@ -73,6 +73,9 @@ class LabelSettings:
     reserve_bound: float = 100.0          # |control| <= 100: up to 1000 N·m
     tolerance: float = 1e-6               # N·m on the torque balance
     max_iterations: int = 200
+    # the contact gate's width of the inferred ground reaction the torques come from, pinned at the value the
+    # shipped surrogate's labels were made with (`ContactSettings.height_scale` became 0.01 afterwards)
+    contact_height_scale: float = 0.02
 
 
 @dataclass(frozen=True)
@@ -128,10 +131,12 @@ class Labeler:
 
     def _prepare(self, motion: Motion) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, np.ndarray]:
         from biomotion.analysis import analyze, model_motion
+        from biomotion.body.contact import ContactSettings
 
         motion = self.prepare(motion)
         cutoff = self.settings.cutoff_hz
-        result = analyze(motion, self.model, cutoff_hz=cutoff)
+        result = analyze(motion, self.model, cutoff_hz=cutoff,
+                         contact=ContactSettings(height_scale=self.settings.contact_height_scale))
         coordinates = model_motion(motion, self.model)    # the same preparation analyze did, for qdot
         if cutoff and coordinates.n_frames > 15:
             coordinates, qd, _ = coordinates.smoothed(cutoff)
