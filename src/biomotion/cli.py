@@ -80,7 +80,7 @@ def _generate(args: argparse.Namespace) -> int:
         profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
         references=args.reference or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
         guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
-        command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+        command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
     a = result["action"]
     speed = "" if a.speed is None else f" at {a.speed:g} m/s"
     style = "" if a.style is None else f" ({a.style})"
@@ -350,6 +350,8 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
     generate.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
     generate.add_argument("--no-figures", action="store_true", help="no plots or viewer")
+    generate.add_argument("--threads", type=int, help="torch threads for sampling and guidance (default: 2, or "
+                                                      "the machine's cores if fewer)")
     generate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
                           help="folder with opensim-models/ (the canonical Rajagopal model; default: %(default)s)")
     generate.add_argument("--checkpoints", type=Path, help="folder of trained weights (default: the shipped ones)")

@@ -54,6 +54,7 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     (["--profile", "no_such_profile.yaml"], "profile file not found: no_such_profile.yaml"),
     (["--subject-table", "x.csv"], "--subject-table and --subject-id go together"),
+    (["--threads", "0"], "--threads must be at least 1, got 0"),
 ])
 def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, message):
     code = main(["generate", *args, "--action", "run", "--out", str(tmp_path / "o"),

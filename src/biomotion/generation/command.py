@@ -8,6 +8,7 @@ Motus, Schreiber, simple CSV).
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -15,6 +16,12 @@ from pathlib import Path
 
 from biomotion.errors import ConfigError, DataFormatError
 from biomotion.profile import Profile
+
+#: torch threads for sampling and guidance: the decoder's and the surrogate's convolutions gain a little from a
+#: second core (3 s guided clip, example profile, this shared 2-core machine, `python benchmarks/generation.py`:
+#: faster on 2 threads in 4 of 5 runs alternating 1 and 2 in one process, medians 0.70-1.07 s against 0.80-1.04 s;
+#: 0.74-0.88 s against 0.89-1.04 s in three pairs of separate processes)
+GENERATION_THREADS = 2
 
 
 def read_profile(path: str | Path) -> Profile:
@@ -53,13 +60,20 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                      profile_file: Path | None = None, subject_table: Path | None = None,
                      subject_id: str | None = None, references: Sequence[Path] = (), seconds: float = 3.0,
                      seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
-                     figures: bool = True, command: str = "") -> dict:
-    """Run the whole request; returns a summary (files per sample, timings, the action understood)."""
+                     figures: bool = True, command: str = "", threads: int | None = None) -> dict:
+    """Run the whole request; returns a summary (files per sample, timings, the action understood).
+
+    ``threads``: torch intra-op threads for sampling and guidance (default `GENERATION_THREADS`, at most the
+    machine's cores); the rest runs as the caller set it. Results differ between thread counts only by float
+    rounding."""
+    from biomotion.body.kinematics import torch_threads
     from biomotion.evaluation.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
     from biomotion.io.mot import read_motion
 
+    if threads is not None and threads < 1:
+        raise ConfigError(f"--threads must be at least 1, got {threads}")
     if profile_file is not None and subject_table is not None:
         raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
     if (subject_table is None) != (subject_id is None):
@@ -74,8 +88,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
         request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
     loaded = time.perf_counter()
-    generated = generator.generate(request, profile=profile, references=motions, seconds=seconds, samples=samples,
-                                   seed=seed, guidance=guidance, personalised=personalised)
+    with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
+        generated = generator.generate(request, profile=profile, references=motions, seconds=seconds,
+                                       samples=samples, seed=seed, guidance=guidance, personalised=personalised)
     done = time.perf_counter()
     files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
                              request={"command": command, "text": action, "seconds": seconds, "seed": seed,
