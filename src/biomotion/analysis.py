@@ -35,6 +35,7 @@ class Analysis:
     """Everything `analyze` computes, on the motion's frames (numpy, SI)."""
 
     motion: Motion                      # filtered coordinates in model order (couplers applied)
+    velocities: np.ndarray              # [T, n_q] their time derivatives (the ones the torques used)
     torques: np.ndarray                 # [T, n_q] generalized forces with the loads used
     torques_source: str                 # "measured" or "inferred"
     inferred: GroundReaction            # per foot, from kinematics only
@@ -172,7 +173,7 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
         zmp = zero_moment_point(model, q, qd, qdd, bodies=bodies)
         kinetic, potential = mechanical_energy(model, q, qd)
     return Analysis(
-        motion=coordinates, torques=torques.numpy(), torques_source="measured" if forces is not None else "inferred",
+        motion=coordinates, velocities=np.asarray(qd_np), torques=torques.numpy(), torques_source="measured" if forces is not None else "inferred",
         inferred=_as_ground_reaction(inferred, coordinates.times), measured=measured,
         root_residual=inferred.root_residual.numpy(), com=com.position.numpy(), com_velocity=com.velocity.numpy(),
         com_acceleration=com.acceleration.numpy(), zmp=zmp.numpy(), kinetic=kinetic.numpy(),
@@ -328,9 +329,10 @@ def support_polygons(points: np.ndarray, loaded: np.ndarray) -> np.ndarray:
     return out
 
 
-def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_inferred.mot") -> dict[str, Path]:
+def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_inferred.mot",
+                   extra_summary: dict | None = None) -> dict[str, Path]:
     """Write the analysis files into ``out`` (the inferred ground reaction as ``grf_file``, its ExternalLoads XML
-    beside it); returns them by role."""
+    beside it; ``extra_summary`` sections added to summary.json); returns them by role."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     times = result.motion.times
@@ -355,6 +357,6 @@ def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_in
               + [f"support_{k}_{a}" for k in range(support.shape[1]) for a in "xyz"])
     files["com_zmp"] = write_storage(out / "com_zmp.sto", labels, times, balance, name="COM and ZMP")
     with atomic_write(out / "summary.json") as handle:
-        json.dump(summary(result), handle, indent=1)
+        json.dump({**summary(result), **(extra_summary or {})}, handle, indent=1)
     files["summary"] = out / "summary.json"
     return files

@@ -139,10 +139,34 @@ def _analyze(args: argparse.Namespace) -> int:
             from biomotion.errors import DataFormatError
 
             raise DataFormatError(args.grf, "holds no force-plate data")
+    paths = check = None
+    if args.muscles is not None:   # before the analysis: a wrong path file fails fast and writes nothing
+        from biomotion.muscles.trial import check_paths, load_paths
+
+        paths, label = load_paths(args.muscles)
+        check = check_paths(paths, label, args.model, model.coordinate_names)
+        if check.warning:
+            print(f"biomotion: warning: {check.warning}", file=sys.stderr)
     result = analyze(motion, model, forces, cutoff_hz=args.cutoff)
-    files = write_analysis(result, args.out)
+    extra, solution = {}, None
+    if paths is not None:
+        from biomotion.muscles.trial import TrialSettings, activation_summary, trial_activations
+
+        solution = trial_activations(result, args.model, paths)
+        extra["muscles"] = activation_summary(solution, check, TrialSettings())
+    files = write_analysis(result, args.out, extra_summary=extra)
+    if solution is not None:
+        from biomotion.muscles.trial import write_activations
+
+        files["activations"] = write_activations(args.out / "activations.sto", result, solution)
     if not args.no_figures:
         files.update(_analysis_figures(args, result, files))
+        if solution is not None:
+            from biomotion.viz.plots import plot_activations
+
+            files["plot_activations"] = plot_activations(result.motion.times, solution.muscle_names,
+                                                         solution.activations.numpy(), args.out / "activations",
+                                                         title="static optimization")[0]
     figures = summary(result)
     print(f"analysed {figures['frames']} frames at {figures['rate_hz']:.0f} Hz on {model.name} "
           f"({figures['body_mass_kg']:.1f} kg); torques from {figures['torques_from']} ground reaction")
@@ -150,6 +174,10 @@ def _analyze(args: argparse.Namespace) -> int:
         ours, base = figures["inferred_vs_measured_vertical"], figures["com_baseline_vs_measured_vertical"]
         print(f"  vertical GRF from kinematics vs plates: R2 {ours['r2']:.3f}, RMSE {ours['rmse_bw']:.3f} BW "
               f"(COM baseline: R2 {base['r2']:.3f}, RMSE {base['rmse_bw']:.3f} BW)")
+    if solution is not None:
+        muscles = extra["muscles"]
+        print(f"  muscle activations: {muscles['muscles']} muscles balance {len(muscles['balanced_coordinates'])} "
+              f"coordinates on {muscles['frames_balanced']} of {muscles['frames']} frames")
     for role, path in files.items():
         print(f"  {role:20s} {path}")
     return 0
@@ -365,11 +393,20 @@ def build_parser() -> argparse.ArgumentParser:
                     "alone (always) and, with --grf, the measured plates assigned to the feet and used for the "
                     "torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
                     "coordinates_filtered.mot, summary.json, viewer.html and plots (joint angles, GRF, COM/ZMP) "
-                    "into --out.")
+                    "into --out; with --muscles also activations.sto (static optimization of those torques).",
+        epilog="example: biomotion analyze ../shared/data/opensim-models/Pipelines/Gait2392_Simbody/"
+               "subject01_walk1_ik.mot --model ../shared/data/opensim-models/Pipelines/Gait2392_Simbody/"
+               "OutputReference/subject01_simbody.osim --grf ../shared/data/opensim-models/Pipelines/"
+               "Gait2392_Simbody/subject01_walk1_grf.mot --muscles gait2392_subject01 --out out/walk")
     analyze.add_argument("trial", type=Path, help="coordinates (.mot/.sto), e.g. an IK result")
     analyze.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim model")
     analyze.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
     analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
+    analyze.add_argument("--muscles", metavar="PATHS",
+                         help="also muscle activations by static optimization (activations.sto): muscle path "
+                              "functions fitted on MODEL, a file from `python -m biomotion.muscles.fit_paths --model "
+                              "MODEL --out PATHS.safetensors`, or a shipped name: rajagopal2016 (the generic "
+                              "Rajagopal 2016 model), gait2392_subject01 (OpenSim's gait2392 subject01_simbody)")
     analyze.add_argument("--out", type=Path, required=True, help="output folder")
     analyze.add_argument("--geometry", type=Path, action="append",
                          help="extra folder of .vtp bone meshes for the viewer (repeatable)")

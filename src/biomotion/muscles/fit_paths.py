@@ -55,6 +55,7 @@ of the normalised range of a jump, where the gate can pick the wrong side: on Ra
 from __future__ import annotations
 
 import argparse
+import hashlib
 import math
 import time
 from collections import defaultdict
@@ -542,7 +543,9 @@ def fit_paths(model_path: str | Path, samples: int = 6000, seed: int = 0,
                                 torch.from_numpy(exponents), torch.from_numpy(np.concatenate(coefficients, 1)),
                                 torch.tensor(muscles), torch.from_numpy(np.concatenate(gates, 1)) if gated else None))
     worst = max(report.values(), key=lambda r: r["moment_arm_rmse_m"])
-    info = {"source": Path(model_path).name, "opensim": oracle.opensim.__version__, "samples": samples,
+    info = {"source": Path(model_path).name,
+            "source_sha256": hashlib.sha256(Path(model_path).read_bytes()).hexdigest(),
+            "opensim": oracle.opensim.__version__, "samples": samples,
             "held_out": n_test, "seed": seed, "moment_arm_target": "GeometryPath.computeMomentArm",
             "ranges": {oracle.coordinate_names[c]: list(box[c]) for c in used},
             "fit_seconds": round(time.perf_counter() - started), "muscles": report,
