@@ -291,6 +291,14 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
     forces = read_ground_reaction(data_root / emg.GRF_FILE)
     forces = forces.assign(emg.external_load_bodies(data_root / emg.GRF_LOADS, forces.names))
     loads = write_external_loads_xml(folder / "grf_walk.xml", forces, str(data_root / emg.GRF_FILE))
+    force_set, balanced = write_rajagopal_reserves(model, folder / "reserves.xml")
+    return RajagopalWalkInputs(generic, coordinates, loads, data_root / emg.GRF_FILE, force_set, balanced,
+                               (float(ik.motion.times[0]), float(ik.motion.times[-1])), float(ik.rmse))
+
+
+def write_rajagopal_reserves(model, path: Path) -> tuple[Path, tuple[str, ...]]:
+    """OpenSim ForceSet of the Rajagopal comparison's reserves (see `RAJAGOPAL_RESERVE`) for ``model`` (the
+    generic Rajagopal 2016 `BodyModel`); returns it and the balanced coordinates (those the muscles span)."""
     paths = shipped_paths("rajagopal2016")
     spanned = paths.spanned().any(0)
     dependent = {c.dependent for c in model.couplers}
@@ -304,12 +312,10 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
         actuators.append(f'<CoordinateActuator name="reserve_{name}"><coordinate>{name}</coordinate>'
                          f"<optimal_force>{force}</optimal_force><min_control>{-bound}</min_control>"
                          f"<max_control>{bound}</max_control></CoordinateActuator>")
-    force_set = folder / "reserves.xml"
-    force_set.write_text('<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">'
-                         '<ForceSet name="reserves"><objects>' + "".join(actuators) +
-                         "</objects><groups /></ForceSet></OpenSimDocument>\n")
-    return RajagopalWalkInputs(generic, coordinates, loads, data_root / emg.GRF_FILE, force_set, balanced,
-                               (float(ik.motion.times[0]), float(ik.motion.times[-1])), float(ik.rmse))
+    path.write_text('<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">'
+                    '<ForceSet name="reserves"><objects>' + "".join(actuators) +
+                    "</objects><groups /></ForceSet></OpenSimDocument>\n")
+    return path, balanced
 
 
 def rajagopal_static_optimization(inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimization,
