@@ -405,7 +405,8 @@ def build_parser() -> argparse.ArgumentParser:
     analyze.add_argument("--muscles", metavar="PATHS",
                          help="also muscle activations by static optimization (activations.sto): muscle path "
                               "functions fitted on MODEL, a file from `python -m biomotion.muscles.fit_paths --model "
-                              "MODEL --out PATHS.safetensors`, or a shipped name: rajagopal2016 (the generic "
+                              "MODEL --out PATHS.safetensors` (minutes, once per model; needs opensim, the "
+                              "validate extra), or a shipped name: rajagopal2016 (the generic "
                               "Rajagopal 2016 model), gait2392_subject01 (OpenSim's gait2392 subject01_simbody)")
     analyze.add_argument("--out", type=Path, required=True, help="output folder")
     analyze.add_argument("--geometry", type=Path, action="append",
