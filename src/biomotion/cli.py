@@ -394,9 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
                     "coordinates_filtered.mot, summary.json, viewer.html and plots (joint angles, GRF, COM/ZMP) "
                     "into --out; with --muscles also activations.sto (static optimization of those torques).",
-        epilog="example, in ../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
-               "subject01_walk1_ik.mot --model OutputReference/subject01_simbody.osim --grf subject01_walk1_grf.mot "
-               "--muscles gait2392_subject01 --out walk")
+        epilog="example, with G=../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
+               "$G/subject01_walk1_ik.mot --model $G/OutputReference/subject01_simbody.osim --grf "
+               "$G/subject01_walk1_grf.mot --muscles gait2392_subject01 --out out/walk")
     analyze.add_argument("trial", type=Path, help="coordinates (.mot/.sto), e.g. an IK result")
     analyze.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim model")
     analyze.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
