@@ -7,7 +7,8 @@ PG-BIG Table 5 they make are justified by this table.
 For each setting: `examples/runner_52_acl.yaml` asked to run at 3.5 m/s, walk and squat, 2 samples of 3 s each,
 seed 1; the physics metrics of `biomotion eval` (mean over the 6 clips) of the unguided sample and of each guided
 variant: the defaults, the defaults without foot planting (`biomotion.guidance.planting`), planting that may also
-bend the toes, and without planting (to compare latent guidance alone) Table 5's weights (l_omega 10, l_foot 1,
+bend the toes, planting whose stance threshold is the metrics' 5 cm contact height instead of 3 cm, and without
+planting (to compare latent guidance alone) Table 5's weights (l_omega 10, l_foot 1,
 l_ground 10, lr 0.05) and re-quantisation at iteration 30.
 Muscle-limit violations are the share of frames x muscles whose surrogate activation leaves the training 5-95 %
 band (as `biomotion eval generation` counts them).
@@ -34,6 +35,7 @@ ACTIONS = ("run at 3.5 m/s", "walk", "squat")
 KEYS = ("foot_contact_velocity", "skate_ratio", "floating", "penetration", "jerk", "energy_com", "muscle_violations")
 SETTINGS = {"unguided": None, "defaults": {}, "no foot planting": {"planting": None},
             "planting also bends the toes": {"planting": PlantingConfig(coordinates=LEG_COORDINATES + ("mtp_angle",))},
+            "planting stance below 5 cm (the metrics' contact height)": {"planting": PlantingConfig(stance_height=0.05)},
             "Table 5 weights, no planting": {"w_angular_velocity": 10.0, "w_foot_contact": 1.0, "w_ground": 10.0,
                                              "lr": 0.05, "planting": None},
             "re-quantised at 30, no planting": {"quantize_at": 30, "planting": None}}
