@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from biomotion import __version__
@@ -266,11 +267,15 @@ def _retarget(args: argparse.Namespace) -> int:
     from biomotion.ik.setup import read_ik_setup
     from biomotion.ik.skeleton import JointMap
 
-    weights = read_ik_setup(args.setup).marker_weights if args.setup else None
+    setup = read_ik_setup(args.setup) if args.setup else None
+    if setup is not None and setup.time_range is not None and args.input.is_dir():
+        print(f"note: the time range of {args.setup} belongs to one trial; the trials of {args.input} are solved "
+              "whole")
+        setup = replace(setup, time_range=None)
     joint_map = JointMap.from_file(args.joint_map) if args.joint_map else None
-    summaries = retarget(motion_files(args.input), BodyModel.from_osim(args.model), args.out, weights=weights,
-                         filter_hz=args.filter, joint_map=joint_map, model_path=args.model,
-                         progress=not args.quiet)
+    summaries = retarget(motion_files(args.input), BodyModel.from_osim(args.model), args.out,
+                         weights=setup.marker_weights if setup else None, filter_hz=args.filter,
+                         joint_map=joint_map, model_path=args.model, setup=setup, progress=not args.quiet)
     failed = [s for s in summaries if s.error]
     for summary in summaries:
         state = f"FAILED: {summary.error}" if summary.error else \
@@ -449,8 +454,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "model coordinates (.mot) by batched IK",
         description="Marker trials: inverse kinematics of every frame at once on MODEL, the subject's scaled model "
                     "(weighted least squares, coordinate ranges, locked and coupled coordinates, occluded markers "
-                    "skipped per frame); marker weights come from an OpenSim IK setup (--setup) or are 1 for every "
-                    "model marker found in the data. Skeletons (BVH, or marker files of joint centres with "
+                    "skipped per frame); marker weights, coordinate tasks and time range come from an OpenSim IK setup "
+                    "(--setup), or every model marker found in the data weighs 1. Skeletons (BVH, or marker files of joint centres with "
                     "--joint-map): MODEL is the generic model, scaled to each skeleton's segment lengths and fitted "
                     "to its joint centres (PG-BIG A.5), coordinates filtered at 10 Hz when the frame rate is at "
                     "least 40 Hz and kept in range, feet put on y = 0; the scaled model is written as <trial>.osim. Writes <trial>.mot per trial and "
@@ -460,7 +465,9 @@ def build_parser() -> argparse.ArgumentParser:
     retarget.add_argument("--model", type=Path, required=True,
                           help="markers: the subject's scaled .osim (with markers); skeletons: the generic .osim "
                                "(e.g. Rajagopal2016.osim)")
-    retarget.add_argument("--setup", type=Path, help="OpenSim IK setup XML to take marker weights from")
+    retarget.add_argument("--setup", type=Path, help="OpenSim IK setup XML: its marker weights, coordinate tasks "
+                                                     "and (for a single trial) time range, as OpenSim's IK tool "
+                                                     "uses them")
     retarget.add_argument("--joint-map", type=Path,
                           help='JSON {"centres": {model joint: skeleton joint}, "toes": {model toe joint: skeleton '
                                'joint}}: treat the input as joint centres (built in: the Bandai-Namco skeleton)')

@@ -22,10 +22,11 @@ from tqdm import tqdm
 from biomotion.body.model import BodyModel
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.ik.markers import solve_ik
+from biomotion.ik.setup import IKSetup
 from biomotion.ik.skeleton import FILTER_HZ, JointMap, joint_positions, retarget_skeleton, write_scaled_model
 from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d_markers
-from biomotion.io.mot import write_motion
+from biomotion.io.mot import read_motion, write_motion
 from biomotion.io.tables import write_csv
 from biomotion.io.trc import read_trc
 from biomotion.motion import Markers
@@ -95,11 +96,21 @@ def _summary(name: str, frames: int, errors: np.ndarray, output: str) -> TrialSu
 
 
 def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
-                      filter_hz: float | None) -> TrialSummary:
+                      filter_hz: float | None, setup: IKSetup | None) -> TrialSummary:
     markers = read_markers(path)
     if filter_hz:
         markers = markers.filtered(filter_hz)
-    result = solve_ik(model, markers, weights=dict(weights) if weights else None)
+    tasks, data, time_range = (), None, None
+    if setup is not None:
+        tasks, time_range = setup.coordinate_tasks, setup.time_range
+        if any(task.value_type == "from_file" for task in tasks):
+            source = setup.file("coordinate_file")
+            if source is None or not source.exists():
+                raise ConfigError(f"{setup.path}: its coordinate tasks read values from a coordinate file, and "
+                                  f"{source or 'none'} is not there")
+            data = read_motion(source)
+    result = solve_ik(model, markers, weights=dict(weights) if weights else None, coordinate_tasks=tasks,
+                      coordinate_data=data, time_range=time_range)
     output = write_motion(out / f"{name}.mot", result.motion)
     return _summary(name, result.motion.n_frames, result.errors, output.name)
 
@@ -115,12 +126,14 @@ def _retarget_skeleton(path: Path, model: BodyModel, model_path: Path, out: Path
 
 def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: Mapping[str, float] | None = None,
              filter_hz: float | None = None, joint_map: JointMap | None = None, model_path: Path | None = None,
-             progress: bool = True) -> list[TrialSummary]:
+             setup: IKSetup | None = None, progress: bool = True) -> list[TrialSummary]:
     """Retarget every file and write ``<trial>.mot`` (and ``<trial>.osim`` for skeletons) plus ``summary.csv``.
 
     Marker files are solved on ``model`` as it is (the subject's scaled model), with marker ``weights``
     (default: every model marker found in the data, weight 1) after an optional ``filter_hz`` low-pass of the
-    markers (zero-lag Butterworth; the Fukuchi chain uses 10 Hz). BVH files, and marker files when a
+    markers (zero-lag Butterworth; the Fukuchi chain uses 10 Hz). An OpenSim IK ``setup`` adds what its tool
+    would use besides the weights: its coordinate tasks (``from_file`` values from its coordinate file) and its
+    time range, as OpenSim's InverseKinematicsTool does with that setup. BVH files, and marker files when a
     ``joint_map`` is given, are joint centres: ``model`` is the generic model scaled to each skeleton (it must
     have been read from ``model_path``, which the scaled copy is written from), and ``filter_hz`` (default 10)
     low-passes the coordinates. A trial that fails is recorded with its error and the batch goes on; malformed
@@ -136,7 +149,7 @@ def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: M
                     raise ConfigError("retargeting a skeleton writes the scaled model: give the model's file")
                 summaries.append(_retarget_skeleton(path, model, model_path, out, name, joint_map, filter_hz))
             else:
-                summaries.append(_retarget_markers(path, model, out, name, weights, filter_hz))
+                summaries.append(_retarget_markers(path, model, out, name, weights, filter_hz, setup))
         except BiomotionError as error:
             summaries.append(TrialSummary(name, 0, float("nan"), float("nan"), 0, "", str(error)))
     write_csv(out / "summary.csv", SUMMARY_COLUMNS, [s.row() for s in summaries])
