@@ -254,6 +254,15 @@ class MusclePaths:
 PATHS_DIR = Path(__file__).resolve().parent / "paths"
 
 
+def balanced_coordinates(paths: MusclePaths, model) -> tuple[str, ...]:
+    """The coordinates static optimization balances with these paths on ``model`` (a `BodyModel` with the same
+    coordinates): unlocked, independent (no coupler drives them) and spanned by some muscle."""
+    spanned = paths.spanned().any(0)
+    dependent = {c.dependent for c in model.couplers}
+    return tuple(name for j, name in enumerate(model.coordinate_names)
+                 if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent)
+
+
 def shipped_paths(name: str, dtype: torch.dtype = torch.float64) -> MusclePaths:
     """Path functions shipped with biomotion: ``"rajagopal2016"`` or ``"gait2392_subject01"``."""
     path = PATHS_DIR / f"{name}.safetensors"

@@ -50,7 +50,7 @@ from tqdm import tqdm
 from biomotion.errors import BiomotionError, DataFormatError, ModelError
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
-from biomotion.muscles.geometry import MusclePaths, shipped_paths
+from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
 from biomotion.muscles.properties import MuscleParameters, read_muscles
 from biomotion.muscles.static_optimization import (
     StaticOptimizationResult,
@@ -102,10 +102,7 @@ class Labeler:
         if tuple(model.coordinate_names) != paths.coordinate_names:
             raise ModelError("the shipped Rajagopal muscle paths and the model disagree on the coordinates")
         muscles = read_muscles(path).select(paths.muscle_names)
-        spanned = paths.spanned().any(0)
-        dependent = {c.dependent for c in model.couplers}
-        coordinates = tuple(n for j, n in enumerate(paths.coordinate_names)
-                            if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent)
+        coordinates = balanced_coordinates(paths, model)
         return cls(model, paths, muscles, coordinates, muscles.kind, settings)
 
     @property

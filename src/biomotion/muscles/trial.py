@@ -28,7 +28,7 @@ import torch
 from biomotion.analysis import Analysis
 from biomotion.errors import ModelError
 from biomotion.io.mot import write_storage
-from biomotion.muscles.geometry import MusclePaths, shipped_paths
+from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
 from biomotion.muscles.properties import read_muscles
 from biomotion.muscles.static_optimization import StaticOptimizationResult, optimize_activations
 
@@ -86,20 +86,11 @@ def check_paths(paths: MusclePaths, label: str, model_path: str | Path, coordina
     return PathCheck(label, source, True, None)
 
 
-def balanced_coordinates(paths: MusclePaths, result: Analysis) -> tuple[str, ...]:
-    """Unlocked, independent coordinates that some muscle spans."""
-    model = result.model
-    spanned = paths.spanned().any(0)
-    dependent = {c.dependent for c in model.couplers}
-    return tuple(name for j, name in enumerate(model.coordinate_names)
-                 if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent)
-
-
 def trial_activations(result: Analysis, model_path: str | Path, paths: MusclePaths,
                       settings: TrialSettings = TrialSettings()) -> StaticOptimizationResult:
     """Static optimization of every frame of ``result`` at once (see the module docstring)."""
     muscles = read_muscles(model_path).select(paths.muscle_names)
-    coordinates = balanced_coordinates(paths, result)
+    coordinates = balanced_coordinates(paths, result.model)
     names = result.model.coordinate_names
     q = torch.from_numpy(np.ascontiguousarray(result.motion.values, dtype=np.float64))
     qd = torch.from_numpy(np.ascontiguousarray(result.velocities, dtype=np.float64))

@@ -52,7 +52,7 @@ import torch
 
 from biomotion.errors import DataFormatError
 from biomotion.muscles.emg import SURROGATE, emg_check
-from biomotion.muscles.geometry import MusclePaths, shipped_paths
+from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
 from biomotion.muscles.properties import max_active_force, read_muscles
 from biomotion.muscles.surrogate_labels import LabelSettings
 from biomotion.muscles.static_optimization import (
@@ -299,11 +299,9 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
 def write_rajagopal_reserves(model, path: Path) -> tuple[Path, tuple[str, ...]]:
     """OpenSim ForceSet of the Rajagopal comparison's reserves (see `RAJAGOPAL_RESERVE`) for ``model`` (the
     generic Rajagopal 2016 `BodyModel`); returns it and the balanced coordinates (those the muscles span)."""
-    paths = shipped_paths("rajagopal2016")
-    spanned = paths.spanned().any(0)
+    balanced = balanced_coordinates(shipped_paths("rajagopal2016"), model)
     dependent = {c.dependent for c in model.couplers}
     free = [j for j in range(model.n_q) if not bool(model.locked[j]) and j not in dependent]
-    balanced = tuple(model.coordinate_names[j] for j in free if bool(spanned[j]))
     actuators = []
     for j in free:
         name = model.coordinate_names[j]
