@@ -373,7 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     person.add_argument("--subject-id", help="the person's id in --subject-table")
     person.add_argument("--reference", type=Path, action="append",
                         help="a clip of the person (OpenSim coordinates .mot/.sto, Rajagopal-family names); "
-                             "repeatable")
+                             "repeatable. The clips condition the prior and centre the motion on the person's "
+                             "posture (their mean deviation from the population's; each clip's action is taken as "
+                             "the one whose population posture is nearest; metrics.json lists the offset)")
     generate.add_argument("--action", required=True,
                           help="what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
                                "\"squat\", \"drop jump\", \"walk with toes out\")")

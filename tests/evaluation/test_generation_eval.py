@@ -74,3 +74,27 @@ def test_manipulation_bar_needs_every_field_measured():
     assert done_when(table, {}, missed)["manipulation_moves_every_field_as_documented"] is False
     unmeasured = {"fields": {"age": row(True)}, "skipped": {"style": "no such label"}}
     assert done_when(table, {}, unmeasured)["manipulation_moves_every_field_as_documented"] is None
+
+
+def test_the_identity_probe_never_trains_on_the_target_it_is_tested_on(monkeypatch):
+    """Subject A's clips 0 and 1 lie at x = 0, its clip 2 at x = 5; B's three clips at x = 6. Trained on every
+    reference (clip 2 is a reference of A's other targets), a probe would call clip 2 A's; trained without it, the
+    nearest evidence is B's. Each clip's embedding is its x, through a stand-in for the tokenizer embedding."""
+    import biomotion.evaluation.generation as evaluation
+    from biomotion.evaluation.generation import Target, identity_accuracy
+    from biomotion.motion import Motion
+
+    position = {0: 0.0, 1: 0.0, 2: 5.0, 3: 6.0, 4: 6.1, 5: 5.9}
+    subject = {k: "A" if k < 3 else "B" for k in position}
+
+    def clip(k: int) -> Motion:
+        return Motion(times=np.arange(4) / 30.0, values=np.full((4, 1), float(k)), names=("id",))
+
+    monkeypatch.setattr(evaluation, "embedding", lambda tokenizer, m: np.array([position[int(m.values[0, 0])], 1.0]))
+    targets = []
+    for k in position:
+        others = [j for j in position if subject[j] == subject[k] and j != k]
+        targets.append(Target(k, subject[k], clip(k), [clip(j) for j in others], others, ["run"] * 2, [None] * 2))
+    result = identity_accuracy(None, targets, {"reference": [t.motion for t in targets]})
+    assert result["train_clips"] == 6
+    assert result["reference"] == pytest.approx(5 / 6)  # all but A's clip 2, which is nearer B's clips

@@ -109,3 +109,29 @@ def test_reference_clips_of_flexion_negative_models_are_flipped(generator):
     with pytest.warns(BiomotionWarning, match="flexion-negative"):
         q_flipped, _ = reference_motion(flipped, generator.body, None)
     torch.testing.assert_close(q_flipped[:, knee], q_canonical[:, knee])
+
+
+def test_reference_clips_centre_the_sample_on_the_persons_posture(generator):
+    from biomotion.motion import Motion
+
+    knee = CANONICAL_COORDINATES.index("knee_angle_r")
+    population = np.full(39, np.nan)
+    population[knee] = 0.6
+    with_posture = GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * 39),
+                                  tuple(population), tuple([0.0] * 39), 3.5)
+    bounds = {ALL_ACTIONS: with_posture, "run": with_posture}
+    bundle = GeneratorBundle(generator.bundle.prior, generator.bundle.vocabulary, bounds)
+    personal = Generator(generator.tokenizer, bundle, generator.body, generator.surrogate)
+    t = np.arange(60) / 30.0
+    values = np.zeros((60, 39))
+    values[:, knee] = 0.75 + 0.2 * np.sin(2 * np.pi * t)  # the person runs 0.15 rad more bent than everyone
+    reference = Motion(times=t, values=values, names=CANONICAL_COORDINATES)
+    request = ActionRequest("run", None, 3.5, "run")
+    common = {"references": [reference], "reference_actions": ["run"], "reference_speeds": [3.5], "seconds": 1.0,
+              "seed": 3, "guidance": False}
+    out = personal.generate(request, **common)
+    assert float(out.unguided[0, :, knee].mean()) == pytest.approx(0.75, abs=1e-4)
+    assert float(out.posture[knee]) == pytest.approx(0.15, abs=1e-6)
+    plain = personal.generate(request, **common, posture=False)
+    assert plain.posture is None
+    assert abs(float(plain.unguided[0, :, knee].mean()) - 0.75) > 1e-2

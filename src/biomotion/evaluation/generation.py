@@ -14,6 +14,7 @@ label, and generates a clip as long as the target (at most ``max_seconds``). Var
 - ``no_guidance``: the same sample before guidance (w/o Guidance);
 - ``no_priming``: profile + references through the subject profiler only, the prior's context not primed with
   the reference's codes, with guidance;
+- ``no_posture``: as ``full`` without the person's posture offset (`biomotion.generation.posture`);
 - ``no_personalization``: profile and references dropped, with guidance (w/o Personalization);
 - ``population``: the action-only prior trained with ``--population`` (same tokens), no guidance: a
   population-level baseline of the T2M-GPT kind.
@@ -22,8 +23,9 @@ Every variant is scored with the per-clip metrics of `biomotion eval` on the can
 energy, joint range, ZMP in support), the paired fidelity metrics against the target (MJE, DTW fidelity, W2),
 and the share of frames x muscles whose surrogate activation leaves the training 5-95 % band (muscle-limit
 violations, PG-BIG Table 1's activation bounds). Identity probe: a logistic regression on pooled tokenizer
-latents, trained on the real *reference* clips of the unseen subjects, tested on the real targets and on each
-variant's generated targets (chance = 1 / subjects).
+latents; for each target, one probe is trained on the real clips of the unseen subjects other than the target's
+own clip (a subject's clips are each other's references, so a probe trained on all references would have seen
+every real target) and tested on the real target and on each variant's generated target (chance = 1 / subjects).
 """
 
 from __future__ import annotations
@@ -43,21 +45,27 @@ from biomotion.errors import BiomotionError
 from biomotion.generation.actions import ActionRequest
 from biomotion.motion import Motion
 
-VARIANTS = ("reference", "full", "no_planting", "no_guidance", "no_priming", "no_personalization", "population")
+VARIANTS = ("reference", "full", "no_planting", "no_guidance", "no_priming", "no_posture", "no_personalization",
+            "population")
 LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_planting": "w/o Foot planting",
           "no_guidance": "w/o Guidance",
-          "no_priming": "w/o Reference priming", "no_personalization": "w/o Personalization",
+          "no_priming": "w/o Reference priming", "no_posture": "w/o Posture offset",
+          "no_personalization": "w/o Personalization",
           "population": "Population (T2M-GPT-kind)"}
 
 
 @dataclass
 class Target:
-    """One evaluated clip: cache index, subject key, its real motion, its references' motions."""
+    """One evaluated clip: cache index, subject key, its real motion, its references' motions, cache indices,
+    action labels and speed labels (m/s, None where unlabelled)."""
 
     index: int
     subject: str
     motion: Motion
     references: list[Motion]
+    reference_indices: list[int]
+    reference_actions: list[str]
+    reference_speeds: list[float | None]
 
 
 MAX_TARGETS_PER_SUBJECT = 4
@@ -90,7 +98,9 @@ def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float,
             if motion.n_frames > limit:
                 motion = motion.frames(slice(0, limit))
             others = _evenly([j for j in indices if j != i], MAX_REFERENCES)
-            targets.append(Target(i, subject, motion, [cache.motion(j) for j in others]))
+            labels = [cache.records[j]["labels"] for j in others]
+            targets.append(Target(i, subject, motion, [cache.motion(j) for j in others], others,
+                                  [label["action"] for label in labels], [label.get("speed") for label in labels]))
     return targets
 
 
@@ -112,9 +122,11 @@ def generate_variants(targets: list[Target], cache, generator, population, *, se
         request = _request(cache, t.index)
         seconds = t.motion.n_frames / generator.rate
         profile = cache.profile(t.index)
-        full = generator.generate(request, profile=profile, references=t.references, seconds=seconds, seed=seed + k)
-        unprimed = generator.generate(request, profile=profile, references=t.references, seconds=seconds,
-                                      seed=seed + k, prime=False)
+        personal = {"profile": profile, "references": t.references, "reference_actions": t.reference_actions,
+                    "reference_speeds": t.reference_speeds, "seconds": seconds, "seed": seed + k}
+        full = generator.generate(request, **personal)
+        unprimed = generator.generate(request, **personal, prime=False)
+        unshifted = generator.generate(request, **personal, posture=False)
         generic = generator.generate(request, seconds=seconds, seed=seed + k, personalised=False)
         baseline = population.generate(request, seconds=seconds, seed=seed + k, guidance=False)
         out["reference"].append(t.motion)
@@ -122,6 +134,7 @@ def generate_variants(targets: list[Target], cache, generator, population, *, se
         out["no_planting"].append(_motion(full.unplanted[0], generator.rate))
         out["no_guidance"].append(_motion(full.unguided[0], generator.rate))
         out["no_priming"].append(_motion(unprimed.q[0], generator.rate))
+        out["no_posture"].append(_motion(unshifted.q[0], generator.rate))
         out["no_personalization"].append(_motion(generic.q[0], generator.rate))
         out["population"].append(_motion(baseline.q[0], generator.rate))
     return out
@@ -149,25 +162,33 @@ def embedding(tokenizer, motion: Motion) -> np.ndarray:
 
 
 def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list[Motion]]) -> dict:
-    """Identity-probe accuracy per variant: trained on the real references, tested on each variant's targets."""
+    """Identity-probe accuracy per variant: for each target a probe trained on every real reference clip of the
+    unseen subjects except the target's own clip, tested on the target of each variant."""
     from biomotion.metrics.probes import IdentityProbe
 
-    train_x, train_y = [], []
+    clips: dict[int, tuple[np.ndarray, str]] = {}
     for t in targets:
-        for r in t.references:
-            train_x.append(embedding(tokenizer, r))
-            train_y.append(t.subject)
+        for j, r in zip(t.reference_indices, t.references):
+            if j not in clips:
+                clips[j] = (embedding(tokenizer, r), t.subject)
     subjects = sorted({t.subject for t in targets})
-    if len(subjects) < 2 or not train_x:
+    if len(subjects) < 2 or not clips:
         return {"skipped": "needs at least two unseen subjects with reference clips"}
-    result = {"subjects": len(subjects), "chance": 1.0 / len(subjects), "train_clips": len(train_x)}
     keep = [k for k, t in enumerate(targets) if t.references]
-    for variant, motions in variants.items():
-        probe = IdentityProbe(("logistic_regression",))
-        probe.update(np.stack(train_x), np.array(train_y), train=True)
-        probe.update(np.stack([embedding(tokenizer, motions[k]) for k in keep]),
-                     np.array([targets[k].subject for k in keep]), train=False)
-        result[variant] = probe.compute()["logistic_regression"].accuracy
+    result = {"subjects": len(subjects), "chance": 1.0 / len(subjects), "train_clips": len(clips),
+              "probe": "logistic regression, one per target, trained without the target's own clip"}
+    hits: dict[str, list[bool]] = {v: [] for v in variants}
+    for k in keep:
+        train = [clips[j] for j in clips if j != targets[k].index]
+        if len({subject for _, subject in train}) < 2:
+            continue
+        for variant, motions in variants.items():
+            probe = IdentityProbe(("logistic_regression",))
+            probe.update(np.stack([x for x, _ in train]), np.array([subject for _, subject in train]), train=True)
+            probe.update(embedding(tokenizer, motions[k])[None], np.array([targets[k].subject]), train=False)
+            hits[variant].append(probe.compute()["logistic_regression"].accuracy == 1.0)
+    for variant, h in hits.items():
+        result[variant] = float(np.mean(h)) if h else float("nan")
     return result
 
 
@@ -266,8 +287,9 @@ def markdown(report: dict) -> str:
              head + "\n".join(rows) + "\n"]
     if "full" in ident:
         lines.append("## Identity probe (logistic regression on pooled tokenizer latents)\n\n"
-                     f"{ident['subjects']} subjects (chance {ident['chance']:.2f}), trained on "
-                     f"{ident['train_clips']} real reference clips.\n\n| Variant | accuracy |\n|---|---|\n"
+                     f"{ident['subjects']} subjects (chance {ident['chance']:.2f}); one probe per target, trained "
+                     f"on the {ident['train_clips']} real clips of these subjects other than the target's own.\n\n"
+                     "| Variant | accuracy |\n|---|---|\n"
                      + "".join(f"| {LABELS[v]} | {ident[v]:.2f} |\n" for v in VARIANTS) + "\n")
     if report.get("manipulation"):
         man = report["manipulation"]

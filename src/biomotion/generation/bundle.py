@@ -4,7 +4,11 @@ The guidance bounds are PG-BIG Table 1's statistical limits, measured on the tra
 COM speed has nothing in common with a squat's): the 95th percentile of each coordinate's |dq/dt| and the
 5th/95th percentiles of COM speed and COM acceleration magnitude; and, in the same form, the 95th percentile of
 each coordinate's |d3q/dt3| for the smoothness term we add (`biomotion.guidance.losses.angular_jerk`). Actions with too few frames fall back to the
-bounds over all actions (key ``"*"``).
+bounds over all actions (key ``"*"``). With them goes each action's population posture, from which
+`biomotion.generation.posture` measures how a person's reference clips deviate from the population: per
+coordinate, a least-squares line through the training clips' mean values against their labelled speed,
+P(v) = P + b (v - v_mean) (running faster bends the knees more: 4.7 deg per m/s on the training runners), or the
+mean of the clips' means where the action's clips do not all carry a speed or share one.
 """
 
 from __future__ import annotations
@@ -29,25 +33,34 @@ MIN_FRAMES = 30  # fewer frames of an action than this: use the all-action bound
 @dataclass(frozen=True)
 class GuidanceBounds:
     """Percentile bounds of one action: ``speed_high`` [39] (rad/s or m/s, NaN where never observed),
-    ``com_speed`` (low, high) m/s, ``com_acceleration`` (low, high) m/s^2, and the frames behind them."""
+    ``com_speed`` (low, high) m/s, ``com_acceleration`` (low, high) m/s^2, and the frames behind them; the
+    population posture: ``posture`` [39] (NaN where never observed) at the mean labelled speed ``posture_speed``
+    (m/s, NaN without speeds) and its change per m/s ``posture_slope`` [39] (module docstring; all empty in
+    bundles saved before postures existed)."""
 
     speed_high: tuple[float, ...]
     com_speed: tuple[float, float]
     com_acceleration: tuple[float, float]
     frames: int
     jerk_high: tuple[float, ...] = ()
+    posture: tuple[float, ...] = ()
+    posture_slope: tuple[float, ...] = ()
+    posture_speed: float = float("nan")
 
     def to_dict(self) -> dict:
         finite = lambda values: [None if not np.isfinite(v) else v for v in values]
         return {"speed_high": finite(self.speed_high), "jerk_high": finite(self.jerk_high),
                 "com_speed": list(self.com_speed), "com_acceleration": list(self.com_acceleration),
-                "frames": self.frames}
+                "frames": self.frames, "posture": finite(self.posture), "posture_slope": finite(self.posture_slope),
+                "posture_speed": finite([self.posture_speed])[0]}
 
     @classmethod
     def from_dict(cls, d: dict) -> GuidanceBounds:
-        values = lambda key: tuple(float("nan") if v is None else float(v) for v in d[key])
+        values = lambda key: tuple(float("nan") if v is None else float(v) for v in d.get(key, ()))
+        speed = d.get("posture_speed")
         return cls(values("speed_high"), tuple(d["com_speed"]), tuple(d["com_acceleration"]), int(d["frames"]),
-                   values("jerk_high"))
+                   values("jerk_high"), values("posture"), values("posture_slope"),
+                   float("nan") if speed is None else float(speed))
 
 
 def _p95(rows: np.ndarray) -> tuple[float, ...]:
@@ -55,12 +68,38 @@ def _p95(rows: np.ndarray) -> tuple[float, ...]:
         return tuple(float(np.nanpercentile(col, 95)) if np.isfinite(col).any() else float("nan") for col in rows.T)
 
 
-def _bounds(speeds: list[np.ndarray], jerks: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray]
-            ) -> GuidanceBounds:
+def population_posture(clip_means: np.ndarray, speeds: np.ndarray, *, with_speed: bool = True
+                       ) -> tuple[tuple[float, ...], tuple[float, ...], float]:
+    """(posture at the mean speed, slope per m/s, mean speed) from the clips' mean coordinates [C, 39] (NaN where
+    a clip lacks a coordinate) and labelled speeds [C] (NaN where unlabelled). The slope is fitted, per coordinate,
+    over the clips that have it, only when ``with_speed`` and every clip has a speed and not all are the same;
+    otherwise it is 0 and the posture is the mean of the clips' means."""
+    use_speed = with_speed and bool(np.isfinite(speeds).all()) and np.ptp(speeds) > 0
+    centre = float(speeds.mean()) if use_speed else float("nan")
+    posture, slope = [], []
+    for column in clip_means.T:
+        known = np.isfinite(column)
+        if not known.any():
+            posture.append(float("nan"))
+            slope.append(0.0)
+        elif use_speed and np.ptp(speeds[known]) > 0:
+            b, a = np.polyfit(speeds[known] - centre, column[known], 1)
+            posture.append(float(a))
+            slope.append(float(b))
+        else:
+            posture.append(float(column[known].mean()))
+            slope.append(0.0)
+    return tuple(posture), tuple(slope), centre
+
+
+def _bounds(speeds: list[np.ndarray], jerks: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray],
+            clip_means: list[np.ndarray], clip_speeds: list[float], per_action: bool) -> GuidanceBounds:
     v, a = np.concatenate(com_v), np.concatenate(com_a)
+    posture = population_posture(np.stack(clip_means), np.array(clip_speeds, dtype=np.float64),
+                                 with_speed=per_action)
     return GuidanceBounds(_p95(np.concatenate(speeds)), (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
                           (float(np.percentile(a, 5)), float(np.percentile(a, 95))), len(v),
-                          _p95(np.concatenate(jerks)))
+                          _p95(np.concatenate(jerks)), *posture)
 
 
 @torch.no_grad()
@@ -81,18 +120,19 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
         mask = cache.masks[i]
         speed = np.abs(np.diff(q, axis=0)) * rate
         speed[:, ~mask] = np.nan
+        mean = np.where(mask, q.mean(0), np.nan)
+        labelled = record["labels"].get("speed")
         jerk = np.abs(np.diff(q, 3, axis=0)) * rate ** 3
         jerk[:, ~mask] = np.nan
         full = np.where(mask[None], q, defaults[None])
         com = center_of_mass(body, torch.from_numpy(full).to(body.dtype))
         v, a = com_speed(com, rate)[:, 0].numpy(), com_acceleration(com, rate)[:, 0].numpy()
         for key in (record["labels"]["action"], ALL_ACTIONS):
-            bucket = groups.setdefault(key, ([], [], [], []))
-            bucket[0].append(speed)
-            bucket[1].append(jerk)
-            bucket[2].append(v)
-            bucket[3].append(a)
-    return {k: _bounds(*g) for k, g in groups.items() if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES}
+            bucket = groups.setdefault(key, ([], [], [], [], [], []))
+            for items, value in zip(bucket, (speed, jerk, v, a, mean, np.nan if labelled is None else labelled)):
+                items.append(value)
+    return {k: _bounds(*g, per_action=k != ALL_ACTIONS) for k, g in groups.items()
+            if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES}
 
 
 class GeneratorBundle:
@@ -108,6 +148,18 @@ class GeneratorBundle:
     def bounds_for(self, action: str) -> GuidanceBounds:
         """The action's bounds, or the all-action bounds when the action had too few training frames."""
         return self.bounds.get(action, self.bounds[ALL_ACTIONS])
+
+    def posture(self, action: str, speed: float | None = None) -> torch.Tensor | None:
+        """[39] the action's population posture at ``speed`` (m/s; None: at the action's mean speed) — the
+        all-action one where the action never had a coordinate, NaN where no training clip had it — or None for
+        a bundle saved without postures."""
+        own, everyone = self.bounds_for(action), self.bounds[ALL_ACTIONS]
+        if not own.posture or not everyone.posture:
+            return None
+        posture = torch.tensor(own.posture, dtype=torch.float64)
+        if speed is not None and np.isfinite(own.posture_speed):
+            posture = posture + torch.tensor(own.posture_slope, dtype=torch.float64) * (speed - own.posture_speed)
+        return torch.where(torch.isfinite(posture), posture, torch.tensor(everyone.posture, dtype=torch.float64))
 
     def high(self, action: str, quantity: str = "speed_high") -> torch.Tensor:
         """[39] upper bound of ``quantity`` (``speed_high`` or ``jerk_high``); coordinates never observed for the

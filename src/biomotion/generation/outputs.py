@@ -4,20 +4,22 @@ Per clip: ``motion.mot`` (OpenSim coordinates of the scaled model, degrees, coup
 (the same motion as a BVH skeleton of the model's bodies), ``grf.mot`` + ``grf_loads.xml`` (ground reaction
 inferred from the motion alone, PhysPT Eq. 4-5), ``torques.sto`` (inverse dynamics with that ground reaction),
 ``com_zmp.sto``, ``activations.sto`` (muscle surrogate, PG-BIG Sec. 3.3), ``metrics.json`` (the physics metrics of
-`biomotion eval` plus the guidance terms before and after latent guidance and how much foot planting changed the
-legs) and plots. ``model.osim`` (the person's model)
-is written once per request. Files are written atomically by the writers they come from.
+`biomotion eval` plus the guidance terms before and after latent guidance, how much foot planting changed the
+legs and the person's posture offset taken from the reference clips) and plots. ``model.osim`` (the person's
+model) is written once per request. Files are written atomically by the writers they come from.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from biomotion.data.canonical import CANONICAL_COORDINATES
 from biomotion.generation.pipeline import Generated
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
@@ -133,6 +135,10 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
     geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry")
                      if p.is_dir())
     planting = planting_changes(generated)
+    if generated.posture is not None:  # the person's posture offset, in the units of motion.mot
+        guide_terms["posture_offset"] = {
+            n: round(float(v) * (1.0 if n.startswith("pelvis_t") else 180.0 / math.pi), 3)
+            for n, v in zip(CANONICAL_COORDINATES, generated.posture.tolist()) if math.isfinite(v)}
     result = {}
     for k, motion in enumerate(motions):
         folder = out if len(motions) == 1 else out / f"sample_{k + 1:02d}"

@@ -8,7 +8,9 @@
 
 With reference clips, the prior's context is also primed with the last codes of the first reference (few-shot
 prompting, as a language model continues a given text), which `biomotion eval generation` measures against the
-profile alone (``no_priming``).
+profile alone (``no_priming``); and each decoded clip is centred on the person's own posture: the population's
+for the request plus the references' deviation from the population (`biomotion.generation.posture`;
+``no_posture`` in the evaluation).
 
 ``personalised=False`` drops the profile (biodata, references, metadata all masked): the w/o-personalization
 ablation of Table 3. A bundle trained with ``--population`` ignores the profile by construction.
@@ -38,6 +40,7 @@ from biomotion.generation.conditioning import (
     mean_features,
     metadata_features,
 )
+from biomotion.generation.posture import centring_shift, posture_offset
 from biomotion.guidance.refine import GuidanceConfig, Guide
 from biomotion.models.prior import Condition
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
@@ -59,7 +62,8 @@ TEMPERATURE = 0.7
 class Generated:
     """K generated clips in canonical coordinates at the canonical size, on the floor: ``q`` [K, T, 39] (guided
     when guidance ran), ``unguided`` [K, T, 39], ``unplanted`` [K, T, 39] (after latent guidance, before foot
-    planting; ``q`` when either did not run), the codes [K, N], guidance history and the request."""
+    planting; ``q`` when either did not run), the codes [K, N], guidance history, the request and the person's
+    posture offset [39] the clips were centred with (`biomotion.generation.posture`; None when they were not)."""
 
     q: torch.Tensor
     unguided: torch.Tensor
@@ -68,6 +72,7 @@ class Generated:
     action: ActionRequest
     history: list[dict[str, float]] = field(default_factory=list)
     unplanted: torch.Tensor | None = None
+    posture: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.unplanted is None:
@@ -132,25 +137,29 @@ class Generator:
 
     @torch.no_grad()
     def condition(self, action: ActionRequest, profile: Profile | None = None,
-                  references: Sequence[Motion] = (), personalised: bool = True
-                  ) -> tuple[Condition, torch.Tensor | None]:
-        """The prior's input for one request (batch of 1) and the priming codes [1, P] (the last `PRIME_TOKENS`
-        codes of the first reference clip; None without references)."""
+                  references: Sequence[Motion] = (), personalised: bool = True,
+                  reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = ()
+                  ) -> tuple[Condition, torch.Tensor | None, torch.Tensor | None]:
+        """The prior's input for one request (batch of 1), the priming codes [1, P] (the last `PRIME_TOKENS`
+        codes of the first reference clip) and the person's posture offset [39] (`posture_offset`, with the
+        references' action labels and speeds where known); both None without references."""
         from biomotion.body.kinematics import center_of_mass
 
         code_dim = self.tokenizer.config.code_dim
-        latents, metadata, prime = torch.zeros(0, code_dim), None, None
+        latents, metadata, prime, offset = torch.zeros(0, code_dim), None, None, None
         if personalised and references:
             height = profile.height if profile is not None else None
-            encoded, features = [], []
+            encoded, features, placed = [], [], []
             for motion in references:
                 q, mask = reference_motion(motion, self.body, height)
+                placed.append((q, mask))
                 encoded.append(self.tokenizer.encode_continuous(q[None], mask[None])[0])
                 full = torch.where(mask, q.double(), self.body.defaults)
                 features.append(metadata_features(q, mask, center_of_mass(self.body, full).float(), self.rate))
             latents = torch.cat(encoded)[:MAX_LATENTS]
             metadata = mean_features(features).cat()
             prime = self.tokenizer.quantiser.nearest(encoded[0][-PRIME_TOKENS:])[None]
+            offset = posture_offset(placed, self.bundle, reference_actions, reference_speeds)
         bio = biodata_features(profile if personalised else None).cat()
         if metadata is None:
             metadata = torch.zeros(2 * len(METADATA_FIELDS))
@@ -158,22 +167,26 @@ class Generator:
         valid = torch.ones(max(len(latents), 1), dtype=torch.bool)
         if len(latents) == 0:
             latents, valid = torch.zeros(1, code_dim), torch.zeros(1, dtype=torch.bool)
-        return Condition(latents[None], valid[None], bio[None], metadata[None], act[None]), prime
+        return Condition(latents[None], valid[None], bio[None], metadata[None], act[None]), prime, offset
 
     def generate(self, action: ActionRequest, *, profile: Profile | None = None, references: Sequence[Motion] = (),
-                 seconds: float = 3.0, samples: int = 1, seed: int = 0, guidance: bool = True,
-                 personalised: bool = True, prime: bool = True, temperature: float = TEMPERATURE,
-                 top_k: int | None = 20,
+                 reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = (),
+                 seconds: float = 3.0, samples: int = 1,
+                 seed: int = 0, guidance: bool = True, personalised: bool = True, prime: bool = True,
+                 posture: bool = True, temperature: float = TEMPERATURE, top_k: int | None = 20,
                  guidance_config: GuidanceConfig | None = None) -> Generated:
         """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False. With
         reference clips and ``prime``, the prior's context starts with the end of the first reference (its
-        codes), so the sample continues the person's own movement pattern under the requested action."""
+        codes), so the sample continues the person's own movement pattern under the requested action; with
+        ``posture``, each decoded clip is centred on the person's posture (`biomotion.generation.posture`;
+        ``reference_actions`` and ``reference_speeds``: the references' labels, inferred where not given)."""
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         n_tokens = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
-        cond, prefix = self.condition(action, profile, references, personalised)
+        cond, prefix, offset = self.condition(action, profile, references, personalised, reference_actions,
+                                              reference_speeds)
         batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
                                                                        cond.metadata, cond.action)))
         generator = torch.Generator().manual_seed(seed)
@@ -185,17 +198,22 @@ class Generator:
                                          prefix=prefix)
         z0 = self.tokenizer.quantiser.codebook[codes]
         bundle = self.bundle
-        guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
-                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config)
         frames = round(seconds * self.rate)
+        shift, offset = None, offset if posture else None
+        if offset is not None:
+            with torch.no_grad():
+                decoded = self.tokenizer.decode_latents(z0)[:, :frames]
+            shift = centring_shift(decoded, bundle.posture(action.action, action.speed) + offset)
+        guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
+                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config, shift)
         with torch.no_grad():
             unguided = guide.kinematics(z0).q[:, :frames]
         if not guidance:
-            return Generated(unguided, unguided, codes, self.rate, action)
+            return Generated(unguided, unguided, codes, self.rate, action, posture=offset)
         speed = None
         if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
             height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
             speed = action.speed * GENERIC_HEIGHT / height
         result = guide(z0, speed)
         return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history,
-                         result.unplanted[:, :frames])
+                         result.unplanted[:, :frames], offset)

@@ -27,10 +27,12 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
-same, scaled. Decoded rotations are clamped to the model's coordinate ranges (the decoder has no notion of joint
-limits: unclamped, pro_sup sat outside its range in every generated frame). Before the losses, each clip is put
-on the floor (pelvis height lowered so that the 5th percentile
-of its lowest foot point is at y = 0, as for the training clips); that offset is not optimised.
+same, scaled. A posture shift per clip (`biomotion.generation.posture.centring_shift`), when given, is added to
+every decoded frame, so guidance works on the person's posture rather than the prior's. Decoded rotations are
+clamped to the model's coordinate ranges (the decoder has no notion of joint limits: unclamped, pro_sup sat
+outside its range in every generated frame). Before the losses, each clip is put on the floor (pelvis height
+lowered so that the 5th percentile of its lowest foot point is at y = 0, as for the training clips); that offset
+is not optimised.
 """
 
 from __future__ import annotations
@@ -102,7 +104,8 @@ class Guide:
     """Guidance for one action: tokenizer decoder + canonical body model + optional muscle surrogate."""
 
     def __init__(self, tokenizer: MotionVQVAE, body, bounds: GuidanceBounds, speed_high: torch.Tensor,
-                 jerk_high: torch.Tensor, surrogate=None, config: GuidanceConfig | None = None) -> None:
+                 jerk_high: torch.Tensor, surrogate=None, config: GuidanceConfig | None = None,
+                 posture_shift: torch.Tensor | None = None) -> None:
         from biomotion.body.contact import foot_points
 
         self.tokenizer, self.bounds, self.surrogate = tokenizer, bounds, surrogate
@@ -116,9 +119,11 @@ class Guide:
         ranges = self.body.ranges.to(torch.float32)
         self.lower, self.upper = ranges[:, 0] + 1e-6, ranges[:, 1] - 1e-6  # inside after float32 rounding
         self.rotational = torch.tensor([not n.startswith("pelvis_t") for n in self.body.coordinate_names])
+        self.posture_shift = None if posture_shift is None else posture_shift.to(torch.float32)  # [B, 39]
 
     def kinematics(self, z: torch.Tensor) -> Kinematics:
-        """Decode latents [B, N, D] and put each clip on the floor (differentiable except for the offset)."""
+        """Decode latents [B, N, D], add the posture shift and put each clip on the floor (differentiable except
+        for the floor offset)."""
         from biomotion.body.kinematics import (
             center_of_mass,
             forward_kinematics,
@@ -126,6 +131,8 @@ class Guide:
         )
 
         q = self.tokenizer.decode_latents(z)
+        if self.posture_shift is not None:
+            q = q + self.posture_shift[:, None]
         q = torch.where(self.rotational, torch.minimum(torch.maximum(q, self.lower), self.upper), q)
         flat = q.reshape(-1, q.shape[-1])
         poses = forward_kinematics(self.body, flat)

@@ -16,8 +16,11 @@ subjects with no reference clip or no biodata. Loss: next-code cross-entropy plu
 token (same subject closer than another subject, margin ``triplet_margin``; the authors' profile-encoder loss,
 ``pg-big-reference-notes.md``). ``--population`` trains the action-only prior (the T2M-GPT-kind baseline).
 
-The checkpoint also stores what generation needs from the training data: the action vocabulary and the
-per-action 5th/95th percentile bounds of coordinate speeds, COM speed and COM acceleration (PG-BIG Table 1).
+The checkpoint also stores what generation needs from the training data: the action vocabulary, the
+per-action 5th/95th percentile bounds of coordinate speeds, COM speed and COM acceleration (PG-BIG Table 1) and
+the per-action population postures (`biomotion.generation.posture`). ``--statistics-only`` recomputes those
+statistics for an already trained ``--out`` from its cache, keeping the weights (the bounds it had must come out
+the same, proof that the cache and the clip selection are the training run's).
 """
 
 from __future__ import annotations
@@ -324,12 +327,52 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     return card
 
 
+def _same_bounds(old, new) -> bool:
+    fields = ("speed_high", "jerk_high", "com_speed", "com_acceleration", "frames")
+    return all(np.allclose(np.asarray(getattr(old, f), float), np.asarray(getattr(new, f), float), rtol=1e-9,
+                           atol=0.0, equal_nan=True) for f in fields)
+
+
+def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Path, out: str | Path, *,
+                       command: str = "") -> dict:
+    """Recompute the per-action statistics of the trained bundle ``out`` (bounds and population postures) from
+    the training clips of ``cache_dir`` chosen as `train` chooses them, keep its weights, and update its card.
+    Raises `ConfigError`, writing nothing, when the bounds the bundle had do not come out the same."""
+    from biomotion.evaluation.clips import body_model
+
+    out = Path(out)
+    bundle = GeneratorBundle.load(out)
+    cache = DatasetCache(cache_dir)
+    dev_fraction = float(config.get("train", {}).get("dev_fraction", 0.0))
+    chosen = [i for i, r in enumerate(cache.records) if r["split"] == "train" and r["n_frames"] >= DOWNSAMPLE
+              and not dev_subject(f"{r['source']}/{r['subject']}", dev_fraction)]
+    bounds = action_bounds(cache, body_model(data_root), chosen)
+    changed = sorted(k for k in set(bounds) | set(bundle.bounds)
+                     if k not in bounds or k not in bundle.bounds or not _same_bounds(bundle.bounds[k], bounds[k]))
+    if changed:
+        raise ConfigError(f"{cache_dir} does not give the bounds stored in {out} (actions {changed}): not the cache "
+                          "or the settings this bundle was trained with; nothing written")
+    GeneratorBundle(bundle.prior, bundle.vocabulary, bounds, bundle.tokenizer_sha256, bundle.train_subjects).save(out)
+    card_file = out.with_suffix(".json")
+    card = json.loads(card_file.read_text()) if card_file.exists() else {"weights": out.name}
+    card.update({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+                 "statistics_command": command or "biomotion.models.train_generator.refresh_statistics (Python API)"})
+    if {"metrics_held_out", "metrics_train", "metrics_held_out_before", "data"} <= set(card):
+        write_card(out, card, _markdown(card))
+    else:
+        write_card(out, card, f"# {out.name}\n\n- SHA-256: `{card['sha256']}`\n")
+    return card
+
+
 def _markdown(card: dict) -> str:
     rows = "".join(f"| {k} | {card['metrics_held_out_before'][k]:.4g} | {v:.4g} | {card['metrics_train'][k]:.4g} |\n"
                    for k, v in card["metrics_held_out"].items() if k != "clips")
     return (f"# {card['weights']}\n\n{card['model']}.\n\n- SHA-256: `{card['sha256']}`\n"
             f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
-            f"- command: `{card['command']}`\n- seed {card['seed']}, {card['iterations']} iterations, "
+            f"- command: `{card['command']}`\n"
+            + (f"- per-action statistics (bounds, population postures) recomputed: `{card['statistics_command']}`\n"
+               if card.get("statistics_command") else "")
+            + f"- seed {card['seed']}, {card['iterations']} iterations, "
             f"{card['train_seconds']} s, weights of iteration {card['kept_iteration']} kept (early stopping on "
             f"{card['dev_clips']} clips of training subjects set aside)\n- data: {card['data']['train_clips']} train clips "
             f"({card['data']['subjects_train']} subjects), {card['data']['held_out_clips']} held-out clips "
@@ -349,13 +392,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--statistics-only", action="store_true",
+                        help="recompute the per-action statistics of the trained --out from --cache, keeping its "
+                             "weights (--tokenizer is then not read)")
     args = parser.parse_args(argv)
     try:
         config = yaml.safe_load(args.config.read_text())
         given = argv if argv is not None else sys.argv[1:]
+        command = " ".join(["python -m biomotion.models.train_generator", *given])
+        if args.statistics_only:
+            card = refresh_statistics(config, args.cache, args.data_root, args.out, command=command)
+            print(f"{args.out}: statistics recomputed, SHA-256 {card['sha256']}")
+            return 0
         card = train(config, args.cache, args.tokenizer, args.data_root, args.out, population=args.population,
-                     minutes=args.minutes, iterations=args.iterations, seed=args.seed,
-                     command=" ".join(["python -m biomotion.models.train_generator", *given]))
+                     minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command)
     except BiomotionError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
