@@ -79,7 +79,7 @@ def _generate(args: argparse.Namespace) -> int:
     result = generate_command(
         action=args.action, out=args.out, data_root=args.data_root, checkpoints=args.checkpoints,
         profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
-        references=args.reference or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
+        references=args.reference or (), reference_actions=args.reference_action or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
         guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
         command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
     a = result["action"]
@@ -374,8 +374,12 @@ def build_parser() -> argparse.ArgumentParser:
     person.add_argument("--reference", type=Path, action="append",
                         help="a clip of the person (OpenSim coordinates .mot/.sto, Rajagopal-family names); "
                              "repeatable. The clips condition the prior and centre the motion on the person's "
-                             "posture (their mean deviation from the population's; each clip's action is taken as "
-                             "the one whose population posture is nearest; metrics.json lists the offset)")
+                             "posture (their mean deviation from the population's for the clip's action and speed; "
+                             "metrics.json lists the offset)")
+    person.add_argument("--reference-action", action="append", metavar="TEXT",
+                        help="what a --reference clip shows, free text like --action (\"run at 2.5 m/s\"); one per "
+                             "--reference, in order. Without it, each clip's action is the one whose population "
+                             "posture is nearest and its speed that action's mean")
     generate.add_argument("--action", required=True,
                           help="what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
                                "\"squat\", \"drop jump\", \"walk with toes out\")")

@@ -55,6 +55,8 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     (["--profile", "no_such_profile.yaml"], "profile file not found: no_such_profile.yaml"),
     (["--subject-table", "x.csv"], "--subject-table and --subject-id go together"),
     (["--threads", "0"], "--threads must be at least 1, got 0"),
+    (["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
+     "--reference-action given 2 times for 1 --reference clips"),
 ])
 def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, message):
     code = main(["generate", *args, "--action", "run", "--out", str(tmp_path / "o"),
@@ -62,3 +64,19 @@ def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, m
     assert code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # nothing half-written
+
+
+def test_a_reference_clip_centres_the_motion_on_the_persons_posture(shipped, tmp_path, capsys):
+    reference = data_path("fukuchi-running/ik/T25/RBDS001_T25_ik_simple.mot")
+    out = tmp_path / "rbds001"
+    code = main(["generate", "--subject-table", str(data_path("fukuchi-running/participantInfo.csv")),
+                 "--subject-id", "RBDS001", "--reference", str(reference), "--reference-action", "run at 2.5 m/s",
+                 "--action", "run at 4.5 m/s", "--seconds", "1.5", "--no-figures", "--out", str(out),
+                 "--data-root", str(data_path("."))])
+    assert code == 0, capsys.readouterr().err
+    metrics = json.loads((out / "metrics.json").read_text())
+    offset = metrics["posture_offset"]  # degrees: the Fukuchi model has legs and pelvis, no trunk or arms
+    assert {"pelvis_tilt", "knee_angle_r", "hip_flexion_l"} <= set(offset)
+    assert not {"pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz", "lumbar_extension"} & set(offset)
+    assert all(abs(v) < 30 for v in offset.values())
+    assert metrics["request"]["reference_actions"] == ["run at 2.5 m/s"]

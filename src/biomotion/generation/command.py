@@ -58,10 +58,14 @@ def subject_profile(table: str | Path, subject_id: str) -> Profile:
 
 def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
                      profile_file: Path | None = None, subject_table: Path | None = None,
-                     subject_id: str | None = None, references: Sequence[Path] = (), seconds: float = 3.0,
+                     subject_id: str | None = None, references: Sequence[Path] = (),
+                     reference_actions: Sequence[str] = (), seconds: float = 3.0,
                      seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
                      figures: bool = True, command: str = "", threads: int | None = None) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood).
+
+    ``reference_actions``: what each reference clip shows, free text like ``action`` ("run at 2.5 m/s"), one per
+    reference in order, or none (each clip's action is then inferred and its speed taken as the action's mean).
 
     ``threads``: torch intra-op threads for sampling and guidance (default `GENERATION_THREADS`, at most the
     machine's cores); the rest runs as the caller set it. Results differ between thread counts only by float
@@ -80,6 +84,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
         raise ConfigError("--subject-table and --subject-id go together")
     profile = (read_profile(profile_file) if profile_file is not None
                else subject_profile(subject_table, subject_id) if subject_table is not None else None)
+    if reference_actions and len(reference_actions) != len(references):
+        raise ConfigError(f"--reference-action given {len(reference_actions)} times for {len(references)} "
+                          "--reference clips: give one per clip, in the same order, or none")
     motions = [read_motion(p) for p in references]
     started = time.perf_counter()
     generator = Generator.load(data_root, checkpoints or CHECKPOINTS)
@@ -87,14 +94,18 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     request = vocabulary.parse(action)  # loads the sentence encoder unless the text names an action exactly
     if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
         request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
+    shown = [vocabulary.parse(text) for text in reference_actions]
     loaded = time.perf_counter()
     with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
-        generated = generator.generate(request, profile=profile, references=motions, seconds=seconds,
+        generated = generator.generate(request, profile=profile, references=motions,
+                                       reference_actions=[r.action for r in shown],
+                                       reference_speeds=[r.speed for r in shown], seconds=seconds,
                                        samples=samples, seed=seed, guidance=guidance, personalised=personalised)
     done = time.perf_counter()
     files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
                              request={"command": command, "text": action, "seconds": seconds, "seed": seed,
                                       "guidance": guidance, "personalised": personalised,
-                                      "references": [str(p) for p in references]})
+                                      "references": [str(p) for p in references],
+                                      "reference_actions": list(reference_actions)})
     return {"action": request, "files": files, "load_seconds": loaded - started, "generate_seconds": done - loaded,
             "write_seconds": time.perf_counter() - done, "profile": profile}
