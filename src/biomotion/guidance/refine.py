@@ -16,14 +16,17 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
 - l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with
   l_omega 10 and l_foot 1 guidance slowed the legs while the pelvis kept its speed, and sliding *rose* (foot
-  contact velocity 0.59 -> 0.73 m/s, skate 26 -> 45 %, before planting); with these weights latent guidance
-  alone takes them to 0.39 m/s and 18 %, jerk 494 -> 291 m/s^3, floating 3.4 -> 1.9 cm (row "no foot planting").
-  l_speed 100 holds the requested speed (`losses.locomotion_speed`).
+  contact velocity 0.59 -> 0.70 m/s, skate 26 -> 40 %, before planting); with these weights latent guidance
+  alone takes them to 0.40 m/s and 16 %, jerk 494 -> 314 m/s^3, floating 3.4 -> 2.1 cm (row "no foot planting").
+  l_speed 1000 holds the requested speed (`losses.locomotion_speed`): at 100 the runs asked for 3.5 m/s came out
+  0.21 m/s slow on average (300: 0.07; 1000: 0.01 m/s), and the heavier term also lowered foot contact velocity
+  (0.32 -> 0.30 m/s) and skate (14 -> 12 %), at floating 1.0 -> 1.2 cm, jerk 318 -> 331 m/s^3 and muscle-limit
+  violations 26.7 -> 29.9 %.
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
-  much of the gains (jerk 397 m/s^3, muscle-limit violations 49 % against 27 %), so the decoder reads the refined
+  much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
-- foot planting on (``planting``): foot contact velocity 0.39 -> 0.32 m/s, skate 18 -> 14 %, floating 1.9 -> 1.0
-  cm, penetration 0.024 -> 0.002 cm, at jerk 291 -> 318 m/s^3 and unchanged muscle-limit violations (27 %).
+- foot planting on (``planting``): foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2
+  cm, penetration 0.026 -> 0.001 cm, at jerk 314 -> 331 m/s^3 and unchanged muscle-limit violations (30 %).
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -68,7 +71,7 @@ class GuidanceConfig:
     w_activation: float = 10.0
     w_ground: float = 100.0
     w_angular_jerk: float = 0.01
-    w_locomotion_speed: float = 100.0
+    w_locomotion_speed: float = 1000.0
     contact_height: float = 0.05  # m, a foot point of the unguided sample this low is in contact (metrics' 5 cm)
     planting: PlantingConfig | None = PlantingConfig()  # the last stage (immutable settings); None skips it
 
