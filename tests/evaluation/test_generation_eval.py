@@ -86,15 +86,23 @@ def test_the_identity_probe_never_trains_on_the_target_it_is_tested_on(monkeypat
 
     position = {0: 0.0, 1: 0.0, 2: 5.0, 3: 6.0, 4: 6.1, 5: 5.9}
     subject = {k: "A" if k < 3 else "B" for k in position}
+    masks = []
 
-    def clip(k: int) -> Motion:
-        return Motion(times=np.arange(4) / 30.0, values=np.full((4, 1), float(k)), names=("id",))
+    def clip(k: int, measured: bool = False) -> Motion:  # the people's data lacks the second coordinate
+        return Motion(times=np.arange(4) / 30.0, values=np.full((4, 2), float(k)), names=("id", "arm"),
+                      mask=np.array([True, measured]))
 
-    monkeypatch.setattr(evaluation, "embedding", lambda tokenizer, m: np.array([position[int(m.values[0, 0])], 1.0]))
+    def embedding(tokenizer, m: Motion) -> np.ndarray:
+        masks.append(tuple(m.mask))
+        return np.array([position[int(m.values[0, 0])], 1.0])
+
+    monkeypatch.setattr(evaluation, "embedding", embedding)
     targets = []
     for k in position:
         others = [j for j in position if subject[j] == subject[k] and j != k]
         targets.append(Target(k, subject[k], clip(k), [clip(j) for j in others], others, ["run"] * 2, [None] * 2))
-    result = identity_accuracy(None, targets, {"reference": [t.motion for t in targets]})
+    generated = [clip(k, measured=True) for k in position]  # a generator draws every coordinate
+    result = identity_accuracy(None, targets, {"reference": [t.motion for t in targets], "generated": generated})
     assert result["train_clips"] == 6
     assert result["reference"] == pytest.approx(5 / 6)  # all but A's clip 2, which is nearer B's clips
+    assert set(masks) == {(True, False)}  # generated clips are seen through the people's coordinates
