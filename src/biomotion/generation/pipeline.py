@@ -199,13 +199,14 @@ class Generator:
         z0 = self.tokenizer.quantiser.codebook[codes]
         bundle = self.bundle
         frames = round(seconds * self.rate)
-        shift, offset = None, offset if posture else None
+        shift, target, offset = None, None, offset if posture else None
         if offset is not None:
+            target = bundle.posture(action.action, action.speed) + offset
             with torch.no_grad():
                 decoded = self.tokenizer.decode_latents(z0)[:, :frames]
-            shift = centring_shift(decoded, bundle.posture(action.action, action.speed) + offset)
+            shift = centring_shift(decoded, target)
         guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
-                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config, shift)
+                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config, shift, target)
         with torch.no_grad():
             unguided = guide.kinematics(z0).q[:, :frames]
         if not guidance:

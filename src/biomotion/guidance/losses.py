@@ -16,6 +16,8 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
 - `locomotion_speed`: not in the paper; (||mean horizontal pelvis velocity|| - target)^2, the requested speed.
   Without it guidance found the cheapest way to stop a sliding stance foot: slowing the whole body down (guided
   runs asked for 3.5 m/s came out at 1.7-2.5 m/s).
+- `posture`: not in the paper; sum_j (mean_t q_tj - target_j)^2 over the coordinates with a target, the person's
+  posture (`biomotion.generation.posture`), so guidance does not pull the clip back to the population's.
 - `proximity`: mean squared distance of the latents to the unguided sample's (Sec. 3.3, A.1 schedule).
 """
 
@@ -79,6 +81,12 @@ def mean_horizontal_speed(q: torch.Tensor, rate: float) -> torch.Tensor:
 def locomotion_speed(q: torch.Tensor, rate: float, target: torch.Tensor) -> torch.Tensor:
     """(||mean horizontal pelvis velocity|| - target [B])^2 per clip."""
     return (mean_horizontal_speed(q, rate) - target).pow(2)
+
+
+def posture(q: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """sum_j (mean_t q_tj - target_j)^2 over the coordinates whose target [39] is finite."""
+    known = torch.isfinite(target)
+    return ((q[..., known].mean(1) - target[known]) ** 2).sum(-1)
 
 
 def proximity(z: torch.Tensor, z0: torch.Tensor) -> torch.Tensor:

@@ -22,6 +22,13 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
   0.21 m/s slow on average (300: 0.07; 1000: 0.01 m/s), and the heavier term also lowered foot contact velocity
   (0.32 -> 0.30 m/s) and skate (14 -> 12 %), at floating 1.0 -> 1.2 cm, jerk 318 -> 331 m/s^3 and muscle-limit
   violations 26.7 -> 29.9 %.
+- l_posture 3000 (ours, with a person's reference clips only: `losses.posture`) holds each clip's mean posture at
+  the person's (`biomotion.generation.posture`). Chosen on the generator's dev subjects (9 training subjects set
+  aside from its training, 22 clips; never evaluation subjects) by the identity probe of `biomotion eval
+  generation` (real clips 0.91, unguided sample 0.82): 0.68 without the term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at
+  1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 /
+  51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
+  violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it).
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
   much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
@@ -51,7 +58,7 @@ from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
 TERMS = ("angular_velocity", "foot_contact", "com_velocity", "com_acceleration", "activation", "ground",
-         "angular_jerk", "locomotion_speed")
+         "angular_jerk", "locomotion_speed", "posture")
 
 
 @dataclass(frozen=True)
@@ -72,6 +79,7 @@ class GuidanceConfig:
     w_ground: float = 100.0
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 1000.0
+    w_posture: float = 3000.0
     contact_height: float = 0.05  # m, a foot point of the unguided sample this low is in contact (metrics' 5 cm)
     planting: PlantingConfig | None = PlantingConfig()  # the last stage (immutable settings); None skips it
 
@@ -108,7 +116,7 @@ class Guide:
 
     def __init__(self, tokenizer: MotionVQVAE, body, bounds: GuidanceBounds, speed_high: torch.Tensor,
                  jerk_high: torch.Tensor, surrogate=None, config: GuidanceConfig | None = None,
-                 posture_shift: torch.Tensor | None = None) -> None:
+                 posture_shift: torch.Tensor | None = None, posture_target: torch.Tensor | None = None) -> None:
         from biomotion.body.contact import foot_points
 
         self.tokenizer, self.bounds, self.surrogate = tokenizer, bounds, surrogate
@@ -123,6 +131,7 @@ class Guide:
         self.lower, self.upper = ranges[:, 0] + 1e-6, ranges[:, 1] - 1e-6  # inside after float32 rounding
         self.rotational = torch.tensor([not n.startswith("pelvis_t") for n in self.body.coordinate_names])
         self.posture_shift = None if posture_shift is None else posture_shift.to(torch.float32)  # [B, 39]
+        self.posture_target = None if posture_target is None else posture_target.to(torch.float32)  # [39]
 
     def kinematics(self, z: torch.Tensor) -> Kinematics:
         """Decode latents [B, N, D], add the posture shift and put each clip on the floor (differentiable except
@@ -166,6 +175,8 @@ class Guide:
             "angular_jerk": losses.angular_jerk(k.q, self.rate, self.jerk_high),
             "locomotion_speed": losses.locomotion_speed(k.q, self.rate, speed),
         }
+        if self.posture_target is not None:
+            out["posture"] = losses.posture(k.q, self.posture_target)
         if self.surrogate is not None:
             activations = self.surrogate(k.q)
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
