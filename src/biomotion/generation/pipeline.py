@@ -117,6 +117,9 @@ class Generator:
 
     def __init__(self, tokenizer: MotionVQVAE, bundle: GeneratorBundle, body, surrogate=None) -> None:
         self.tokenizer, self.bundle, self.body, self.surrogate = tokenizer, bundle, body, surrogate
+        for model in (tokenizer, bundle.prior, surrogate):  # inference only: guidance needs gradients for the
+            if model is not None:                            # latents alone, not for any weight (15 % of its time)
+                model.requires_grad_(False)
         self.rate = tokenizer.config.rate
 
     @classmethod
