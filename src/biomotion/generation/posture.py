@@ -2,8 +2,9 @@
 
 PG-BIG personalises through the subject profiler alone (A.6): reference latents, biodata and metadata condition the
 prior, which must learn from its training subjects how a person's clips differ from everyone else's. Trained on
-about a hundred clips, ours has not learnt it (`biomotion eval generation`: an identity probe recognises the real
-clips of an unseen runner, and at chance the generated ones). The most stable part of how a person moves is their
+about a hundred clips, ours has learnt little of it (`biomotion eval generation`, unseen subjects: an identity
+probe recognises 75 % of the real clips and 33 % of the clips generated through the profiler alone; 67 % with what
+this module adds). The most stable part of how a person moves is their
 mean posture (pelvis tilt, trunk lean, how far the knees stay bent, how the arms are carried), and it can be
 measured from the references directly, without learning:
 
@@ -17,7 +18,8 @@ into the person's deviation. The generated clip is then centred on the person's 
 
 by adding to every decoded frame ``target - mean_t q_j(t)`` of the prior's sample, before guidance: the prior still
 sets the motion, the person sets where it is centred (whatever the prior already made of the references, so nothing
-is counted twice), and guidance and foot planting then restore contact with the floor. This is the simplest form
+is counted twice), and guidance and foot planting then restore contact with the floor, with a guidance term
+(`biomotion.guidance.losses.posture`) holding each clip's mean at the target meanwhile. This is the simplest form
 of style transfer, a constant offset per coordinate, measured per person.
 
 Only rotational coordinates are centred: not the pelvis translations (height and travel), nor ``pelvis_rotation``,
