@@ -21,6 +21,8 @@ def test_probes_on_embeddings_with_a_known_answer():
     identity.update(x[1::2], labels[1::2], train=False)
     for scores in identity.compute().values():
         assert scores.accuracy == 1.0 and scores.top3 == 1.0 and scores.macro_f1 == 1.0 and scores.n_test == 50
+    for predicted in identity.predict().values():
+        np.testing.assert_array_equal(predicted, labels[1::2])
     # shuffled labels carry nothing: chance level (1 / 5), top-3 about 3 / 5
     shuffled = IdentityProbe(models=("logistic_regression",))
     shuffled.update(x[::2], rng.permutation(labels[::2]), train=True)

@@ -187,12 +187,13 @@ def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list
         train = [clips[j] for j in clips if j != targets[k].index]
         if len({subject for _, subject in train}) < 2:
             continue
-        for variant, motions in variants.items():
-            probe = IdentityProbe(("logistic_regression",))
-            probe.update(np.stack([x for x, _ in train]), np.array([subject for _, subject in train]), train=True)
-            seen = replace(motions[k], mask=motions[k].mask & targets[k].motion.mask)
-            probe.update(embedding(tokenizer, seen)[None], np.array([targets[k].subject]), train=False)
-            hits[variant].append(probe.compute()["logistic_regression"].accuracy == 1.0)
+        probe = IdentityProbe(("logistic_regression",))
+        probe.update(np.stack([x for x, _ in train]), np.array([subject for _, subject in train]), train=True)
+        seen = [replace(motions[k], mask=motions[k].mask & targets[k].motion.mask) for motions in variants.values()]
+        probe.update(np.stack([embedding(tokenizer, m) for m in seen]), np.array([targets[k].subject] * len(seen)),
+                     train=False)
+        for variant, label in zip(variants, probe.predict()["logistic_regression"]):
+            hits[variant].append(label == targets[k].subject)
     for variant, h in hits.items():
         result[variant] = float(np.mean(h)) if h else float("nan")
     return result

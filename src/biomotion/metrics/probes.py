@@ -127,6 +127,11 @@ class IdentityProbe(_Probe):
 
     known = CLASSIFIERS
 
+    def predict(self) -> dict[str, np.ndarray]:
+        """Each model, fitted on the training samples, labels the held-out samples: {model: labels [N]}."""
+        x_train, y_train, x_test, _ = self._split()
+        return {name: _classifier(name, self.seed).fit(x_train, y_train).predict(x_test) for name in self.models}
+
     def compute(self) -> dict[str, ClassificationScores]:
         from sklearn.metrics import f1_score
 

@@ -154,6 +154,13 @@ def dev_subject(subject: str, fraction: float) -> bool:
     return int.from_bytes(digest[:8], "big") / 2 ** 64 < fraction
 
 
+def statistics_indices(cache: DatasetCache, dev_fraction: float) -> list[int]:
+    """The clips the per-action statistics come from: the training clips the prior learns from (train split, at
+    least one token long, subject not set aside by `dev_subject`)."""
+    return [i for i, r in enumerate(cache.records) if r["split"] == "train" and r["n_frames"] >= DOWNSAMPLE
+            and not dev_subject(f"{r['source']}/{r['subject']}", dev_fraction)]
+
+
 def profile_inputs(references: list[TokenizedClip], target: TokenizedClip, max_latents: int, *,
                    keep_references: bool = True, keep_biodata: bool = True) -> Condition:
     """One sample's (unbatched) condition: references' latents + mean metadata, the target's biodata and action."""
@@ -297,7 +304,7 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     prior.eval()
     after_val = evaluate(prior, val_clips, crop, refs, max_latents)
     after_train = evaluate(prior, train_clips, crop, refs, max_latents)
-    bounds = action_bounds(cache, body, sorted({c.index for c in train_clips}))
+    bounds = action_bounds(cache, body, statistics_indices(cache, dev_fraction))
     seen = tuple(sorted({c.subject for c in train_clips + dev_clips}))
     bundle = GeneratorBundle(prior, vocabulary, bounds, tokenizer_sha256=hashlib.sha256(
         Path(tokenizer_path).read_bytes()).hexdigest(), train_subjects=seen)
@@ -336,7 +343,7 @@ def _same_bounds(old, new) -> bool:
 def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Path, out: str | Path, *,
                        command: str = "") -> dict:
     """Recompute the per-action statistics of the trained bundle ``out`` (bounds and population postures) from
-    the training clips of ``cache_dir`` chosen as `train` chooses them, keep its weights, and update its card.
+    the `statistics_indices` clips of ``cache_dir``, as `train` does, keep its weights, and update its card.
     Raises `ConfigError`, writing nothing, when the bounds the bundle had do not come out the same."""
     from biomotion.evaluation.clips import body_model
 
@@ -344,9 +351,7 @@ def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Pat
     bundle = GeneratorBundle.load(out)
     cache = DatasetCache(cache_dir)
     dev_fraction = float(config.get("train", {}).get("dev_fraction", 0.0))
-    chosen = [i for i, r in enumerate(cache.records) if r["split"] == "train" and r["n_frames"] >= DOWNSAMPLE
-              and not dev_subject(f"{r['source']}/{r['subject']}", dev_fraction)]
-    bounds = action_bounds(cache, body_model(data_root), chosen)
+    bounds = action_bounds(cache, body_model(data_root), statistics_indices(cache, dev_fraction))
     changed = sorted(k for k in set(bounds) | set(bundle.bounds)
                      if k not in bounds or k not in bundle.bounds or not _same_bounds(bundle.bounds[k], bounds[k]))
     if changed:
