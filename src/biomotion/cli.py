@@ -83,6 +83,7 @@ def _generate(args: argparse.Namespace) -> int:
         guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
         command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
     a = result["action"]
+    print(f"answered by the {result['route'].describe()}")
     speed = "" if a.speed is None else f" at {a.speed:g} m/s"
     style = "" if a.style is None else f" ({a.style})"
     print(f"generated {args.samples} x {args.seconds:g} s of {a.action!r}{style}{speed} in "
@@ -382,7 +383,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "posture is nearest and its speed that action's mean")
     generate.add_argument("--action", required=True,
                           help="what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
-                               "\"squat\", \"drop jump\", \"walk with toes out\")")
+                               "\"squat\", \"drop jump\", \"walk with toes out\"); the Bandai-Namco contents and "
+                               "styles (\"wave both hands\", \"bow\", \"walk, elderly\") go to the full-body "
+                               "bundle, with the profile's biodata masked (docs/generation.md)")
     generate.add_argument("--seconds", type=float, default=3.0, help="clip length (default: %(default)s)")
     generate.add_argument("--samples", type=int, default=1, help="clips to draw (default: %(default)s)")
     generate.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
@@ -393,7 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                       "the machine's cores if fewer)")
     generate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
                           help="folder with opensim-models/ (the canonical Rajagopal model; default: %(default)s)")
-    generate.add_argument("--checkpoints", type=Path, help="folder of trained weights (default: the shipped ones)")
+    generate.add_argument("--checkpoints", type=Path,
+                          help="folder of trained weights (default: the shipped lab bundle, or the shipped "
+                               "full-body bundle checkpoints/full-body for the labels only it knows)")
     generate.add_argument("--out", type=Path, required=True, help="output folder")
     generate.set_defaults(run=_generate)
 

@@ -142,3 +142,24 @@ def test_deep_knee_bend_is_a_squat(vocabulary, encoder):
 def test_unrelated_text_is_rejected(vocabulary, encoder):
     with pytest.raises(ConfigError, match="no known action resembles"):
         vocabulary.parse("cook dinner")
+
+
+def test_match_score_is_one_for_exact_names_and_counts_action_names(vocabulary, encoder):
+    assert vocabulary.match_score("run at 3 m/s") == ("run on a treadmill", 1.0)   # names the action exactly
+    assert vocabulary.match_score("walk, toe-out") == ("walk, toe-out", 1.0)
+    label, score = vocabulary.match_score("running at 3.5 m/s")
+    # "running" is nearer the action name "run" than any label text ("run on a treadmill" 0.56)
+    assert label == "run" and score > vocabulary.similarities("running").max() + 0.1
+    with pytest.raises(ConfigError, match="no action"):
+        vocabulary.match_score("at 3 m/s")
+
+
+def test_a_stated_speed_picks_the_label_whose_texts_state_it(monkeypatch):
+    """Bandai-Namco's "run" names the action exactly and carries measured speeds, but a request with a speed
+    means the treadmill runs, whose label texts state their speeds; without a speed the plain name wins."""
+    monkeypatch.setattr(actions, "sentence_encoder", lambda: pytest.fail("exact names need no encoder"))
+    bandai_run = {"action": "run", "style": "normal", "speed": 2.5, "text": "run"}
+    vocabulary = ActionVocabulary.from_labels([*HAND_LABELS, bandai_run])
+    assert vocabulary.parse("run at 3.5 m/s") == ActionRequest("run", None, 3.5, "run on a treadmill at 3.5 m/s")
+    assert vocabulary.parse("run") == ActionRequest("run", "normal", None, "run")
+    assert vocabulary.parse("walk at 1.2 m/s") == ActionRequest("walk", "normal", 1.2, "walk")

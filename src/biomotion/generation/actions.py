@@ -225,7 +225,7 @@ class ActionVocabulary:
         speed = None if mention is None else round(mention.value, 6)
         if not rest:
             raise ConfigError(f"{text!r} gives a speed but no action; known actions: {', '.join(self.actions)}")
-        entry = self._exact(rest)
+        entry = self._exact(rest, with_speed=mention is not None)
         if entry is None:
             scores = self.similarities(rest)
             best = int(np.argmax(scores))
@@ -236,6 +236,29 @@ class ActionVocabulary:
             entry = self._entries[best]
         return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
 
+    def match_score(self, text: str) -> tuple[str, float]:
+        """How well the vocabulary knows ``text``: the best label's speed-free text and its score, 1 for a text
+        naming a label or action exactly (as `parse`), else the best cosine similarity of the speed-free text
+        with a label text or an action name ("running" scores against "run" as well as against "run on a
+        treadmill"). Raises `ConfigError` as `parse` does for an empty text or an impossible speed."""
+        if text is None or not str(text).strip():
+            raise ConfigError("empty action text: describe the motion, e.g. 'run at 3 m/s' or 'squat'")
+        mention = find_speed(str(text))
+        rest = mention.rest if mention else _normalise(str(text))
+        if not rest:
+            raise ConfigError(f"{text!r} gives a speed but no action; known actions: {', '.join(self.actions)}")
+        entry = self._exact(rest, with_speed=mention is not None)
+        if entry is not None:
+            return entry.prompt, 1.0
+        scores = self.similarities(rest)
+        names = self.actions
+        encoder = sentence_encoder()
+        by_name = _encode(encoder, list(names)) @ _encode(encoder, [rest])[0]
+        best = int(np.argmax(scores))
+        if by_name.max() > scores[best]:
+            return names[int(np.argmax(by_name))], float(by_name.max())
+        return self._entries[best].prompt, float(scores[best])
+
     def similarities(self, text: str) -> np.ndarray:
         """[n_labels] cosine similarity of ``text`` with each label's speed-free text (`prompts`)."""
         encoder = sentence_encoder()
@@ -243,15 +266,15 @@ class ActionVocabulary:
             self._embeddings = _encode(encoder, list(self.prompts))
         return self._embeddings @ _encode(encoder, [text])[0]
 
-    def _exact(self, rest: str) -> _Entry | None:
-        """The label a text names exactly: a prompt, or an action name (its plainest label)."""
-        for entry in self._entries:
-            if entry.prompt == rest:
-                return entry
-        named = [e for e in self._entries if e.action.lower() == rest]
+    def _exact(self, rest: str, with_speed: bool = False) -> _Entry | None:
+        """The label a text names exactly: a prompt, or an action name (its plainest label; ``with_speed``, for a
+        text that states a speed, first its labels whose texts state speeds: "run at 3.5 m/s" is the treadmill
+        runs' label, "run on a treadmill at 3.5 m/s", not Bandai-Namco's "run", whose speeds were only measured)."""
+        named = [e for e in self._entries if e.prompt == rest or e.action.lower() == rest]
         if not named:
             return None
-        return min(named, key=lambda e: (e.prompt != e.action.lower(), e.style not in ("normal", None), -e.count))
+        return min(named, key=lambda e: (with_speed and not any(find_speed(t) for t in e.texts), e.prompt != rest,
+                                         e.prompt != e.action.lower(), e.style not in ("normal", None), -e.count))
 
 
 def _label_text(entry: _Entry, speed: float | None) -> str:

@@ -74,6 +74,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     from biomotion.evaluation.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
+    from biomotion.generation.routing import FULL_BODY, Route, route
     from biomotion.io.mot import read_motion
 
     if threads is not None and threads < 1:
@@ -89,9 +90,19 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                           "--reference clips: give one per clip, in the same order, or none")
     motions = [read_motion(p) for p in references]
     started = time.perf_counter()
-    generator = Generator.load(data_root, checkpoints or CHECKPOINTS)
+    # the sentence encoder loads here unless the text names an action exactly
+    chosen = Route(Path(checkpoints), "", 1.0) if checkpoints is not None else route(action, CHECKPOINTS)
+    generator = Generator.load(data_root, chosen.checkpoints)
     vocabulary = generator.bundle.vocabulary
-    request = vocabulary.parse(action)  # loads the sentence encoder unless the text names an action exactly
+    try:
+        request = vocabulary.parse(action)
+    except ConfigError as error:
+        if chosen.full_body_label is None:
+            raise
+        full_body = Generator.load(data_root, chosen.checkpoints / FULL_BODY, surrogate=False).bundle.vocabulary
+        raise ConfigError(f"{error}; the full-body bundle ({chosen.checkpoints / FULL_BODY}) also knows "
+                          f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
+                          f"({', '.join(full_body.styles)})") from None
     if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
         request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
     shown = [vocabulary.parse(text) for text in reference_actions]
@@ -100,12 +111,13 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
         generated = generator.generate(request, profile=profile, references=motions,
                                        reference_actions=[r.action for r in shown],
                                        reference_speeds=[r.speed for r in shown], seconds=seconds,
-                                       samples=samples, seed=seed, guidance=guidance, personalised=personalised)
+                                       samples=samples, seed=seed, guidance=guidance, personalised=personalised,
+                                       biodata=chosen.biodata)
     done = time.perf_counter()
     files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
                              request={"command": command, "text": action, "seconds": seconds, "seed": seed,
                                       "guidance": guidance, "personalised": personalised,
                                       "references": [str(p) for p in references],
                                       "reference_actions": list(reference_actions)})
-    return {"action": request, "files": files, "load_seconds": loaded - started, "generate_seconds": done - loaded,
+    return {"action": request, "route": chosen, "files": files, "load_seconds": loaded - started, "generate_seconds": done - loaded,
             "write_seconds": time.perf_counter() - done, "profile": profile}

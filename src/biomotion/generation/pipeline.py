@@ -141,11 +141,12 @@ class Generator:
     @torch.no_grad()
     def condition(self, action: ActionRequest, profile: Profile | None = None,
                   references: Sequence[Motion] = (), personalised: bool = True,
-                  reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = ()
-                  ) -> tuple[Condition, torch.Tensor | None, torch.Tensor | None]:
+                  reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = (),
+                  biodata: bool = True) -> tuple[Condition, torch.Tensor | None, torch.Tensor | None]:
         """The prior's input for one request (batch of 1), the priming codes [1, P] (the last `PRIME_TOKENS`
         codes of the first reference clip) and the person's posture offset [39] (`posture_offset`, with the
-        references' action labels and speeds where known); both None without references."""
+        references' action labels and speeds where known); both None without references. ``biodata`` False
+        masks the profile's biodata (its height still places the references; `biomotion.generation.routing`)."""
         from biomotion.body.kinematics import center_of_mass
 
         code_dim = self.tokenizer.config.code_dim
@@ -163,7 +164,7 @@ class Generator:
             metadata = mean_features(features).cat()
             prime = self.tokenizer.quantiser.nearest(encoded[0][-PRIME_TOKENS:])[None]
             offset = posture_offset(placed, self.bundle, reference_actions, reference_speeds)
-        bio = biodata_features(profile if personalised else None).cat()
+        bio = biodata_features(profile if personalised and biodata else None).cat()
         if metadata is None:
             metadata = torch.zeros(2 * len(METADATA_FIELDS))
         act = action_features(action, self.bundle.vocabulary).cat()
@@ -177,19 +178,20 @@ class Generator:
                  seconds: float = 3.0, samples: int = 1,
                  seed: int = 0, guidance: bool = True, personalised: bool = True, prime: bool = True,
                  posture: bool = True, temperature: float = TEMPERATURE, top_k: int | None = 20,
-                 guidance_config: GuidanceConfig | None = None) -> Generated:
+                 guidance_config: GuidanceConfig | None = None, biodata: bool = True) -> Generated:
         """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False. With
         reference clips and ``prime``, the prior's context starts with the end of the first reference (its
         codes), so the sample continues the person's own movement pattern under the requested action; with
         ``posture``, each decoded clip is centred on the person's posture (`biomotion.generation.posture`;
-        ``reference_actions`` and ``reference_speeds``: the references' labels, inferred where not given)."""
+        ``reference_actions`` and ``reference_speeds``: the references' labels, inferred where not given);
+        ``biodata`` False masks the profile's biodata in the prior's condition (`condition`)."""
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         n_tokens = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
         cond, prefix, offset = self.condition(action, profile, references, personalised, reference_actions,
-                                              reference_speeds)
+                                              reference_speeds, biodata)
         batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
                                                                        cond.metadata, cond.action)))
         generator = torch.Generator().manual_seed(seed)
