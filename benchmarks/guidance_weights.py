@@ -9,8 +9,9 @@ seed 1; the physics metrics of `biomotion eval` (mean over the 6 clips) of the u
 variant: the defaults, the defaults without foot planting (`biomotion.guidance.planting`), planting that may also
 bend the toes, planting whose stance threshold is the metrics' 5 cm contact height instead of 3 cm, and without
 planting (to compare latent guidance alone) Table 5's weights (l_omega 10, l_foot 1,
-l_ground 10, lr 0.05) and re-quantisation at iteration 30, and lighter speed terms (l_speed 100, the default
-until 2026-12-03, and 300).
+l_ground 10, lr 0.05) and re-quantisation at iteration 30, the foot and ground terms' contact mask by height alone
+(the default until 2026-12-03, before the stance speed test of `biomotion.guidance.refine.Guide.contact`), and
+lighter speed terms (l_speed 100, the default until 2026-12-03, and 300).
 Speed error: |mean horizontal pelvis speed - requested speed| at the person's size, over the clips whose request
 names a speed (the run).
 Muscle-limit violations are the share of frames x muscles whose surrogate activation leaves the training 5-95 %
@@ -43,6 +44,7 @@ SETTINGS = {"unguided": None, "defaults": {}, "no foot planting": {"planting": N
             "Table 5 weights, no planting": {"w_angular_velocity": 10.0, "w_foot_contact": 1.0, "w_ground": 10.0,
                                              "lr": 0.05, "planting": None},
             "re-quantised at 30, no planting": {"quantize_at": 30, "planting": None},
+            "contact by height alone (no stance speed test)": {"stance_speed_ratio": None},
             "speed weight 100": {"w_locomotion_speed": 100.0},
             "speed weight 300": {"w_locomotion_speed": 300.0}}
 

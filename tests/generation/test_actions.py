@@ -163,3 +163,11 @@ def test_a_stated_speed_picks_the_label_whose_texts_state_it(monkeypatch):
     assert vocabulary.parse("run at 3.5 m/s") == ActionRequest("run", None, 3.5, "run on a treadmill at 3.5 m/s")
     assert vocabulary.parse("run") == ActionRequest("run", "normal", None, "run")
     assert vocabulary.parse("walk at 1.2 m/s") == ActionRequest("walk", "normal", 1.2, "walk")
+
+
+def test_resolve_adds_the_labels_typical_speed_where_the_text_states_none(monkeypatch):
+    monkeypatch.setattr(actions, "sentence_encoder", lambda: pytest.fail("exact names need no encoder"))
+    vocabulary = ActionVocabulary.from_labels(HAND_LABELS)
+    assert vocabulary.resolve("walk, toe-in") == ActionRequest("walk", "toe-in", 1.25, "walk, toe-in")
+    assert vocabulary.resolve("walk, toe-in at 1 m/s").speed == 1.0      # a stated speed is kept
+    assert vocabulary.resolve("squat") == vocabulary.parse("squat")       # no speed known: none invented

@@ -236,6 +236,15 @@ class ActionVocabulary:
             entry = self._entries[best]
         return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
 
+    def resolve(self, text: str, *, min_similarity: float = MIN_SIMILARITY) -> ActionRequest:
+        """`parse`, and where the text states no speed, the label's median training speed (`typical_speed`) where
+        it has one: what `biomotion generate` asks the generator for (guidance's speed term holds it)."""
+        request = self.parse(text, min_similarity=min_similarity)
+        if request.speed is None and self.typical_speed(request.action, request.style) is not None:
+            return ActionRequest(request.action, request.style, self.typical_speed(request.action, request.style),
+                                 request.text)
+        return request
+
     def match_score(self, text: str) -> tuple[str, float]:
         """How well the vocabulary knows ``text``: the best label's speed-free text and its score, 1 for a text
         naming a label or action exactly (as `parse`), else the best cosine similarity of the speed-free text

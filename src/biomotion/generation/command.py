@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 
 from biomotion.errors import ConfigError, DataFormatError
@@ -95,7 +94,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     generator = Generator.load(data_root, chosen.checkpoints)
     vocabulary = generator.bundle.vocabulary
     try:
-        request = vocabulary.parse(action)
+        request = vocabulary.resolve(action)
     except ConfigError as error:
         if chosen.full_body_label is None:
             raise
@@ -103,8 +102,6 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
         raise ConfigError(f"{error}; the full-body bundle ({chosen.checkpoints / FULL_BODY}) also knows "
                           f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
                           f"({', '.join(full_body.styles)})") from None
-    if request.speed is None and vocabulary.typical_speed(request.action, request.style) is not None:
-        request = replace(request, speed=vocabulary.typical_speed(request.action, request.style))
     shown = [vocabulary.parse(text) for text in reference_actions]
     loaded = time.perf_counter()
     with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
