@@ -131,7 +131,8 @@ def stance_mask(feet: torch.Tensor, q: torch.Tensor, rate: float, height: float 
     feet: about 1.3 m/s against 3.5), so the speed test still catches it; a swing foot is faster than the body,
     and height alone took the low swing of a slow walk for stance, where the foot and ground terms then stopped
     it: "walk, elderly" from the full-body bundle, 8 samples of 4 s, came out with strides of 0.42 m by height
-    alone, 0.83 / 0.79 / 0.75 m at ratios 1 / 1.5 / 2 (real elderly walks: 0.77 m). Ratio 1.5 was the best of
+    alone, 0.83 / 0.79 / 0.75 m at ratios 1 / 1.5 / 2 (real elderly walks: 0.77 m; every walking style in
+    docs/results/walking_styles.md, `python benchmarks/walking_styles.py`). Ratio 1.5 was the best of
     these on the generator's dev subjects (training subjects set aside, 23 clips; never evaluation subjects), and
     better than height alone on each figure there: foot contact velocity 0.525 -> 0.521 m/s, skate 28.1 -> 26.0 %,
     floating 1.30 -> 1.15 cm, DTW fidelity 10.23 -> 9.89 cm, muscle-limit violations 41.8 -> 41.5 %, jerk 582
