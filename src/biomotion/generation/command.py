@@ -96,7 +96,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     try:
         request = vocabulary.resolve(action)
     except ConfigError as error:
-        if chosen.full_body_label is None:
+        if chosen.full_body or chosen.full_body_label is None:   # the error lists that vocabulary's actions
             raise
         full_body = Generator.load(data_root, chosen.checkpoints / FULL_BODY, surrogate=False).bundle.vocabulary
         raise ConfigError(f"{error}; the full-body bundle ({chosen.checkpoints / FULL_BODY}) also knows "
