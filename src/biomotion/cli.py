@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from biomotion import __version__
-from biomotion.errors import BiomotionError
+from biomotion.errors import BiomotionError, ConfigError
 
 DEFAULT_DATA_ROOT = Path("../shared/data")
 
@@ -76,6 +76,16 @@ def _generate(args: argparse.Namespace) -> int:
 
     from biomotion.generation.command import generate_command
 
+    if args.list_actions:
+        from biomotion.generation.pipeline import CHECKPOINTS
+        from biomotion.generation.routing import vocabulary_listing
+
+        print(vocabulary_listing(args.checkpoints or CHECKPOINTS))
+        return 0
+    missing = [flag for flag, value in (("--action", args.action), ("--out", args.out)) if value is None]
+    if missing:
+        raise ConfigError(f"generate needs {' and '.join(missing)} (or --list-actions to see the actions)")
+
     result = generate_command(
         action=args.action, out=args.out, data_root=args.data_root, checkpoints=args.checkpoints,
         profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
@@ -127,8 +137,6 @@ def _analyze(args: argparse.Namespace) -> int:
     from biomotion.io.mot import read_motion
 
     if args.trial.suffix.lower() in (".trc", ".c3d", ".bvh", ".gz"):
-        from biomotion.errors import ConfigError
-
         raise ConfigError(f"{args.trial}: analyze takes model coordinates (.mot/.sto); turn markers into coordinates "
                           f"first with `biomotion retarget {args.trial} --model {args.model} --out DIR`")
     motion = read_motion(args.trial)
@@ -227,7 +235,6 @@ def _validate(args: argparse.Namespace) -> int:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from biomotion.errors import ConfigError
     from biomotion.evaluation.harness import eval_command, reference_command
 
     if args.mode == "generation":
@@ -381,8 +388,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="what a --reference clip shows, free text like --action (\"run at 2.5 m/s\"); one per "
                              "--reference, in order. Without it, each clip's action is the one whose population "
                              "posture is nearest and its speed that action's mean")
-    generate.add_argument("--action", required=True,
-                          help="what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
+    generate.add_argument("--action",
+                          help="(required) what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
                                "\"squat\", \"drop jump\", \"walk with toes out\"); the Bandai-Namco contents and "
                                "styles (\"wave both hands\", \"bow\", \"walk, elderly\") go to the full-body "
                                "bundle, with the profile's biodata masked (docs/generation.md)")
@@ -399,7 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--checkpoints", type=Path,
                           help="folder of trained weights (default: the shipped lab bundle, or the shipped "
                                "full-body bundle checkpoints/full-body for the labels only it knows)")
-    generate.add_argument("--out", type=Path, required=True, help="output folder")
+    generate.add_argument("--out", type=Path, help="(required) output folder")
+    generate.add_argument("--list-actions", action="store_true",
+                          help="list the actions, styles and typical speeds each shipped bundle knows, and exit")
     generate.set_defaults(run=_generate)
 
     analyze = verbs.add_parser(

@@ -88,3 +88,13 @@ def test_a_runner_asking_to_wave_gets_a_wave_on_their_own_model(shipped, tmp_pat
     travel = np.hypot(*(np.ptp(motion[n]) for n in ("pelvis_tx", "pelvis_tz")))
     assert travel < 1.0      # a walk at 1.3 m/s covers 2.6 m in 2 s
     assert float(BodyModel.from_osim(out / "model.osim").total_mass) == pytest.approx(74.0, rel=1e-6)  # scaled
+
+
+def test_list_actions_names_both_bundles_and_generate_without_action_is_one_clear_line(shipped, capsys, tmp_path):
+    assert main(["generate", "--list-actions"]) == 0
+    listing = capsys.readouterr().out
+    assert "lab bundle" in listing and "full-body bundle" in listing
+    assert "  run (median 3.50 m/s)" in listing and "wave both hands" in listing and "elderly" in listing
+    assert main(["generate", "--out", str(tmp_path / "o")]) == 2
+    assert "generate needs --action" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -205,6 +205,10 @@ class ActionVocabulary:
         """The speed-free label texts the encoder compares a request with, one per (action, style, text)."""
         return tuple(e.prompt for e in self._entries)
 
+    def entries(self, action: str) -> tuple[_Entry, ...]:
+        """The labels of one action (style, speed-free text, texts, speeds, count)."""
+        return tuple(e for e in self._entries if e.action == action)
+
     def typical_speed(self, action: str, style: str | None = None) -> float | None:
         """Median training speed (m/s) of an action (and style, if given), or None where no label has one."""
         speeds = [s for e in self._entries if e.action == action and (style is None or e.style == style)

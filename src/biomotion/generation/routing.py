@@ -80,3 +80,27 @@ def route(text: str, checkpoints: str | Path) -> Route:
     if not known and score >= lab_score + ROUTING_MARGIN:
         return Route(full_body, lab_label, lab_score, label, score, biodata=False)
     return Route(checkpoints, lab_label, lab_score, label, score)
+
+
+def vocabulary_listing(checkpoints: str | Path) -> str:
+    """The actions each shipped bundle knows, with their styles and median training speeds, for the console
+    (``biomotion generate --list-actions``)."""
+    checkpoints = Path(checkpoints)
+    folders = [(checkpoints, "lab bundle")]
+    if (checkpoints / FULL_BODY / "generator.safetensors").is_file():
+        folders.append((checkpoints / FULL_BODY, "full-body bundle (biodata masked)"))
+    lines, seen = [], set()
+    for folder, title in folders:
+        vocabulary = _vocabulary(folder)
+        lines.append(f"{title}, {folder}:")
+        for action in vocabulary.actions:
+            styles = sorted({e.style for e in vocabulary.entries(action) if e.style not in (None, "normal")}
+                            - {s for a, s in seen if a == action})
+            speed = vocabulary.typical_speed(action)
+            if (action, None) in seen and not styles:
+                continue
+            shown = f"  {action}" + (f" (median {speed:.2f} m/s)" if speed is not None and (action, None) not in seen
+                                     else "")
+            lines.append(shown + (f"; styles: {', '.join(styles)}" if styles else ""))
+            seen |= {(action, None)} | {(action, s) for s in styles}
+    return "\n".join(lines)
