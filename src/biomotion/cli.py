@@ -89,7 +89,8 @@ def _generate(args: argparse.Namespace) -> int:
     result = generate_command(
         action=args.action, out=args.out, data_root=args.data_root, checkpoints=args.checkpoints,
         profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
-        references=args.reference or (), reference_actions=args.reference_action or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
+        references=args.reference or (), reference_actions=args.reference_action or (), seconds=args.seconds,
+        seed=args.seed, samples=args.samples,
         guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
         command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
     a = result["action"]
@@ -389,10 +390,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "--reference, in order. Without it, each clip's action is the one whose population "
                              "posture is nearest and its speed that action's mean")
     generate.add_argument("--action",
-                          help="(required) what to do, free text mapped to the nearest dataset label (\"run at 3.5 m/s\", "
-                               "\"squat\", \"drop jump\", \"walk with toes out\"); the Bandai-Namco contents and "
-                               "styles (\"wave both hands\", \"bow\", \"walk, elderly\") go to the full-body "
-                               "bundle, with the profile's biodata masked (docs/generation.md)")
+                          help="(required) what to do, free text mapped to the nearest dataset label (\"run at "
+                               "3.5 m/s\", \"squat\", \"drop jump\", \"walk with toes out\"); the Bandai-Namco "
+                               "contents and styles (\"wave both hands\", \"bow\", \"walk, elderly\") go to the "
+                               "full-body bundle, with the profile's biodata masked (docs/generation.md)")
     generate.add_argument("--seconds", type=float, default=3.0, help="clip length (default: %(default)s)")
     generate.add_argument("--samples", type=int, default=1, help="clips to draw (default: %(default)s)")
     generate.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")

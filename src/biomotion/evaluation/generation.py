@@ -364,6 +364,8 @@ MANIPULATIONS = (
 STYLE_MANIPULATIONS = (
     ("style", "walk, active", "walk, elderly", "stride_length", -1,
      "older adults walk with shorter strides (Winter et al. 1990, Phys Ther 70:340)"),
+    ("style (youthful)", "walk, youthful", "walk, elderly", "stride_length", -1,
+     "as style: Winter et al. compared fit elderly with young adults, the issue's elderly-vs-youthful pair"),
 )
 
 

@@ -116,5 +116,6 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                                       "guidance": guidance, "personalised": personalised,
                                       "references": [str(p) for p in references],
                                       "reference_actions": list(reference_actions)})
-    return {"action": request, "route": chosen, "files": files, "load_seconds": loaded - started, "generate_seconds": done - loaded,
+    return {"action": request, "route": chosen, "files": files, "load_seconds": loaded - started,
+            "generate_seconds": done - loaded,
             "write_seconds": time.perf_counter() - done, "profile": profile}
