@@ -302,8 +302,8 @@ def markdown(report: dict) -> str:
     if report.get("manipulation"):
         man = report["manipulation"]
         styled_by = f", by the bundle in {man['style_checkpoints']}" if man.get("style_checkpoints") else ""
-        lines.append(f"## Profile manipulation ({man['action']}, {man['samples']} samples per profile; the style row "
-                     f"varies the action's style, without a profile{styled_by})\n\n"
+        lines.append(f"## Profile manipulation ({man['action']}, {man['samples']} samples per profile; the style rows "
+                     f"vary the action's style, without a profile{styled_by})\n\n"
                      "| Field | change | measure | low value | high value | expected | as documented |\n"
                      "|---|---|---|---|---|---|---|\n" + "".join(
                          f"| {f} | {r['change']} | {r['measure']} | {r['low']:.4g} | {r['high']:.4g} | "
