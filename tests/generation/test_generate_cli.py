@@ -42,6 +42,7 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["request"]["action"] == {"action": "run", "style": None, "speed": 3.5,
                                             "text": metrics["request"]["action"]["text"]}
+    assert metrics["request"]["bundle"] == "lab" and metrics["request"]["biodata_used"] is True
     # the weighted physics terms (Table 1 + ground) fall from the sample to the guided clip
     assert metrics["guidance_last_iteration"]["guidance"] < metrics["guidance_first_iteration"]["guidance"]
     planting = metrics["foot_planting"]

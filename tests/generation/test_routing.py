@@ -7,6 +7,7 @@ Scores measured with all-MiniLM-L6-v2 when the rule was set (`ActionVocabulary.m
 
 from __future__ import annotations
 
+import json
 import shutil
 from types import SimpleNamespace
 
@@ -82,6 +83,8 @@ def test_a_runner_asking_to_wave_gets_a_wave_on_their_own_model(shipped, tmp_pat
                  "--seconds", "2", "--no-figures", "--out", str(out), "--data-root", str(data_path("."))])
     assert code == 0, capsys.readouterr().err
     assert "answered by the full-body bundle" in capsys.readouterr().out
+    request = json.loads((out / "metrics.json").read_text())["request"]
+    assert request["bundle"] == "full-body" and request["biodata_used"] is False
     motion = read_motion(out / "motion.mot")   # SI: radians
     abduction = -np.degrees(np.stack([motion["arm_add_r"], motion["arm_add_l"]]))
     assert (abduction.max(axis=1) > 60).all()

@@ -114,6 +114,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
                              request={"command": command, "text": action, "seconds": seconds, "seed": seed,
                                       "guidance": guidance, "personalised": personalised,
+                                      "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None
+                                      else str(checkpoints), "biodata_used": personalised and chosen.biodata
+                                      and profile is not None,
                                       "references": [str(p) for p in references],
                                       "reference_actions": list(reference_actions)})
     return {"action": request, "route": chosen, "files": files, "load_seconds": loaded - started,
