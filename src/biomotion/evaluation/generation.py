@@ -415,12 +415,13 @@ def manipulation_study(generator, base: dict, action: ActionRequest, *, samples:
 def _style_checkpoints(generator, checkpoints: Path) -> Path:
     """The bundle that generates the style rows: ``checkpoints`` when its generator knows every style label of
     `STYLE_MANIPULATIONS`, else its full-body bundle where one ships (`biomotion.generation.routing`)."""
-    from biomotion.generation.routing import FULL_BODY
+    from biomotion.generation.routing import full_body_checkpoints
 
     wanted = {text for row in STYLE_MANIPULATIONS for text in row[1:3]}
-    if wanted <= set(generator.bundle.vocabulary.texts) or not (checkpoints / FULL_BODY).is_dir():
+    full_body = full_body_checkpoints(checkpoints)
+    if wanted <= set(generator.bundle.vocabulary.texts) or full_body is None:
         return checkpoints
-    return checkpoints / FULL_BODY
+    return full_body
 
 
 def _shown(path: Path) -> str:

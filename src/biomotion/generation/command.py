@@ -72,8 +72,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     from biomotion.body.kinematics import torch_threads
     from biomotion.evaluation.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
-    from biomotion.generation.pipeline import CHECKPOINTS, Generator
-    from biomotion.generation.routing import FULL_BODY, Route, route
+    from biomotion.generation.bundle import GeneratorBundle
+    from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, Generator
+    from biomotion.generation.routing import Route, full_body_checkpoints, route
     from biomotion.io.mot import read_motion
 
     if threads is not None and threads < 1:
@@ -98,8 +99,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     except ConfigError as error:
         if chosen.full_body or chosen.full_body_label is None:   # the error lists that vocabulary's actions
             raise
-        full_body = Generator.load(data_root, chosen.checkpoints / FULL_BODY, surrogate=False).bundle.vocabulary
-        raise ConfigError(f"{error}; the full-body bundle ({chosen.checkpoints / FULL_BODY}) also knows "
+        folder = full_body_checkpoints(chosen.checkpoints)
+        full_body = GeneratorBundle.load(folder / GENERATOR_FILE).vocabulary
+        raise ConfigError(f"{error}; the full-body bundle ({folder}) also knows "
                           f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
                           f"({', '.join(full_body.styles)})") from None
     shown = [vocabulary.parse(text) for text in reference_actions]

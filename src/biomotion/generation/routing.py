@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from biomotion.generation.bundle import GeneratorBundle
+from biomotion.generation.pipeline import GENERATOR_FILE
 
 FULL_BODY = "full-body"
 """Folder, inside the lab checkpoints folder, of the full-body bundle."""
@@ -59,9 +60,13 @@ class Route:
         return f"lab bundle ({self.checkpoints})"
 
 
-def _vocabulary(checkpoints: Path):
-    from biomotion.generation.pipeline import GENERATOR_FILE
+def full_body_checkpoints(checkpoints: str | Path) -> Path | None:
+    """The full-body bundle's folder inside ``checkpoints``, or None where none ships there."""
+    folder = Path(checkpoints) / FULL_BODY
+    return folder if (folder / GENERATOR_FILE).is_file() else None
 
+
+def _vocabulary(checkpoints: Path):
     return GeneratorBundle.load(checkpoints / GENERATOR_FILE).vocabulary
 
 
@@ -72,8 +77,8 @@ def route(text: str, checkpoints: str | Path) -> Route:
     checkpoints = Path(checkpoints)
     lab = _vocabulary(checkpoints)
     lab_label, lab_score = lab.match_score(text)
-    full_body = checkpoints / FULL_BODY
-    if not (full_body / "generator.safetensors").is_file():
+    full_body = full_body_checkpoints(checkpoints)
+    if full_body is None:
         return Route(checkpoints, lab_label, lab_score)
     label, score = _vocabulary(full_body).match_score(text)
     known = label in lab.prompts or label in lab.actions
@@ -84,23 +89,26 @@ def route(text: str, checkpoints: str | Path) -> Route:
 
 def vocabulary_listing(checkpoints: str | Path) -> str:
     """The actions each shipped bundle knows, with their styles and median training speeds, for the console
-    (``biomotion generate --list-actions``)."""
-    checkpoints = Path(checkpoints)
-    folders = [(checkpoints, "lab bundle")]
-    if (checkpoints / FULL_BODY / "generator.safetensors").is_file():
-        folders.append((checkpoints / FULL_BODY, "full-body bundle (biodata masked)"))
-    lines, seen = [], set()
-    for folder, title in folders:
-        vocabulary = _vocabulary(folder)
-        lines.append(f"{title}, {folder}:")
+    (``biomotion generate --list-actions``); the full-body bundle's list leaves out what the lab bundle has."""
+    def styles(vocabulary, action: str) -> set[str]:
+        return {e.style for e in vocabulary.entries(action) if e.style not in (None, "normal")}
+
+    def lines(vocabulary, known: dict[str, set[str]]) -> list[str]:
+        out = []
         for action in vocabulary.actions:
-            styles = sorted({e.style for e in vocabulary.entries(action) if e.style not in (None, "normal")}
-                            - {s for a, s in seen if a == action})
-            speed = vocabulary.typical_speed(action)
-            if (action, None) in seen and not styles:
+            new = sorted(styles(vocabulary, action) - known.get(action, set()))
+            if action in known and not new:
                 continue
-            shown = f"  {action}" + (f" (median {speed:.2f} m/s)" if speed is not None and (action, None) not in seen
-                                     else "")
-            lines.append(shown + (f"; styles: {', '.join(styles)}" if styles else ""))
-            seen |= {(action, None)} | {(action, s) for s in styles}
-    return "\n".join(lines)
+            speed = vocabulary.typical_speed(action) if action not in known else None
+            out.append(f"  {action}" + (f" (median {speed:.2f} m/s)" if speed is not None else "")
+                       + (f"; styles: {', '.join(new)}" if new else ""))
+        return out
+
+    checkpoints = Path(checkpoints)
+    lab = _vocabulary(checkpoints)
+    listing = [f"lab bundle, {checkpoints}:", *lines(lab, {})]
+    full_body = full_body_checkpoints(checkpoints)
+    if full_body is not None:
+        listing += [f"full-body bundle (biodata masked), {full_body}:",
+                    *lines(_vocabulary(full_body), {a: styles(lab, a) for a in lab.actions})]
+    return "\n".join(listing)

@@ -134,9 +134,10 @@ def stance_mask(feet: torch.Tensor, q: torch.Tensor, rate: float, height: float 
     alone, 0.83 / 0.79 / 0.75 m at ratios 1 / 1.5 / 2 (real elderly walks: 0.77 m; every walking style in
     docs/results/walking_styles.md, `python benchmarks/walking_styles.py`). Ratio 1.5 was the best of
     these on the generator's dev subjects (training subjects set aside, 23 clips; never evaluation subjects), and
-    better than height alone on every figure there but jerk: foot contact velocity 0.525 -> 0.521 m/s, skate 28.1 -> 26.0 %,
-    floating 1.30 -> 1.15 cm, DTW fidelity 10.23 -> 9.89 cm, muscle-limit violations 41.8 -> 41.5 %, jerk 582
-    -> 584 m/s^3 (ratio 1: skate 31.2 %, foot contact velocity 0.65 m/s; ratio 2: within 1 % of height alone).
+    better than height alone on every figure there but jerk: foot contact velocity 0.525 -> 0.521 m/s, skate
+    28.1 -> 26.0 %, floating 1.30 -> 1.15 cm, DTW fidelity 10.23 -> 9.89 cm, muscle-limit violations 41.8 ->
+    41.5 %, jerk 582 -> 584 m/s^3 (ratio 1: skate 31.2 %, foot contact velocity 0.65 m/s; ratio 2: within 1 % of
+    height alone).
     On the example profile it trades sliding for floating, jerk and muscles (docs/results/guidance_weights.md)."""
     feet = feet.detach()
     low = feet[..., 1] < height
