@@ -26,6 +26,7 @@ from __future__ import annotations
 import torch
 
 from biomotion.metrics.bounds import bound_excess
+from biomotion.models.foot_contact import mean_horizontal_speed
 
 
 def _speed(x: torch.Tensor, rate: float) -> torch.Tensor:
@@ -70,12 +71,6 @@ def ground(feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
     """Penetration^2 of every point plus height^2 of points in contact, summed over points, mean over time."""
     height = feet[..., 1]
     return (torch.relu(-height).pow(2) + contact.to(height.dtype) * height.pow(2)).sum(-1).mean(-1)
-
-
-def mean_horizontal_speed(q: torch.Tensor, rate: float) -> torch.Tensor:
-    """[B] ||mean horizontal pelvis velocity|| (m/s) of clips q [B, T, 39] (pelvis_tx, pelvis_tz: columns 3, 5)."""
-    horizontal = q[..., [3, 5]]
-    return ((horizontal[:, -1] - horizontal[:, 0]) * rate / max(q.shape[1] - 1, 1)).norm(dim=-1)
 
 
 def locomotion_speed(q: torch.Tensor, rate: float, target: torch.Tensor) -> torch.Tensor:

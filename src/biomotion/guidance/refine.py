@@ -60,6 +60,7 @@ import torch
 from biomotion.generation.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.guidance.planting import PlantingConfig, plant_feet
+from biomotion.models.foot_contact import group_members, mean_horizontal_speed, stance_mask
 from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
@@ -89,6 +90,7 @@ class GuidanceConfig:
     contact_height: float = 0.05  # m: a foot point of the unguided sample this low and ... (`stance_mask`)
     stance_speed_ratio: float | None = 1.5  # ... slower than this x the clip's speed is in stance (None: height only)
     stance_speed_floor: float = 0.5  # m/s: ... or slower than this (the metrics' skate speed)
+    decoded_contact: bool = True  # m_t from the tokenizer's contact channels when it has them (`Guide.contact`)
     planting: PlantingConfig | None = PlantingConfig()  # the last stage (immutable settings); None skips it
 
     def alpha(self, k: int) -> float:
@@ -100,11 +102,13 @@ class GuidanceConfig:
 
 @dataclass
 class Kinematics:
-    """Decoded clips placed on the floor: q [B, T, 39], feet [B, T, K, 3], COM [B, T, 3] (canonical size)."""
+    """Decoded clips placed on the floor: q [B, T, 39], feet [B, T, K, 3], COM [B, T, 3] (canonical size), and
+    the decoded contact probabilities [B, T, 4] when the tokenizer has contact channels."""
 
     q: torch.Tensor
     feet: torch.Tensor
     com: torch.Tensor
+    contact: torch.Tensor | None = None
 
 
 @dataclass
@@ -117,35 +121,6 @@ class GuidanceResult:
     unplanted: torch.Tensor
     latents: torch.Tensor
     history: list[dict[str, float]] = field(default_factory=list)
-
-
-def stance_mask(feet: torch.Tensor, q: torch.Tensor, rate: float, height: float = 0.05,
-                ratio: float | None = 1.5, floor: float = 0.5) -> torch.Tensor:
-    """[B, T, K] which foot points [B, T, K, 3] of clips q [B, T, 39] are in stance (PG-BIG Table 1's contact
-    mask m_t; L_foot "enforces zero velocity during stance phases"): below ``height`` (m) and, unless ``ratio`` is
-    None, moving horizontally slower than ``ratio`` times the clip's mean horizontal speed (pelvis displacement
-    over the clip, `losses.mean_horizontal_speed`) or slower than ``floor`` (m/s, the metrics' skate speed),
-    whichever is faster.
-
-    A stance foot sliding in a sample is slower than the body it carries (the example runner's unguided stance
-    feet: about 1.3 m/s against 3.5), so the speed test still catches it; a swing foot is faster than the body,
-    and height alone took the low swing of a slow walk for stance, where the foot and ground terms then stopped
-    it: "walk, elderly" from the full-body bundle, 8 samples of 4 s, came out with strides of 0.42 m by height
-    alone, 0.83 / 0.79 / 0.75 m at ratios 1 / 1.5 / 2 (real elderly walks: 0.77 m; every walking style in
-    docs/results/walking_styles.md, `python benchmarks/walking_styles.py`). Ratio 1.5 was the best of
-    these on the generator's dev subjects (training subjects set aside, 23 clips; never evaluation subjects), and
-    better than height alone on every figure there but jerk: foot contact velocity 0.525 -> 0.521 m/s, skate
-    28.1 -> 26.0 %, floating 1.30 -> 1.15 cm, DTW fidelity 10.23 -> 9.89 cm, muscle-limit violations 41.8 ->
-    41.5 %, jerk 582 -> 584 m/s^3 (ratio 1: skate 31.2 %, foot contact velocity 0.65 m/s; ratio 2: within 1 % of
-    height alone).
-    On the example profile it trades sliding for floating, jerk and muscles (docs/results/guidance_weights.md)."""
-    feet = feet.detach()
-    low = feet[..., 1] < height
-    if ratio is None:
-        return low
-    speed = torch.gradient(feet[..., [0, 2]], spacing=1.0 / rate, dim=1)[0].norm(dim=-1)   # [B, T, K]
-    limit = torch.clamp(ratio * losses.mean_horizontal_speed(q.detach(), rate), min=floor)   # [B]
-    return low & (speed < limit[:, None, None])
 
 
 class Guide:
@@ -162,6 +137,7 @@ class Guide:
         feet = foot_points(body)
         self.feet_bodies, self.feet_offsets = feet.bodies, feet.offsets.to(torch.float32)
         self.feet_sides = feet.feet
+        self.contact_members = group_members(feet.names)  # [4, K]: the foot points of each contact channel
         self.speed_high, self.jerk_high = speed_high.to(torch.float32), jerk_high.to(torch.float32)
         self.rate = tokenizer.config.rate
         ranges = self.body.ranges.to(torch.float32)
@@ -179,7 +155,7 @@ class Guide:
             points_in_ground,
         )
 
-        q = self.tokenizer.decode_latents(z)
+        q, contact = self.tokenizer.decode_with_contact(z)
         if self.posture_shift is not None:
             q = q + self.posture_shift[:, None]
         q = torch.where(self.rotational, torch.minimum(torch.maximum(q, self.lower), self.upper), q)
@@ -192,13 +168,16 @@ class Guide:
         lift[PELVIS_TY] = 1.0
         down = offset[:, None, None]
         up = torch.tensor([0.0, 1.0, 0.0], dtype=q.dtype)
-        return Kinematics(q - down * lift, feet - down[..., None] * up, com - down * up)
+        return Kinematics(q - down * lift, feet - down[..., None] * up, com - down * up, contact)
 
-    def contact(self, feet: torch.Tensor, q: torch.Tensor) -> torch.Tensor:
-        """[B, T, K] stance mask m_t of the placed foot points of clips q (`stance_mask` with the config's
-        thresholds)."""
+    def contact(self, k: Kinematics) -> torch.Tensor:
+        """[B, T, K] contact mask m_t of the foot points of decoded clips: the points of every contact channel the
+        decoder puts above 0.5 when it has channels (and ``decoded_contact`` is on), else the kinematic rule
+        (`stance_mask` with the config's thresholds)."""
         c = self.config
-        return stance_mask(feet, q, self.rate, c.contact_height, c.stance_speed_ratio, c.stance_speed_floor)
+        if c.decoded_contact and k.contact is not None:
+            return ((k.contact.detach() > 0.5)[..., :, None] & self.contact_members).any(-2)
+        return stance_mask(k.feet, k.q, self.rate, c.contact_height, c.stance_speed_ratio, c.stance_speed_floor)
 
     def terms(self, k: Kinematics, contact: torch.Tensor, speed: torch.Tensor) -> dict[str, torch.Tensor]:
         """Each guidance term [B] (PG-BIG Table 1 + ground, jerk and speed); ``speed`` [B] the target locomotion
@@ -233,8 +212,8 @@ class Guide:
         z = z0.clone().requires_grad_(True)
         optimiser = torch.optim.Adam([z], lr=c.lr)
         start = self.kinematics(z0)
-        contact = self.contact(start.feet, start.q)
-        target = (losses.mean_horizontal_speed(start.q.detach(), self.rate) if speed is None
+        contact = self.contact(start)
+        target = (mean_horizontal_speed(start.q.detach(), self.rate) if speed is None
                   else torch.full((len(z0),), float(speed)))
         weights = {t: getattr(c, f"w_{t}") for t in TERMS}
         history = []

@@ -1,12 +1,17 @@
 """Train the motion tokenizer (`MotionVQVAE`) on a dataset cache; write safetensors weights and a model card.
 
     python -m biomotion.models.train_tokenizer --config configs/tokenizer.yaml --cache DIR \\
-        --out checkpoints/tokenizer.safetensors [--minutes N] [--iterations N] [--seed N]
+        --out checkpoints/tokenizer.safetensors [--data-root ../shared/data] [--minutes N] [--iterations N] [--seed N]
 
 Optimisation follows PG-BIG Table 4 and the authors' code: AdamW, lr 2e-4 with linear warm-up, step decay
 (x gamma every ``lr_step`` iterations), gradient clipping at 1.0. Windows of ``window`` frames are cut from the
 training split's clips; validation reports masked reconstruction RMSE on the val split in degrees (rotations)
 and centimetres (pelvis translations).
+
+With foot contact (``model.foot_contact``) or a penetration weight, the canonical body model is read from
+``--data-root``: contact labels of every window come from its foot points (`FootKinematics.labels`), and the
+penetration term of Table 4 is the decoded windows' mean foot depth below the floor in cm, weighted by
+``model.w_penetration``; validation then also reports contact accuracy and penetration.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from tqdm import tqdm
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.models.cards import environment, write_card
+from biomotion.models.foot_contact import FootKinematics
 from biomotion.models.vqvae import N_COORDS, TRANSLATIONS, MotionVQVAE, VQVAEConfig
 
 
@@ -49,10 +55,23 @@ def make_windows(cache: DatasetCache, split: str | None, length: int, stride: in
     return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)), torch.from_numpy(cache.masks[owner])
 
 
+def step_losses(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None,
+                feet: FootKinematics | None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """The model's reconstruction and losses on a batch, plus Table 4's penetration term when ``feet`` is given
+    (added to ``loss`` with weight ``w_penetration``)."""
+    recon, losses = model(x, mask, contact)
+    if feet is not None:
+        losses["penetration_cm"] = feet.penetration_cm(recon, mask.bool())
+        losses["loss"] = losses["loss"] + model.config.w_penetration * losses["penetration_cm"]
+    return recon, losses
+
+
 @torch.no_grad()
-def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, batch: int = 256) -> dict[str, float]:
+def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None = None,
+             feet: FootKinematics | None = None, batch: int = 256) -> dict[str, float]:
     """Masked reconstruction RMSE over windows: rotations in degrees, pelvis translations in cm (the horizontal
-    ones integrated from the window's first frame), plus the mean loss terms and codebook usage."""
+    ones integrated from the window's first frame), plus the mean loss terms (contact accuracy and penetration
+    among them when trained for) and codebook usage."""
     was_training = model.training
     model.eval()
     sq = torch.zeros(N_COORDS, dtype=torch.float64)
@@ -61,7 +80,7 @@ def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, batch: int
     used = torch.zeros(model.config.codebook_size, dtype=torch.bool)
     for i in range(0, len(x), batch):
         xb, mb = x[i:i + batch], mask[i:i + batch]
-        recon, losses = model(xb, mb)
+        recon, losses = step_losses(model, xb, mb, None if contact is None else contact[i:i + batch], feet)
         w = mb.unsqueeze(1).expand_as(xb).double()
         sq += ((recon.double() - xb.double()).pow(2) * w).sum((0, 1))
         count += w.sum((0, 1))
@@ -83,10 +102,12 @@ def learning_rate(step: int, lr: float, warmup: int, lr_step: int, gamma: float)
     return lr * min(1.0, (step + 1) / max(warmup, 1)) * gamma ** (step // lr_step)
 
 
-def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: float | None = None,
-          iterations: int | None = None, seed: int = 0, progress: bool = True, command: str = "") -> dict:
+def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: str | Path = "../shared/data",
+          minutes: float | None = None, iterations: int | None = None, seed: int = 0, progress: bool = True,
+          command: str = "") -> dict:
     """Train from ``config`` (the YAML's dict) on the cache; save weights + card next to ``out``; return card.
-    ``command`` is recorded in the card (the CLI passes its command line)."""
+    ``data_root`` holds the canonical body model (read only for foot contact or penetration); ``command`` is
+    recorded in the card (the CLI passes its command line)."""
     try:
         model_cfg = VQVAEConfig.from_dict(config.get("model", {}))
         data_cfg, train_cfg = config["data"], config["train"]
@@ -100,11 +121,21 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: floa
     x_val, m_val = make_windows(cache, "val", window, window)
     model = MotionVQVAE(model_cfg)
     model.set_normalisation(x_train, m_train)
+    feet = c_train = c_val = None
+    if model_cfg.foot_contact or model_cfg.w_penetration > 0:
+        from biomotion.evaluation.clips import body_model
+
+        feet = FootKinematics(body_model(data_root))
+    if model_cfg.foot_contact:
+        c_train = feet.labels(x_train, m_train.bool(), cache.rate)
+        c_val = feet.labels(x_val, m_val.bool(), cache.rate)
+    if model_cfg.w_penetration <= 0:
+        feet = None
     optimiser = torch.optim.AdamW(model.parameters(), lr=train_cfg["lr"], weight_decay=train_cfg["weight_decay"])
     total = int(iterations or train_cfg["iterations"])
     deadline = time.monotonic() + 60 * minutes if minutes else math.inf
     generator = torch.Generator().manual_seed(seed)
-    before = evaluate(model, x_val, m_val)
+    before = evaluate(model, x_val, m_val, c_val, feet)
     history = []
     started = time.monotonic()
     bar = tqdm(range(total), desc="tokenizer", unit="it", disable=not progress)
@@ -116,7 +147,8 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: floa
             group["lr"] = learning_rate(step, train_cfg["lr"], train_cfg["warmup"], train_cfg["lr_step"],
                                         train_cfg["lr_gamma"])
         pick = torch.randint(len(x_train), (train_cfg["batch_size"],), generator=generator)
-        _, losses = model(x_train[pick], m_train[pick])
+        _, losses = step_losses(model, x_train[pick], m_train[pick], None if c_train is None else c_train[pick],
+                                feet)
         optimiser.zero_grad(set_to_none=True)
         losses["loss"].backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), train_cfg["grad_clip"])
@@ -124,10 +156,10 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: floa
         if step % 20 == 0:
             bar.set_postfix(loss=f"{losses['loss'].item():.4f}", ppl=f"{losses['perplexity'].item():.0f}")
         if (step + 1) % train_cfg["eval_every"] == 0:
-            history.append({"step": step + 1, "train_loss": losses["loss"].item(), **evaluate(model, x_val, m_val)})
+            history.append({"step": step + 1, "train_loss": losses["loss"].item(), **evaluate(model, x_val, m_val, c_val, feet)})
     else:
         step = total
-    after = evaluate(model, x_val, m_val)
+    after = evaluate(model, x_val, m_val, c_val, feet)
     out = Path(out)
     model.save(out, metadata={"format": "biomotion-tokenizer/1"})
     card = {
@@ -141,6 +173,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, minutes: floa
         "train_seconds": round(time.monotonic() - started, 1),
         "data": {"cache_format": cache.manifest.get("format"), "rate_hz": cache.rate,
                  "train_windows": len(x_train), "val_windows": len(x_val),
+                 "contact_share_train": None if c_train is None else round(float(c_train.mean()), 4),
                  "clips_per_split": cache.manifest["counts"]["per_split"],
                  "clips_per_source": cache.manifest["counts"]["per_source"]},
         "metrics_val_before": before,
@@ -168,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", required=True, type=Path)
     parser.add_argument("--cache", required=True, type=Path)
     parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--data-root", default=Path("../shared/data"), type=Path,
+                        help="folder with opensim-models/ (the canonical body, for foot contact and penetration)")
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
     parser.add_argument("--seed", type=int, default=0)
@@ -176,8 +211,8 @@ def main(argv: list[str] | None = None) -> int:
         config = yaml.safe_load(args.config.read_text())
         given = argv if argv is not None else sys.argv[1:]
         command = " ".join(["python -m biomotion.models.train_tokenizer", *given])
-        card = train(config, args.cache, args.out, minutes=args.minutes, iterations=args.iterations, seed=args.seed,
-                     command=command)
+        card = train(config, args.cache, args.out, data_root=args.data_root, minutes=args.minutes,
+                     iterations=args.iterations, seed=args.seed, command=command)
     except BiomotionError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

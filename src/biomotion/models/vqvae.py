@@ -9,6 +9,14 @@ is not in the paper: without it the nearest-neighbour upsampling leaves the deco
 real motion (joint-position jerk of a Fukuchi run, 605 vs 236 m/s^3; 378 with the term). The weights live in
 ``configs/tokenizer.yaml``.
 
+Foot contact (Sec. 3.1, Table 4), when ``foot_contact`` is set: the decoder has four more output channels, the
+logits of heel and forefoot contact of each foot (`biomotion.models.foot_contact`), trained with a binary
+cross-entropy against stance labels of the real clip (weight ``w_contact``), and guidance reads them as its contact
+mask m_t. They are outputs only: contact is a function of the motion the encoder already sees, and an encoder
+input would make every caller compute it. Table 4's penetration term (weight ``w_penetration``: the decoded foot
+points' mean depth below the floor, in cm) needs the body model, so the training loop adds it
+(`biomotion.models.train_tokenizer`).
+
 Input is the canonical skeleton (`biomotion.data.canonical`, 39 Rajagopal coordinates, SI units) with a
 per-coordinate mask [B, 39]. Masked coordinates are zeroed at the input, the mask is given to the encoder as 39
 extra channels, and they are excluded from every loss term, so a source lacking a coordinate cannot leak into
@@ -26,6 +34,7 @@ from torch import nn
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
 from biomotion.errors import ModelError
+from biomotion.models.foot_contact import N_CONTACT
 from biomotion.settings import settings_from_dict
 
 N_COORDS = len(CANONICAL_COORDINATES)
@@ -51,6 +60,9 @@ class VQVAEConfig:
     w_velocity: float = 0.5
     w_acceleration: float = 0.0
     w_commit: float = 0.02
+    foot_contact: bool = False
+    w_contact: float = 0.0
+    w_penetration: float = 0.0
 
     @classmethod
     def from_dict(cls, values: dict) -> VQVAEConfig:
@@ -170,10 +182,16 @@ class MotionVQVAE(nn.Module):
                                      nn.Conv1d(w, config.code_dim, 3, padding=1))
         self.decoder = nn.Sequential(nn.Conv1d(config.code_dim, w, 3, padding=1), nn.ReLU(),
                                      up_stage(w, d, g), up_stage(w, d, g),
-                                     nn.Conv1d(w, w, 3, padding=1), nn.ReLU(), nn.Conv1d(w, N_COORDS, 3, padding=1))
+                                     nn.Conv1d(w, w, 3, padding=1), nn.ReLU(),
+                                     nn.Conv1d(w, N_COORDS + self.contact_channels, 3, padding=1))
         self.quantiser = EMAQuantizer(config.codebook_size, config.code_dim, config.ema_decay, config.dead_threshold)
         self.register_buffer("mean", torch.zeros(N_COORDS))
         self.register_buffer("std", torch.ones(N_COORDS))
+
+    @property
+    def contact_channels(self) -> int:
+        """Number of decoded foot-contact channels: 4 with ``foot_contact``, else 0."""
+        return N_CONTACT if self.config.foot_contact else 0
 
     # -- features -------------------------------------------------------------------------------------------
     def to_features(self, x: torch.Tensor) -> torch.Tensor:
@@ -232,24 +250,36 @@ class MotionVQVAE(nn.Module):
         indices = self.quantiser.nearest(z.reshape(-1, z.shape[-1])).view(z.shape[:2])
         return self.quantiser.codebook[indices], indices
 
+    def decode_with_contact(self, z: torch.Tensor, origin: torch.Tensor | None = None
+                            ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Latents [B, N, code_dim] -> (coordinates [B, 4N, 39] (SI; pelvis_tx/tz start at ``origin``), contact
+        probabilities [B, 4N, 4] of heel and forefoot of each foot, or None without contact channels)."""
+        out = self.decoder(z.transpose(1, 2)).transpose(1, 2)
+        f, logits = out[..., :N_COORDS], out[..., N_COORDS:]
+        q = self.from_features(f * self.std + self.mean, origin)
+        return q, (torch.sigmoid(logits) if self.contact_channels else None)
+
     def decode_latents(self, z: torch.Tensor, origin: torch.Tensor | None = None) -> torch.Tensor:
         """Latents [B, N, code_dim] -> coordinates [B, 4N, 39] (SI); pelvis_tx/tz start at ``origin``."""
-        f = self.decoder(z.transpose(1, 2)).transpose(1, 2)
-        return self.from_features(f * self.std + self.mean, origin)
+        return self.decode_with_contact(z, origin)[0]
 
     def decode_indices(self, indices: torch.Tensor, origin: torch.Tensor | None = None) -> torch.Tensor:
         """Token indices [B, N] -> coordinates [B, 4N, 39] (SI units, canonical order)."""
         return self.decode_latents(self.quantiser.codebook[indices], origin)
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def forward(self, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None = None
+                ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Reconstruction [B, T, 39] (SI, horizontal pelvis from x's first frame) and the losses:
         ``recon`` (masked smooth-L1 on standardised features), ``velocity`` (masked smooth-L1 on their first
-        differences), ``commit`` (encoder-to-code MSE), ``loss`` (weighted sum) and ``perplexity``."""
+        differences), ``commit`` (encoder-to-code MSE), ``loss`` (weighted sum) and ``perplexity``; with contact
+        channels and labels ``contact`` [B, T, 4] (0/1), also ``contact`` (binary cross-entropy) and
+        ``contact_accuracy`` (share of channel-frames whose decoded probability falls on the label's side of
+        0.5)."""
         mask = mask.bool()
         z = self.encode_continuous(x, mask)
         quantised, _, commit, perplexity = self.quantiser(z.transpose(1, 2))
-        f_hat = self.decoder(quantised)
-        f_hat = f_hat.transpose(1, 2)
+        out = self.decoder(quantised).transpose(1, 2)
+        f_hat, logits = out[..., :N_COORDS], out[..., N_COORDS:]
         target = self.normalise(x, mask)
         m = mask.unsqueeze(1).to(f_hat.dtype)
         recon = (F.smooth_l1_loss(f_hat, target, reduction="none") * m).sum() / (m.sum() * x.shape[1]).clamp_min(1)
@@ -259,10 +289,15 @@ class MotionVQVAE(nn.Module):
                         * m).sum() / (m.sum() * (x.shape[1] - 2)).clamp_min(1)
         c = self.config
         loss = c.w_recon * recon + c.w_velocity * velocity + c.w_acceleration * acceleration + c.w_commit * commit
+        terms = {"recon": recon, "velocity": velocity, "acceleration": acceleration, "commit": commit,
+                 "perplexity": perplexity}
+        if self.contact_channels and contact is not None:
+            terms["contact"] = F.binary_cross_entropy_with_logits(logits, contact)
+            terms["contact_accuracy"] = ((logits > 0) == (contact > 0.5)).float().mean()
+            loss = loss + c.w_contact * terms["contact"]
         origin = x[:, 0, list(HORIZONTAL)]
         recon_x = self.from_features(f_hat * self.std + self.mean, torch.where(mask[:, list(HORIZONTAL)], origin, 0))
-        return recon_x, {"loss": loss, "recon": recon, "velocity": velocity, "acceleration": acceleration,
-                         "commit": commit, "perplexity": perplexity}
+        return recon_x, {"loss": loss, **terms}
 
     # -- persistence ----------------------------------------------------------------------------------------
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
