@@ -6,7 +6,7 @@ Real: every clip of the cache labelled "walk" with a style (the Bandai-Namco wal
 `checkpoints/full-body/README.md`). Generated: `--samples` clips of 4 s per style from the full-body bundle, no
 profile, at the style's median training speed as `biomotion generate` asks (`ActionVocabulary.resolve`), guided
 with the defaults and with the foot and ground terms' contact mask by height alone (the rule until 2026-12-03,
-`biomotion.guidance.refine.stance_mask`). Stride length and frequency as the manipulation study of `biomotion eval
+`biomotion.models.foot_contact.stance_mask`). Stride length and frequency as the manipulation study of `biomotion eval
 generation` measures them (`biomotion.evaluation.generation.kinematic_measures`).
 """
 
