@@ -119,4 +119,27 @@ def test_tokenizer_contact_channels_are_decoded_and_trained():
         losses["loss"].backward()
         optimiser.step()
     assert {"contact", "contact_accuracy"} <= set(losses)
-    assert float(losses["contact"]) < 0.5 * first and float(losses["contact_accuracy"]) > 0.9
+    assert losses["contact"].item() < 0.5 * first and losses["contact_accuracy"].item() > 0.9
+
+
+def test_guidance_reads_its_contact_mask_from_the_decoder_when_it_has_channels(feet):
+    """Guide.contact: with contact channels (and ``decoded_contact``), m_t is the points of the channels decoded
+    above 0.5, whatever the kinematics say; without channels, or with ``decoded_contact`` off, it is
+    `stance_mask` of the decoded feet."""
+    from biomotion.generation.bundle import GuidanceBounds
+    from biomotion.guidance.refine import GuidanceConfig, Guide, Kinematics
+
+    bounds = GuidanceBounds((1.0,) * N_COORDS, (0.0, 5.0), (0.0, 50.0), 100)
+    tokenizer = MotionVQVAE(VQVAEConfig(width=32, code_dim=16, codebook_size=32, foot_contact=True))
+    high = torch.ones(N_COORDS)
+    q = _standing(feet)                                   # still, feet flat on the floor: all stance kinematically
+    k = Kinematics(q, feet.points(q), torch.zeros(1, q.shape[1], 3))
+    decoded = torch.zeros(1, q.shape[1], 4)
+    decoded[:, :8, 0] = 0.9                               # right heel only, first half
+    k_decoded = Kinematics(k.q, k.feet, k.com, decoded)
+    guide = Guide(tokenizer, feet.body, bounds, high, high)
+    mask = guide.contact(k_decoded)
+    assert mask[0, :8].tolist() == [[True, True] + [False] * 8] * 8 and not mask[0, 8:].any()
+    assert guide.contact(k).all()                         # no channels decoded: the kinematic rule
+    off = Guide(tokenizer, feet.body, bounds, high, high, config=GuidanceConfig(decoded_contact=False))
+    assert off.contact(k_decoded).all()

@@ -39,7 +39,9 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
   above were measured with height alone; on the example profile the stance test moves the defaults' foot contact
   velocity 0.30 -> 0.32 m/s, skate 11.6 -> 15.9 %, floating 1.18 -> 0.93 cm, jerk 331 -> 313 m/s^3 and
   muscle-limit violations 29.9 -> 26.2 % (row "contact by height alone"); the dev-subject figures that chose it
-  are in `stance_mask`.
+  are in `stance_mask`. With a tokenizer that decodes foot contact (`configs/tokenizer_foot_contact.yaml`; not the
+  shipped one) the mask is read from its channels instead (``decoded_contact``); docs/generation.md has how that
+  compared.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -60,7 +62,7 @@ import torch
 from biomotion.generation.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.guidance.planting import PlantingConfig, plant_feet
-from biomotion.models.foot_contact import group_members, mean_horizontal_speed, stance_mask
+from biomotion.models.foot_contact import group_members, mean_horizontal_speed, points_in_contact, stance_mask
 from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
@@ -176,7 +178,7 @@ class Guide:
         (`stance_mask` with the config's thresholds)."""
         c = self.config
         if c.decoded_contact and k.contact is not None:
-            return ((k.contact.detach() > 0.5)[..., :, None] & self.contact_members).any(-2)
+            return points_in_contact(k.contact.detach() > 0.5, self.contact_members)
         return stance_mask(k.feet, k.q, self.rate, c.contact_height, c.stance_speed_ratio, c.stance_speed_floor)
 
     def terms(self, k: Kinematics, contact: torch.Tensor, speed: torch.Tensor) -> dict[str, torch.Tensor]:

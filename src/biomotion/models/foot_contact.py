@@ -67,6 +67,12 @@ def group_members(point_names: tuple[str, ...]) -> torch.Tensor:
     return members
 
 
+def points_in_contact(channels: torch.Tensor, members: torch.Tensor) -> torch.Tensor:
+    """[..., K] bool per foot point from channel decisions [..., N_CONTACT] bool and `group_members` [N_CONTACT, K]:
+    a point is in contact when its channel is."""
+    return (channels[..., :, None] & members).any(-2)
+
+
 class FootKinematics:
     """Foot points of canonical coordinates on a body model (the canonical Rajagopal 2016 one), differentiable.
 
@@ -100,9 +106,8 @@ class FootKinematics:
             return (stance[..., None, :] & self.members).any(-1).to(torch.float32)
 
     def expand(self, channels: torch.Tensor) -> torch.Tensor:
-        """[B, T, K] bool per foot point from channel decisions [B, T, N_CONTACT] bool: a point is in contact when
-        its channel is."""
-        return (channels[..., :, None] & self.members).any(-2)
+        """[B, T, K] bool per foot point from channel decisions [B, T, N_CONTACT] bool (`points_in_contact`)."""
+        return points_in_contact(channels, self.members)
 
     def penetration_cm(self, q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Mean over frames and foot points of max(0, -height) in cm (PG-BIG Sec. 4.2's penetration, the
