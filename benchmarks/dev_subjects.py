@@ -18,6 +18,7 @@ tokenizer's contact channels (bundles whose tokenizer has none fall back to the 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -60,7 +61,17 @@ def dev_rows(bundle: Path, cache: DatasetCache, data_root: str, contacts: list[s
     rows = {v: {"identity": identity.get(v), **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]}}
             for v in variants}
     subjects = sorted({t.subject for t in targets})
-    return [f"{len(targets)} clips of {len(subjects)} subjects ({', '.join(subjects)})"], rows
+    return [f"{tokenizer_summary(bundle)}; {len(targets)} clips of {len(subjects)} subjects ({', '.join(subjects)})"], rows
+
+
+def tokenizer_summary(bundle: Path) -> str:
+    """The bundle's tokenizer as its model card records it: contact settings and training iterations."""
+    card = json.loads((bundle / "tokenizer.json").read_text())
+    model = card["config"].get("model", {})
+    contact = ("contact channels (w_contact {w}), penetration weight {p}".format(
+        w=model.get("w_contact"), p=model.get("w_penetration", 0.0)) if model.get("foot_contact") else
+        "no contact channels")
+    return f"tokenizer with {contact}, {card['iterations']} iterations"
 
 
 def main(argv: list[str] | None = None) -> None:
