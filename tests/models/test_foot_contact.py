@@ -6,7 +6,13 @@ import pytest
 import torch
 
 from biomotion.body.model import BodyModel
-from biomotion.models.foot_contact import CONTACT_GROUPS, FootKinematics, group_members, stance_mask
+from biomotion.models.foot_contact import (
+    CONTACT_GROUPS,
+    FootKinematics,
+    group_members,
+    points_in_contact,
+    stance_mask,
+)
 from biomotion.models.vqvae import N_COORDS, MotionVQVAE, VQVAEConfig
 from tests.conftest import data_path
 
@@ -67,7 +73,7 @@ def test_standing_on_the_floor_is_contact_everywhere_and_lifted_is_none(feet):
     junk[..., 20:] = 3.0               # trunk and arm coordinates far off ...
     mask[:, 20:] = False               # ... but masked
     assert feet.labels(junk, mask, 30.0).eq(1.0).all()
-    assert feet.expand(torch.tensor([[[True, False, False, True]]])).tolist() == [[[True, True] + [False] * 3
+    assert points_in_contact(torch.tensor([[[True, False, False, True]]]), feet.members).tolist() == [[[True, True] + [False] * 3
                                                                                    + [False] * 2 + [True] * 3]]
 
 

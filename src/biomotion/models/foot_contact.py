@@ -5,8 +5,9 @@ foot guidance term L_foot uses a binary contact mask m_t (Table 1) that the pape
 
 - `stance_mask` says which foot points of a clip are in stance (low and slow; the rule guidance has used since
   2026-12-03, with the evidence that chose it);
-- `contact_labels` reduces it to four channels, heel and forefoot of each foot (HumanML3D's layout: Guo et al.
-  2022 store heel and toe contact of both feet), the targets of the tokenizer's contact channels;
+- `FootKinematics.labels` reduces it to four channels, heel and forefoot of each foot (HumanML3D's layout: Guo
+  et al. 2022 store heel and toe contact of both feet), the targets of the tokenizer's contact channels, and
+  `points_in_contact` takes decoded channels back to foot points (guidance's m_t);
 - `FootKinematics` places the foot points of canonical coordinates (masked coordinates at the model's defaults,
   as `biomotion.data.placement` does) for the labels and for the penetration term.
 """
@@ -104,10 +105,6 @@ class FootKinematics:
             q = torch.where(mask[:, None, :], q, self.defaults)
             stance = stance_mask(self.points(q), q, rate)                              # [B, T, K]
             return (stance[..., None, :] & self.members).any(-1).to(torch.float32)
-
-    def expand(self, channels: torch.Tensor) -> torch.Tensor:
-        """[B, T, K] bool per foot point from channel decisions [B, T, N_CONTACT] bool (`points_in_contact`)."""
-        return points_in_contact(channels, self.members)
 
     def penetration_cm(self, q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Mean over frames and foot points of max(0, -height) in cm (PG-BIG Sec. 4.2's penetration, the

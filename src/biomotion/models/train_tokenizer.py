@@ -121,16 +121,15 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     x_val, m_val = make_windows(cache, "val", window, window)
     model = MotionVQVAE(model_cfg)
     model.set_normalisation(x_train, m_train)
-    feet = c_train = c_val = None
+    body_feet = c_train = c_val = None
     if model_cfg.foot_contact or model_cfg.w_penetration > 0:
         from biomotion.evaluation.clips import body_model
 
-        feet = FootKinematics(body_model(data_root))
+        body_feet = FootKinematics(body_model(data_root))
     if model_cfg.foot_contact:
-        c_train = feet.labels(x_train, m_train.bool(), cache.rate)
-        c_val = feet.labels(x_val, m_val.bool(), cache.rate)
-    if model_cfg.w_penetration <= 0:
-        feet = None
+        c_train = body_feet.labels(x_train, m_train.bool(), cache.rate)
+        c_val = body_feet.labels(x_val, m_val.bool(), cache.rate)
+    feet = body_feet if model_cfg.w_penetration > 0 else None  # the penetration term's foot points
     optimiser = torch.optim.AdamW(model.parameters(), lr=train_cfg["lr"], weight_decay=train_cfg["weight_decay"])
     total = int(iterations or train_cfg["iterations"])
     deadline = time.monotonic() + 60 * minutes if minutes else math.inf
@@ -156,7 +155,8 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         if step % 20 == 0:
             bar.set_postfix(loss=f"{losses['loss'].item():.4f}", ppl=f"{losses['perplexity'].item():.0f}")
         if (step + 1) % train_cfg["eval_every"] == 0:
-            history.append({"step": step + 1, "train_loss": losses["loss"].item(), **evaluate(model, x_val, m_val, c_val, feet)})
+            history.append({"step": step + 1, "train_loss": losses["loss"].item(),
+                            **evaluate(model, x_val, m_val, c_val, feet)})
     else:
         step = total
     after = evaluate(model, x_val, m_val, c_val, feet)
