@@ -246,7 +246,7 @@ def _eval(args: argparse.Namespace) -> int:
         if args.json is None:
             raise ConfigError("eval generation needs --json FILE")
         report = eval_generation(args.data_root, args.json, args.md, checkpoints=args.checkpoints,
-                                 max_seconds=args.max_seconds, seed=args.seed,
+                                 max_seconds=args.max_seconds, seed=args.seed, repeats=args.repeats,
                                  manipulation_samples=args.manipulation_samples,
                                  command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
         met = sum(bool(v) for v in report["bars"].values())
@@ -523,6 +523,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--max-seconds", type=float, default=6.0,
                           help="generation: longest target clip, longer ones are cut (default: %(default)s)")
     evaluate.add_argument("--seed", type=int, default=0, help="generation: random seed (default: %(default)s)")
+    evaluate.add_argument("--repeats", type=int, default=3,
+                          help="generation: generate and score every target this many times with different seeds "
+                               "and pool them (bars judged on the pooled means; per-repeat means and their 95 %% "
+                               "interval reported) (default: %(default)s)")
     evaluate.add_argument("--manipulation-samples", type=int, default=8,
                           help="generation: clips per profile in the manipulation study, 0 skips it "
                                "(default: %(default)s)")

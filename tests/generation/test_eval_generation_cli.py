@@ -32,7 +32,7 @@ def test_eval_generation_on_a_root_of_new_people(tmp_path, capsys):
             os.symlink(data_path(f"fukuchi-running/ik/{speed}/{name}"), root / f"fukuchi-running/ik/{speed}/{name}")
     out = tmp_path / "eval.json"
     code = main(["eval", "generation", "--data-root", str(root), "--json", str(out), "--md", str(tmp_path / "e.md"),
-                 "--max-seconds", "2", "--manipulation-samples", "0"])
+                 "--max-seconds", "2", "--manipulation-samples", "0", "--repeats", "2"])
     assert code == 0, capsys.readouterr().err
     report = json.loads(out.read_text())
     assert report["targets"] == 6 and report["subjects"] == 2  # 2 runners x 3 speeds, each the others' reference
@@ -40,3 +40,10 @@ def test_eval_generation_on_a_root_of_new_people(tmp_path, capsys):
     assert report["table"]["reference"]["speed_error"]["mean"] < 0.05  # the real clips run at their label speed
     assert report["identity"]["subjects"] == 2 and 0.0 <= report["identity"]["full"] <= 1.0
     assert "unseen subjects" in capsys.readouterr().out
+    assert report["repeats"] == 2 and report["repeat_seeds"] == [0, 6]
+    full = report["table"]["full"]["jerk"]
+    assert len(full["repeat_means"]) == 2 and full["count"] == 12  # 6 targets x 2 repeats pooled
+    assert abs(full["mean"] - sum(full["repeat_means"]) / 2) < 1e-9 * full["mean"]
+    assert report["table"]["reference"]["jerk"]["ci95"] == 0.0  # the real clips are the same in every repeat
+    assert len(report["identity"]["per_repeat"]["full"]) == 2
+    assert "## Spread over repeats" in (tmp_path / "e.md").read_text()

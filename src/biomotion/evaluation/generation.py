@@ -29,6 +29,16 @@ every real target) and tested on the real target and on each variant's generated
 A generated clip is embedded through the target's coordinate mask, the coordinates the person's data has (the
 probe learnt the person from those alone; the Fukuchi runners have no trunk or arms, whatever the generator
 draws there is not theirs to recognise).
+
+Repeats (``repeats``, default 3). Generation is sampling, so one pass scores one draw: on 24 targets the identity
+probe moves by 1/24 per clip recognised and the contact means by a few per cent between seeds. As T2M-GPT and
+HumanML3D evaluate (Guo et al. 2022, 20 repeats, mean and 95 % interval), the whole generation and scoring is run
+``repeats`` times with disjoint seeds (repeat r gives target k the seed ``seed + r * targets + k``). The report's
+table pools the per-clip values of every repeat (mean and std over clips x repeats; the reference's clips are the
+same in each repeat, so its figures do not change), the identity accuracy is the mean over repeats, and each
+figure carries its per-repeat means and the 95 % interval of their mean (1.96 s / sqrt(R), s the sample standard
+deviation across repeats). The bars are judged on these pooled means. The profile-manipulation study draws its
+own 8 samples per profile and is run once.
 """
 
 from __future__ import annotations
@@ -240,6 +250,60 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
     return table
 
 
+def interval95(means: Sequence[float]) -> float | None:
+    """Half-width of the 95 % normal interval of the mean of per-repeat means: 1.96 s / sqrt(R) (None for R < 2)."""
+    finite = [m for m in means if m is not None and math.isfinite(m)]
+    return None if len(finite) < 2 else float(1.96 * np.std(finite, ddof=1) / math.sqrt(len(finite)))
+
+
+def combine_repeats(tables: list[dict]) -> dict:
+    """One table from the `score_variants` tables of several repeats: per variant and metric, the per-clip values
+    of all repeats pooled (mean, std and count over them, as `biomotion.metrics.base.summarize` computes them;
+    set-level records without per-clip values, such as diversity, take the mean of the repeats' means and stds),
+    with ``repeat_means`` and ``ci95`` (`interval95`) added."""
+    from biomotion.metrics.base import summarize
+
+    combined: dict = {}
+    for variant, records in tables[0].items():
+        combined[variant] = {}
+        for key, first in records.items():
+            parts = [table[variant][key] for table in tables]
+            means = [part["mean"] for part in parts]
+            record = {k: first[k] for k in ("label", "unit", "better")}
+            if all("values" in part for part in parts):
+                values = [math.nan if v is None else v for part in parts for v in part["values"]]
+                result = summarize(key, first["unit"], torch.tensor(values, dtype=torch.float64))
+                record.update(mean=_finite(result.mean), std=_finite(result.std), count=result.count,
+                              values=[None if not math.isfinite(v) else v for v in values])
+            else:
+                finite = [m for m in means if m is not None]
+                stds = [part["std"] for part in parts if part.get("std") is not None]
+                record.update(mean=float(np.mean(finite)) if finite else None,
+                              std=float(np.mean(stds)) if stds else None, count=sum(p["count"] for p in parts))
+            record.update(repeat_means=means, ci95=interval95(means))
+            combined[variant][key] = record
+    return combined
+
+
+def combine_identity(results: list[dict]) -> dict:
+    """The identity-probe result of several repeats: accuracy per variant averaged, with ``per_repeat`` accuracies
+    and ``ci95`` per variant."""
+    first = results[0]
+    if "full" not in first:
+        return first
+    variants = [v for v in first if isinstance(first[v], float) and v != "chance"]
+    combined = {k: v for k, v in first.items() if k not in variants}
+    for variant in variants:
+        combined[variant] = float(np.mean([r[variant] for r in results]))
+    combined["per_repeat"] = {v: [r[v] for r in results] for v in variants}
+    combined["ci95"] = {v: interval95(combined["per_repeat"][v]) for v in variants}
+    return combined
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
 def _mean(table: dict, variant: str, key: str) -> float:
     value = table[variant].get(key, {}).get("mean")
     return math.nan if value is None else value
@@ -290,13 +354,17 @@ def markdown(report: dict) -> str:
         rows.append(f"| {label} ({unit}) | " + " | ".join(cells) + " |")
     ident = report["identity"]
     lines = [f"# Generation evaluation\n\nCommand: `{report['command']}`\n",
-             f"{report['targets']} target clips of {report['subjects']} unseen subjects; seed {report['seed']}.\n",
+             f"{report['targets']} target clips of {report['subjects']} unseen subjects; {_repeats_line(report)}\n",
              head + "\n".join(rows) + "\n"]
+    if report.get("repeats", 1) > 1:
+        lines.append(_spread(report))
     if "full" in ident:
         lines.append("## Identity probe (logistic regression on pooled tokenizer latents)\n\n"
                      f"{ident['subjects']} subjects (chance {ident['chance']:.2f}); one probe per target, trained "
                      f"on the {ident['train_clips']} real clips of these subjects other than the target's own; "
-                     "generated clips seen through the target's coordinates.\n\n"
+                     "generated clips seen through the target's coordinates"
+                     + (f"; accuracy averaged over the {report['repeats']} repeats" if report.get("repeats", 1) > 1
+                        else "") + ".\n\n"
                      "| Variant | accuracy |\n|---|---|\n"
                      + "".join(f"| {LABELS[v]} | {ident[v]:.2f} |\n" for v in VARIANTS) + "\n")
     if report.get("manipulation"):
@@ -313,6 +381,40 @@ def markdown(report: dict) -> str:
     lines.append("## Bars (issue 7)\n\n| Bar | met |\n|---|---|\n" + "".join(
         f"| {k} | {'–' if v is None else 'yes' if v else 'no'} |\n" for k, v in report["bars"].items()))
     return "\n".join(lines)
+
+
+#: The figures the bars judge, shown per repeat in the Markdown report: (variant, metric key).
+SPREAD_ROWS = (("full", "fidelity"), ("no_personalization", "fidelity"), ("population", "fidelity"),
+               *((variant, key) for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity", "jerk")
+                 for variant in ("reference", "full", "no_guidance")),
+               ("full", "muscle_violations"), ("no_guidance", "muscle_violations"), ("full", "zmp_in_support"))
+
+
+def _repeats_line(report: dict) -> str:
+    repeats = report.get("repeats", 1)
+    if repeats == 1:
+        return f"seed {report['seed']}."
+    return (f"{repeats} repeats (first seeds {', '.join(map(str, report['repeat_seeds']))}); each cell is the mean ± "
+            "std over clips x repeats.")
+
+
+def _spread(report: dict) -> str:
+    """The bar figures' per-repeat means and the 95 % interval of their mean."""
+    def cells(means: list, interval: float | None, digits: str = ".3g") -> str:
+        shown = ", ".join("–" if m is None else f"{m:{digits}}" for m in means)
+        return f"{shown} | " + ("–" if interval is None else f"± {interval:{digits}}")
+
+    table = report["table"]
+    rows = [f"| {table[v][k]['label']} ({table[v][k]['unit']}) | {LABELS[v]} | "
+            + cells(table[v][k]["repeat_means"], table[v][k]["ci95"]) + " |"
+            for v, k in SPREAD_ROWS if k in table.get(v, {})]
+    ident = report["identity"]
+    if "per_repeat" in ident:
+        rows += [f"| Identity probe | {LABELS[v]} | " + cells(ident["per_repeat"][v], ident["ci95"][v], ".2f") + " |"
+                 for v in ("reference", "full", "no_guidance") if v in ident["per_repeat"]]
+    return ("## Spread over repeats\n\nPer-repeat means of the figures the bars judge, and the half-width of the 95 % "
+            "interval of their mean (1.96 s / sqrt(R)).\n\n| Metric | Variant | per repeat | 95 % interval |\n"
+            "|---|---|---|---|\n" + "\n".join(rows) + "\n")
 
 
 # --- profile manipulation (PG-BIG Sec. 4.5) ----------------------------------------------------------------------
@@ -447,8 +549,12 @@ MANIPULATION_BASE = {"age": 35.0, "sex": "M", "height": 1.76, "mass": 72.0, "spo
 
 def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str | Path | None = None, *,
                     checkpoints: str | Path | None = None, max_seconds: float = 6.0, seed: int = 0,
-                    manipulation_samples: int = 8, progress: bool = True, command: str = "") -> dict:
-    """Run the whole evaluation on ``data_root``'s unseen subjects; write the JSON (and Markdown) report."""
+                    repeats: int = 3, manipulation_samples: int = 8, progress: bool = True,
+                    command: str = "") -> dict:
+    """Run the whole evaluation on ``data_root``'s unseen subjects, ``repeats`` times (module docstring); write the
+    JSON (and Markdown) report."""
+    if repeats < 1:
+        raise BiomotionError(f"--repeats must be at least 1, got {repeats}")
     from biomotion.evaluation.clips import body_model, build_temporary_cache
     from biomotion.evaluation.harness import write_json, write_text
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
@@ -467,13 +573,20 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         targets = unseen_targets(cache, generator.bundle.train_subjects, max_seconds)
         if not targets:
             raise BiomotionError(f"no unseen subject under {data_root}: every subject there was in the training set")
-        variants = generate_variants(targets, cache, generator, population, seed=seed, progress=progress)
         names = [cache.records[t.index]["clip_id"] for t in targets]
         model = body_model(data_root)
         speeds = [cache.records[t.index]["labels"].get("speed") for t in targets]
         heights = [cache.records[t.index]["profile"].get("height") for t in targets]
-        table = score_variants(variants, model, generator.surrogate, generator.rate, names, speeds, heights)
-        identity = identity_accuracy(generator.tokenizer, targets, variants)
+        seeds = [seed + r * len(targets) for r in range(repeats)]
+        tables, identities = [], []
+        for r, first_seed in enumerate(seeds):
+            if progress and repeats > 1:
+                print(f"repeat {r + 1}/{repeats} (seeds {first_seed}-{first_seed + len(targets) - 1})")
+            variants = generate_variants(targets, cache, generator, population, seed=first_seed, progress=progress)
+            tables.append(score_variants(variants, model, generator.surrogate, generator.rate, names, speeds,
+                                         heights))
+            identities.append(identity_accuracy(generator.tokenizer, targets, variants))
+        table, identity = combine_repeats(tables), combine_identity(identities)
     manipulation = None
     if manipulation_samples > 0:
         run = generator.bundle.vocabulary.parse("run at 3.5 m/s")
@@ -482,7 +595,7 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         manipulation = manipulation_study(generator, MANIPULATION_BASE, run, samples=manipulation_samples, seed=seed,
                                           style_generator=style_generator)
         manipulation["style_checkpoints"] = _shown(style_checkpoints)
-    report = {"command": command, "seed": seed, "targets": len(targets),
+    report = {"command": command, "seed": seed, "repeats": repeats, "repeat_seeds": seeds, "targets": len(targets),
               "subjects": len({t.subject for t in targets}), "clips": names, "table": table, "identity": identity,
               "manipulation": manipulation, "bars": done_when(table, identity, manipulation)}
     write_json(json_path, report)
