@@ -1,23 +1,30 @@
 """Generation on the generator's dev subjects: the figures that choose settings; writes docs/results/dev_subjects.md.
 
     python benchmarks/dev_subjects.py [--cache build/dataset_lab] [--bundle checkpoints] [--bundle DIR ...]
-        [--contact kinematic] [--contact decoded] [--out docs/results/dev_subjects.md]
+        [--contact kinematic] [--contact decoded] [--guidance NAME:KEY=VALUE,...] [--repeats R]
+        [--out docs/results/dev_subjects.md]
 
 The dev subjects are the training subjects the generator's training sets aside for early stopping
 (`biomotion.models.train_generator.dev_subject`, 15 %): the prior never learns from their clips, and they are never
 evaluation subjects, so settings can be chosen on them without touching `biomotion eval generation`'s unseen
 subjects. Targets are chosen as the evaluation chooses them (`unseen_targets`: up to 4 clips of at most 6 s per
-subject, the person's other clips as references); each is generated once (seed = its index) with every bundle and
-every guidance contact mask asked for, and scored as the evaluation scores (`score_variants`,
-`identity_accuracy` with the bundle's own tokenizer, so the identity column is comparable within a bundle and
-against its real row, less so across bundles). ``--contact decoded`` reads guidance's contact mask from the
-tokenizer's contact channels (bundles whose tokenizer has none fall back to the kinematic rule); ``kinematic`` is
-`biomotion.models.foot_contact.stance_mask`.
+subject, the person's other clips as references); each is generated with every bundle and every variant asked for,
+and scored as the evaluation scores (`score_variants`, `identity_accuracy` with the bundle's own tokenizer, so the
+identity column is comparable within a bundle and against its real row, less so across bundles). With
+``--repeats R`` every target is generated R times (repeat r, target k: seed r * targets + k), the scores pool the
+clips of all repeats and the identity is the mean over repeats, as `biomotion eval generation` does.
+
+Variants: ``--contact decoded`` reads guidance's contact mask from the tokenizer's contact channels (bundles whose
+tokenizer has none fall back to the kinematic rule), ``kinematic`` is `biomotion.models.foot_contact.stance_mask`;
+``--guidance NAME:KEY=VALUE,...`` is the default guidance with those `GuidanceConfig` fields changed (``none``
+as a value: the field set to None), ``NAME:`` the default guidance itself and ``NAME:-`` the sample before
+guidance.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -26,7 +33,15 @@ from pathlib import Path
 from biomotion.body.kinematics import torch_threads
 from biomotion.data.registry import DatasetCache
 from biomotion.evaluation.clips import body_model
-from biomotion.evaluation.generation import _motion, _request, identity_accuracy, score_variants, unseen_targets
+from biomotion.evaluation.generation import (
+    _motion,
+    _request,
+    combine_identity,
+    combine_repeats,
+    identity_accuracy,
+    score_variants,
+    unseen_targets,
+)
 from biomotion.generation.pipeline import Generator
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.atomic import atomic_write
@@ -38,30 +53,59 @@ COLUMNS = (("foot_contact_velocity", "foot contact vel. (m/s)"), ("skate_ratio",
            ("speed_error", "speed error (m/s)"))
 
 
-def dev_rows(bundle: Path, cache: DatasetCache, data_root: str, contacts: list[str]) -> tuple[list[str], dict]:
-    """Per variant ("reference" and each contact mask): the identity probe and the mean of each column."""
+def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:
+    """``NAME:KEY=VALUE,...`` -> (NAME, the default `GuidanceConfig` with those fields); ``NAME:`` -> (NAME, the
+    default); ``NAME:-`` -> (NAME, None), the unguided sample."""
+    name, _, settings = spec.partition(":")
+    if settings == "-":
+        return name, None
+    if not settings:
+        return name, GuidanceConfig()
+    fields = {f.name: f.type for f in dataclasses.fields(GuidanceConfig)}
+    changes = {}
+    for item in settings.split(","):
+        key, _, value = item.partition("=")
+        if key not in fields:
+            raise SystemExit(f"--guidance {spec}: GuidanceConfig has no field {key!r}")
+        kind = str(fields[key])
+        changes[key] = (None if value == "none" else value.lower() in ("1", "true") if kind == "bool"
+                        else int(value) if kind.startswith("int") else float(value))
+    return name, dataclasses.replace(GuidanceConfig(), **changes)
+
+
+def dev_rows(bundle: Path, cache: DatasetCache, data_root: str, configs: dict[str, GuidanceConfig | None],
+             repeats: int = 1) -> tuple[list[str], dict]:
+    """Per variant ("reference" and each named guidance config; None: unguided): the identity probe (mean over
+    repeats) and the mean of each column over the clips of all repeats."""
     generator = Generator.load(data_root, bundle)
     train = generator.bundle.train_subjects
     seen = [s for s in train if not dev_subject(s, 0.15)]
     targets = [t for t in unseen_targets(cache, seen, 6.0) if t.subject in train]
-    variants = {"reference": [t.motion for t in targets]}
-    for contact in contacts:
-        config = GuidanceConfig(decoded_contact=contact == "decoded")
-        variants[contact] = [
-            _motion(generator.generate(_request(cache, t.index), profile=cache.profile(t.index),
-                                       references=t.references, reference_actions=t.reference_actions,
-                                       reference_speeds=t.reference_speeds, seconds=t.motion.n_frames / generator.rate,
-                                       seed=k, guidance_config=config).q[0], generator.rate)
-            for k, t in enumerate(targets)]
-    identity = identity_accuracy(generator.tokenizer, targets, variants)
-    records = [cache.records[t.index] for t in targets]
-    table = score_variants(variants, body_model(data_root), generator.surrogate, generator.rate,
-                           [r["clip_id"] for r in records], [r["labels"].get("speed") for r in records],
-                           [r["profile"].get("height") for r in records])
+    tables, identities = [], []
+    for r in range(repeats):
+        variants = {"reference": [t.motion for t in targets]}
+        for name, config in configs.items():
+            variants[name] = [
+                _motion(generator.generate(_request(cache, t.index), profile=cache.profile(t.index),
+                                           references=t.references, reference_actions=t.reference_actions,
+                                           reference_speeds=t.reference_speeds,
+                                           seconds=t.motion.n_frames / generator.rate, seed=r * len(targets) + k,
+                                           guidance=config is not None, guidance_config=config).q[0],
+                        generator.rate)
+                for k, t in enumerate(targets)]
+        identities.append(identity_accuracy(generator.tokenizer, targets, variants))
+        records = [cache.records[t.index] for t in targets]
+        tables.append(score_variants(variants, body_model(data_root), generator.surrogate, generator.rate,
+                                     [rec["clip_id"] for rec in records],
+                                     [rec["labels"].get("speed") for rec in records],
+                                     [rec["profile"].get("height") for rec in records]))
+    table, identity = combine_repeats(tables), combine_identity(identities)
     rows = {v: {"identity": identity.get(v), **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]}}
-            for v in variants}
+            for v in table}
     subjects = sorted({t.subject for t in targets})
-    return [f"{tokenizer_summary(bundle)}; {len(targets)} clips of {len(subjects)} subjects ({', '.join(subjects)})"], rows
+    repeated = f", {repeats} repeats" if repeats > 1 else ""
+    return [f"{tokenizer_summary(bundle)}; {len(targets)} clips of {len(subjects)} subjects{repeated} "
+            f"({', '.join(subjects)})"], rows
 
 
 def tokenizer_summary(bundle: Path) -> str:
@@ -79,11 +123,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cache", default="build/dataset_lab")
     parser.add_argument("--bundle", action="append", type=Path, help="checkpoint folder (repeatable)")
     parser.add_argument("--contact", action="append", choices=("kinematic", "decoded"))
+    parser.add_argument("--guidance", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                        help="a variant: default guidance with these GuidanceConfig fields changed (repeatable)")
+    parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--data-root", default="../shared/data")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", default="docs/results/dev_subjects.md")
     args = parser.parse_args(argv)
-    bundles, contacts = args.bundle or [Path("checkpoints")], args.contact or ["kinematic"]
+    bundles = args.bundle or [Path("checkpoints")]
+    contacts = args.contact or ([] if args.guidance else ["kinematic"])
+    configs = {c: GuidanceConfig(decoded_contact=c == "decoded") for c in contacts}
+    configs.update(guidance_variant(spec) for spec in args.guidance)
     cache = DatasetCache(args.cache)
     lines = ["# Generation on the generator's dev subjects", "",
              f"Command: `python {' '.join(['benchmarks/dev_subjects.py', *(argv or sys.argv[1:])])}`", ""]
@@ -92,7 +142,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     with torch_threads(args.threads):
         for bundle in bundles:
-            notes, rows = dev_rows(bundle, cache, args.data_root, contacts)
+            notes, rows = dev_rows(bundle, cache, args.data_root, configs, args.repeats)
             lines.append(f"- `{bundle.as_posix()}`: {notes[0]}")
             for variant, row in rows.items():
                 cells = [f"{row[k]:.3g}" if row.get(k) is not None else "–" for k, _ in COLUMNS]

@@ -45,6 +45,7 @@ SETTINGS = {"unguided": None, "defaults": {}, "no foot planting": {"planting": N
                                              "lr": 0.05, "planting": None},
             "re-quantised at 30, no planting": {"quantize_at": 30, "planting": None},
             "contact by height alone (no stance speed test)": {"stance_speed_ratio": None},
+            "no tempo (the speed term alone brings the sample to speed)": {"tempo": None},
             "speed weight 100": {"w_locomotion_speed": 100.0},
             "speed weight 300": {"w_locomotion_speed": 300.0}}
 

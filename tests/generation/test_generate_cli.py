@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
 from biomotion.cli import main
 from biomotion.generation.pipeline import (
@@ -45,6 +46,7 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     assert metrics["request"]["bundle"] == "lab" and metrics["request"]["biodata_used"] is True
     # the weighted physics terms (Table 1 + ground) fall from the sample to the guided clip
     assert metrics["guidance_last_iteration"]["guidance"] < metrics["guidance_first_iteration"]["guidance"]
+    assert 0.8 <= metrics["tempo"] <= 1.25  # played faster or slower to reach 3.5 m/s (biomotion.guidance.tempo)
     planting = metrics["foot_planting"]
     assert 0 < planting["mean_change_deg"] <= planting["max_change_deg"] < 45
     assert 0 < planting["frames_changed_over_1deg"] <= 1
@@ -81,3 +83,24 @@ def test_a_reference_clip_centres_the_motion_on_the_persons_posture(shipped, tmp
     assert not {"pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz", "lumbar_extension"} & set(offset)
     assert all(abs(v) < 30 for v in offset.values())
     assert metrics["request"]["reference_actions"] == ["run at 2.5 m/s"]
+
+
+def test_tempo_brings_the_sample_to_the_asked_speed_before_any_guidance_step(shipped):
+    """With zero guidance iterations and no planting, the guided clip is the sample played at its tempo: its speed
+    error is the unguided sample's cut down (to zero unless the tempo hit a bound of its range)."""
+    from biomotion.generation.pipeline import Generator
+    from biomotion.guidance.refine import GuidanceConfig
+    from biomotion.guidance.tempo import WARP_RANGE
+    from biomotion.models.foot_contact import mean_horizontal_speed
+
+    generator = Generator.load(data_path("."), CHECKPOINTS)
+    action = generator.bundle.vocabulary.parse("run at 3.5 m/s")
+    out = generator.generate(action, seconds=2.0, samples=4, seed=5,
+                             guidance_config=GuidanceConfig(iterations=0, planting=None))
+    target = 3.5  # no profile: the canonical size, the request's speed as it is
+    before = (mean_horizontal_speed(out.unguided, generator.rate) - target).abs()
+    after = (mean_horizontal_speed(out.q, generator.rate) - target).abs()
+    bounded = (out.tempo <= WARP_RANGE[0] + 1e-6) | (out.tempo >= WARP_RANGE[1] - 1e-6)
+    assert (after[~bounded] < 0.1 * before[~bounded] + 0.05).all(), (before, after, out.tempo)
+    assert (after[bounded] < before[bounded]).all(), (before, after, out.tempo)
+    assert not torch.equal(out.q, out.unguided)

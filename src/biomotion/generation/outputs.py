@@ -5,7 +5,8 @@ Per clip: ``motion.mot`` (OpenSim coordinates of the scaled model, degrees, coup
 inferred from the motion alone, PhysPT Eq. 4-5), ``torques.sto`` (inverse dynamics with that ground reaction),
 ``com_zmp.sto``, ``activations.sto`` (muscle surrogate, PG-BIG Sec. 3.3), ``metrics.json`` (the physics metrics of
 `biomotion eval` plus the guidance terms before and after latent guidance, how much foot planting changed the
-legs and the person's posture offset taken from the reference clips) and plots. ``model.osim`` (the person's
+legs, the person's posture offset taken from the reference clips and the tempo the sample was played at to reach
+the asked speed, `biomotion.guidance.tempo`) and plots. ``model.osim`` (the person's
 model) is written once per request. Files are written atomically by the writers they come from.
 """
 
@@ -143,7 +144,8 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
     for k, motion in enumerate(motions):
         folder = out if len(motions) == 1 else out / f"sample_{k + 1:02d}"
         extra = {"request": {**(request or {}), "sample": k + 1, "action": asdict(generated.action)},
-                 **guide_terms, **({"foot_planting": planting[k]} if planting else {})}
+                 **guide_terms, **({"foot_planting": planting[k]} if planting else {}),
+                 **({} if generated.tempo is None else {"tempo": round(float(generated.tempo[k]), 4)})}
         result[folder.name] = write_clip(folder, motion, model, model_file.resolve(),
                                          None if activations is None else activations[k], names, extra,
                                          figures=figures, geometry=geometry)

@@ -42,6 +42,7 @@ from biomotion.generation.conditioning import (
 )
 from biomotion.generation.posture import centring_shift, posture_offset
 from biomotion.guidance.refine import GuidanceConfig, Guide
+from biomotion.guidance.tempo import warp, warp_factor
 from biomotion.models.prior import Condition
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
 from biomotion.motion import Motion
@@ -62,8 +63,9 @@ TEMPERATURE = 0.7
 class Generated:
     """K generated clips in canonical coordinates at the canonical size, on the floor: ``q`` [K, T, 39] (guided
     when guidance ran), ``unguided`` [K, T, 39], ``unplanted`` [K, T, 39] (after latent guidance, before foot
-    planting; ``q`` when either did not run), the codes [K, N], guidance history, the request and the person's
-    posture offset [39] the clips were centred with (`biomotion.generation.posture`; None when they were not)."""
+    planting; ``q`` when either did not run), the codes [K, N], guidance history, the request, the person's
+    posture offset [39] the clips were centred with (`biomotion.generation.posture`; None when they were not) and
+    the tempo [K] each guided clip was played at (`biomotion.guidance.tempo`; None without one)."""
 
     q: torch.Tensor
     unguided: torch.Tensor
@@ -73,6 +75,7 @@ class Generated:
     history: list[dict[str, float]] = field(default_factory=list)
     unplanted: torch.Tensor | None = None
     posture: torch.Tensor | None = None
+    tempo: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if self.unplanted is None:
@@ -189,7 +192,15 @@ class Generator:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
-        n_tokens = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
+        speed = None
+        if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
+            height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
+            speed = action.speed * GENERIC_HEIGHT / height
+        config = guidance_config or GuidanceConfig()
+        tempo_range = config.tempo if guidance and speed is not None else None
+        n_plain = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
+        n_tokens = n_plain if tempo_range is None else max(1, math.ceil(seconds * self.rate * tempo_range[1]
+                                                                       / DOWNSAMPLE))  # a faster tempo plays more
         cond, prefix, offset = self.condition(action, profile, references, personalised, reference_actions,
                                               reference_speeds, biodata)
         batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
@@ -204,22 +215,29 @@ class Generator:
         z0 = self.tokenizer.quantiser.codebook[codes]
         bundle = self.bundle
         frames = round(seconds * self.rate)
-        shift, target, offset = None, None, offset if posture else None
+        shift, played_shift, target, offset = None, None, None, offset if posture else None
+        z_plain = z0[:, :n_plain]  # the sample as the prior drew it for this length (what --no-guidance returns)
+        tempo, played = None, None
+        if tempo_range is not None:
+            with torch.no_grad():
+                decoded = self.tokenizer.decode_latents(z0)
+            tempo = warp_factor(decoded, self.rate, torch.full((samples,), speed), tempo_range)
+            played = warp(decoded, tempo, frames)
         if offset is not None:
             target = bundle.posture(action.action, action.speed) + offset
             with torch.no_grad():
-                decoded = self.tokenizer.decode_latents(z0)[:, :frames]
-            shift = centring_shift(decoded, target)
-        guide = Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
-                      bundle.high(action.action, "jerk_high"), self.surrogate, guidance_config, shift, target)
-        with torch.no_grad():
-            unguided = guide.kinematics(z0).q[:, :frames]
+                shift = centring_shift(self.tokenizer.decode_latents(z_plain)[:, :frames], target)
+            played_shift = shift if played is None else centring_shift(played, target)
+
+        def make_guide(posture_shift: torch.Tensor | None, factor: torch.Tensor | None) -> Guide:
+            return Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
+                         bundle.high(action.action, "jerk_high"), self.surrogate, config, posture_shift, target,
+                         factor, frames)
+
+        with torch.no_grad():  # the sample before guidance, at its own tempo
+            unguided = make_guide(shift, None).kinematics(z_plain).q[:, :frames]
         if not guidance:
             return Generated(unguided, unguided, codes, self.rate, action, posture=offset)
-        speed = None
-        if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
-            height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
-            speed = action.speed * GENERIC_HEIGHT / height
-        result = guide(z0, speed)
+        result = make_guide(played_shift, tempo)(z0, speed)
         return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history,
-                         result.unplanted[:, :frames], offset)
+                         result.unplanted[:, :frames], offset, tempo)
