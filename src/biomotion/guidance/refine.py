@@ -10,7 +10,8 @@ of codebook entries. Last, the feet are planted in coordinate space (`biomotion.
 held still on the floor by inverse kinematics of the legs), which latent guidance alone cannot do exactly.
 
 Defaults, and where they leave Table 5 (measured by ``python benchmarks/guidance_weights.py``,
-docs/results/guidance_weights.md: the example profile running, walking and squatting, never evaluation subjects):
+docs/results/guidance_weights.md: the example profile running, walking and squatting, never evaluation subjects;
+the example-profile figures quoted below predate the tempo, whose "no tempo" row repeats their defaults exactly):
 - 40 iterations, physics from the first one: Table 5 runs 250 on a GPU with physics from 100, but guidance starts
   from the sample itself, where the proximity gradient is exactly zero, so a proximity-only warm-up would not move
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
@@ -35,7 +36,10 @@ docs/results/guidance_weights.md: the example profile running, walking and squat
   subjects (3 repeats of 23 targets, ``python benchmarks/dev_subjects.py --repeats 3 --guidance shipped:
   --guidance no_tempo:tempo=none --guidance unguided:-``, docs/results/dev_guidance.md), against the same guidance
   without it: foot contact velocity 0.52 -> 0.44 m/s, skate 26 -> 17 %, jerk 578 -> 461 m/s^3, muscle-limit
-  violations 41.6 -> 34.2 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way.
+  violations 41.6 -> 34.2 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
+  profile's six clips (two of them runs with a speed) the row "no tempo" reads the other way on contact (foot
+  contact velocity 0.32 against 0.35 m/s, skate 15.9 against 17.2 %) and the same way on jerk (313 against 277
+  m/s^3) and muscle-limit violations (26.2 against 21.5 %); the 69 dev clips decided.
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
   much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
