@@ -17,8 +17,8 @@ clips of all repeats and the identity is the mean over repeats, as `biomotion ev
 Variants: ``--contact decoded`` reads guidance's contact mask from the tokenizer's contact channels (bundles whose
 tokenizer has none fall back to the kinematic rule), ``kinematic`` is `biomotion.models.foot_contact.stance_mask`;
 ``--guidance NAME:KEY=VALUE,...`` is the default guidance with those `GuidanceConfig` fields changed (``none``
-as a value: the field set to None), ``NAME:`` the default guidance itself and ``NAME:-`` the sample before
-guidance.
+as a value: the field set to None; ``planting.FIELD`` a field of its `PlantingConfig`), ``NAME:`` the default
+guidance itself and ``NAME:-`` the sample before guidance.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from biomotion.evaluation.generation import (
     unseen_targets,
 )
 from biomotion.generation.pipeline import Generator
+from biomotion.guidance.planting import PlantingConfig
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.atomic import atomic_write
 from biomotion.models.train_generator import dev_subject
@@ -61,15 +62,20 @@ def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:
         return name, None
     if not settings:
         return name, GuidanceConfig()
-    fields = {f.name: f.type for f in dataclasses.fields(GuidanceConfig)}
-    changes = {}
+    changes: dict[str, object] = {}
+    planting: dict[str, object] = {}
     for item in settings.split(","):
         key, _, value = item.partition("=")
-        if key not in fields:
-            raise SystemExit(f"--guidance {spec}: GuidanceConfig has no field {key!r}")
-        kind = str(fields[key])
-        changes[key] = (None if value == "none" else value.lower() in ("1", "true") if kind == "bool"
-                        else int(value) if kind.startswith("int") else float(value))
+        owner, field = (PlantingConfig, key.split(".", 1)[1]) if key.startswith("planting.") else (GuidanceConfig, key)
+        kinds = {f.name: str(f.type) for f in dataclasses.fields(owner)}
+        if field not in kinds:
+            raise SystemExit(f"--guidance {spec}: {owner.__name__} has no field {field!r}")
+        kind = kinds[field]
+        parsed = (None if value == "none" else value.lower() in ("1", "true") if kind == "bool"
+                  else int(value) if kind.startswith("int") else float(value))
+        (planting if owner is PlantingConfig else changes)[field] = parsed
+    if planting:
+        changes["planting"] = dataclasses.replace(PlantingConfig(), **planting)
     return name, dataclasses.replace(GuidanceConfig(), **changes)
 
 
