@@ -34,7 +34,9 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
   faster or slower (0.8-1.25 times) to reach it, and guidance refines the latents through that playback, so the
   speed term starts near its target instead of dragging the pelvis ahead of planted feet. On the generator's dev
   subjects (3 repeats of 23 targets, ``python benchmarks/dev_subjects.py --repeats 3 --guidance shipped:
-  --guidance no_tempo:tempo=none --guidance unguided:-``, docs/results/dev_guidance.md), against the same guidance
+  --guidance no_tempo:tempo=none --guidance no_planting:planting=none --guidance
+  planting_damping_0.1:planting.damping=0.1 --guidance planting_damping_1:planting.damping=1 --guidance
+  unguided:-``, docs/results/dev_guidance.md), against the same guidance
   without it: foot contact velocity 0.52 -> 0.44 m/s, skate 26 -> 17 %, jerk 578 -> 461 m/s^3, muscle-limit
   violations 41.6 -> 34.2 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
   profile's six clips (two of them runs with a speed) the row "no tempo" reads the other way on contact (foot
@@ -43,7 +45,10 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
   much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
-- foot planting on (``planting``): foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2
+- foot planting on (``planting``), same dev-subject run: foot contact velocity 0.54 -> 0.44 m/s, skate 20 -> 17 %,
+  floating 2.2 -> 1.1 cm, penetration 0.024 -> 0.001 cm, at jerk 429 -> 461 m/s^3 and identity probe 0.82 -> 0.77
+  (within about one binomial standard error of 69 clips); its damping at 0.1 or 1 changed identity by nothing and
+  contact by little (0.44 / 0.49 m/s), so it stays. On the example profile: foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2
   cm, penetration 0.026 -> 0.001 cm, at jerk 314 -> 331 m/s^3 and unchanged muscle-limit violations (30 %).
 - the foot and ground terms act on stance points (`stance_mask`: below 5 cm and slower than 1.5 times the body),
   not on every point below 5 cm as until 2026-12-03, which stopped the low swing foot of slow walks. The figures
