@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from biomotion.data.canonical import CANONICAL_COORDINATES
 from biomotion.evaluation.generation import done_when, kinematic_measures, stride_period
@@ -106,3 +107,25 @@ def test_the_identity_probe_never_trains_on_the_target_it_is_tested_on(monkeypat
     assert result["train_clips"] == 6
     assert result["reference"] == pytest.approx(5 / 6)  # all but A's clip 2, which is nearer B's clips
     assert set(masks) == {(True, False)}  # generated clips are seen through the people's coordinates
+
+
+def test_the_probe_embedding_does_not_read_coupled_coordinates():
+    """Two clips that differ only in knee _beta (free near 0 in one source's models, the coupler's value in
+    generated clips) embed identically; a change of the knee angle itself changes the embedding."""
+    from biomotion.evaluation.generation import embedding
+    from biomotion.models.vqvae import MotionVQVAE, VQVAEConfig
+    from biomotion.motion import Motion
+
+    torch.manual_seed(0)
+    tokenizer = MotionVQVAE(VQVAEConfig(width=16, code_dim=8, codebook_size=16, depth=1)).eval()
+    t = np.arange(32) / 30.0
+    values = np.zeros((32, len(CANONICAL_COORDINATES)))
+    knee, beta = CANONICAL_COORDINATES.index("knee_angle_r"), CANONICAL_COORDINATES.index("knee_angle_r_beta")
+    values[:, knee] = 0.6 + 0.5 * np.sin(2 * np.pi * t)
+    free = Motion(times=t, names=CANONICAL_COORDINATES, values=values.copy())
+    values[:, beta] = values[:, knee]
+    coupled = Motion(times=t, names=CANONICAL_COORDINATES, values=values.copy())
+    values[:, knee] += 0.3
+    bent = Motion(times=t, names=CANONICAL_COORDINATES, values=values)
+    np.testing.assert_array_equal(embedding(tokenizer, free), embedding(tokenizer, coupled))
+    assert np.abs(embedding(tokenizer, bent) - embedding(tokenizer, coupled)).max() > 1e-4

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from biomotion.body.kinematics import apply_couplers
 from biomotion.body.model import BodyModel
 from biomotion.generation.actions import ActionRequest, ActionVocabulary
 from biomotion.generation.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds
@@ -65,6 +66,9 @@ def test_generate_shapes_and_guidance_lowers_its_loss(generator):
     torch.testing.assert_close(out.q[..., others], out.unplanted[..., others], rtol=0, atol=0)
     again = generator.generate(request, profile=profile, seconds=1.0, samples=2, seed=3, guidance=False)
     torch.testing.assert_close(again.unguided, out.unguided)  # same seed, same sample
+    # every output, planted or not, holds the model's coupler constraints (knee _beta from the knee angle)
+    for q in (out.q, out.unplanted, out.unguided):
+        torch.testing.assert_close(q, apply_couplers(generator.body, q), rtol=0, atol=0)
 
 
 def test_requantized_output_decodes_codebook_entries(generator):

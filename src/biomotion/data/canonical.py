@@ -24,6 +24,12 @@ CANONICAL_COORDINATES: tuple[str, ...] = (
 
 KNEE_COORDINATES = ("knee_angle_r", "knee_angle_l")
 
+#: Coordinates the canonical model's coupler constraints set from another one (the patella's ``_beta`` from the
+#: knee angle): they carry no information of their own. Sources disagree on them (the Schreiber-Moissenet models
+#: leave ``_beta`` free, near 0.01 rad at any knee angle; most others lack it), so whatever reads a clip to tell
+#: people apart must not read them.
+COUPLED_COORDINATES = ("knee_angle_r_beta", "knee_angle_l_beta")
+
 #: Default rate of the cached training set (Hz): PG-BIG and HumanML3D-style generators work at 20-30 Hz, and
 #: 30 Hz keeps running kinematics (stride frequency about 1.4 Hz, content below 10 Hz) well resolved.
 DEFAULT_RATE = 30.0

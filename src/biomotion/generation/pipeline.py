@@ -22,11 +22,13 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from biomotion.body.kinematics import apply_couplers
 from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
@@ -234,10 +236,14 @@ class Generator:
                          bundle.high(action.action, "jerk_high"), self.surrogate, config, posture_shift, target,
                          factor, frames)
 
+        # coupled coordinates (the patella's knee _beta) set from their independent ones, as OpenSim's coupler
+        # constraints set them: the decoder learnt _beta from sources that lack it or leave it free (near 0 at any
+        # knee angle); foot planting sets them too
+        coupled = partial(apply_couplers, self.body)
         with torch.no_grad():  # the sample before guidance, at its own tempo
-            unguided = make_guide(shift, None).kinematics(z_plain).q[:, :frames]
+            unguided = coupled(make_guide(shift, None).kinematics(z_plain).q[:, :frames])
         if not guidance:
             return Generated(unguided, unguided, codes, self.rate, action, posture=offset)
         result = make_guide(played_shift, tempo)(z0, speed)
         return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history,
-                         result.unplanted[:, :frames], offset, tempo)
+                         coupled(result.unplanted[:, :frames]), offset, tempo)

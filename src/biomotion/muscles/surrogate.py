@@ -41,19 +41,18 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
 from biomotion.errors import ConfigError, ModelError
 from biomotion.settings import settings_from_dict
 
 N_COORDS = len(CANONICAL_COORDINATES)
 FORMAT = "biomotion-muscle-surrogate/1"
-_COUPLED = ("knee_angle_r_beta", "knee_angle_l_beta")
 _NO_POSITION = ("pelvis_tx", "pelvis_tz", "pelvis_rotation")
 #: The COM head's outputs: whole-body COM velocity and acceleration in the ground frame (m/s, m/s^2).
 COM_OUTPUTS = ("com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
 #: Canonical indices whose positions / derivatives are features.
-POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED + _NO_POSITION)
-DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in _COUPLED)
+POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in COUPLED_COORDINATES + _NO_POSITION)
+DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in COUPLED_COORDINATES)
 N_FEATURES = len(POSITION_COORDS) + 2 * len(DERIVATIVE_COORDS)
 
 
