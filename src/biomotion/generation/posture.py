@@ -23,7 +23,8 @@ is counted twice), and guidance and foot planting then restore contact with the 
 of style transfer, a constant offset per coordinate, measured per person.
 
 Only rotational coordinates are centred: not the pelvis translations (height and travel), nor ``pelvis_rotation``,
-which holds the lab's walking direction rather than the person; nor any coordinate no reference has. A reference's
+which holds the lab's walking direction rather than the person; nor the coupled knee ``_beta`` (set from the knee
+angle in every generated clip; sources leave it free or lack it); nor any coordinate no reference has. A reference's
 action and speed are given (dataset labels) or, when not known (``biomotion generate --reference FILE``), the
 action is the one whose population posture is nearest and the speed is the action's mean.
 """
@@ -34,10 +35,10 @@ from collections.abc import Sequence
 
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.generation.bundle import GeneratorBundle
 
-NOT_POSTURE = ("pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz")
+NOT_POSTURE = ("pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz", *COUPLED_COORDINATES)
 POSTURE_COORDINATES = torch.tensor([n not in NOT_POSTURE for n in CANONICAL_COORDINATES])
 
 

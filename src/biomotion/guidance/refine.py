@@ -29,7 +29,14 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
   generation` (real clips 0.91, unguided sample 0.82): 0.68 without the term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at
   1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 /
   51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
-  violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it).
+  violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it). Checked
+  again on 2026-12-04 with the tempo and planting, 3 repeats of 23 targets, after the probe stopped reading the
+  coupled knee ``_beta`` and the posture stopped including it (``python benchmarks/dev_subjects.py --repeats 3
+  --guidance shipped: --guidance posture_0:w_posture=0 --guidance posture_1000:w_posture=1000 --guidance
+  posture_10000:w_posture=10000 --guidance posture_30000:w_posture=30000``): identity 0.73 / 0.73 / 0.77 / 0.77 /
+  0.77 at 0 / 1000 / 3000 / 10000 / 30000 (real 0.91), muscle-limit violations 31.3 / 32.4 / 34.3 / 36.2 /
+  38.5 %, jerk 458 / 455 / 462 / 463 / 472 m/s^3; 3000 stays (differences of 0.04 are about one binomial
+  standard error of 69 clips).
 - tempo on (``tempo``, ours: `biomotion.guidance.tempo`): when a speed is asked for, the sample is first played
   faster or slower (0.8-1.25 times) to reach it, and guidance refines the latents through that playback, so the
   speed term starts near its target instead of dragging the pelvis ahead of planted feet. On the generator's dev
