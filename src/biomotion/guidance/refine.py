@@ -26,7 +26,7 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
 - l_posture 3000 (ours, with a person's reference clips only: `losses.posture`) holds each clip's mean posture at
   the person's (`biomotion.generation.posture`). Chosen on the generator's dev subjects (9 training subjects set
   aside from its training, 22 clips; never evaluation subjects) by the identity probe of `biomotion eval
-  generation` (real clips 0.91, unguided sample 0.82): 0.68 without the term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at
+  generation` as it was then, reading knee ``_beta`` (real clips 0.91, unguided sample 0.82): 0.68 without the term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at
   1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 /
   51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
   violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it). Checked
@@ -44,19 +44,19 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
   --guidance no_tempo:tempo=none --guidance no_planting:planting=none --guidance
   planting_damping_0.1:planting.damping=0.1 --guidance planting_damping_1:planting.damping=1 --guidance
   unguided:-``, docs/results/dev_guidance.md), against the same guidance
-  without it: foot contact velocity 0.52 -> 0.44 m/s, skate 26 -> 17 %, jerk 578 -> 461 m/s^3, muscle-limit
-  violations 41.6 -> 34.2 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
+  without it: foot contact velocity 0.53 -> 0.44 m/s, skate 26 -> 17 %, jerk 581 -> 462 m/s^3, muscle-limit
+  violations 41.5 -> 34.3 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
   profile's six clips (two of them runs with a speed) the row "no tempo" reads the other way on contact (foot
   contact velocity 0.32 against 0.35 m/s, skate 15.9 against 17.2 %) and the same way on jerk (313 against 277
   m/s^3) and muscle-limit violations (26.2 against 21.5 %); the 69 dev clips decided.
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
   much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
-- foot planting on (``planting``), same dev-subject run: foot contact velocity 0.54 -> 0.44 m/s, skate 20 -> 17 %,
-  floating 2.2 -> 1.1 cm, penetration 0.024 -> 0.001 cm, at jerk 429 -> 461 m/s^3 and identity probe 0.82 -> 0.77
-  (within about one binomial standard error of 69 clips); its damping at 0.1 or 1 changed identity by nothing and
-  contact by little (0.44 / 0.49 m/s), so it stays. On the example profile: foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2
-  cm, penetration 0.026 -> 0.001 cm, at jerk 314 -> 331 m/s^3 and unchanged muscle-limit violations (30 %).
+- foot planting on (``planting``), same dev-subject run: foot contact velocity 0.54 -> 0.44 m/s, skate 21 -> 17 %,
+  floating 2.2 -> 1.1 cm, penetration 0.024 -> 0.001 cm, at jerk 429 -> 462 m/s^3, identity probe 0.77 either way;
+  its damping at 0.1 or 1 (default 0.01) did not improve contact (0.45 / 0.50 m/s), so it stays. On the example
+  profile: foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2 cm, penetration
+  0.026 -> 0.001 cm, at jerk 314 -> 331 m/s^3 and unchanged muscle-limit violations (30 %).
 - the foot and ground terms act on stance points (`stance_mask`: below 5 cm and slower than 1.5 times the body),
   not on every point below 5 cm as until 2026-12-03, which stopped the low swing foot of slow walks. The figures
   above were measured with height alone; on the example profile the stance test moves the defaults' foot contact
