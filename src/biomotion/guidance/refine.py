@@ -47,8 +47,8 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
   without it: foot contact velocity 0.53 -> 0.44 m/s, skate 26 -> 17 %, jerk 581 -> 462 m/s^3, muscle-limit
   violations 41.5 -> 34.3 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
   profile's six clips (two of them runs with a speed) the row "no tempo" reads the other way on contact (foot
-  contact velocity 0.32 against 0.35 m/s, skate 15.9 against 17.2 %) and the same way on jerk (313 against 277
-  m/s^3) and muscle-limit violations (26.2 against 21.5 %); the 69 dev clips decided.
+  contact velocity 0.31 against 0.34 m/s, skate 16.3 against 17.2 %) and the same way on jerk (318 against 282
+  m/s^3) and muscle-limit violations (25.9 against 21.3 %); the 69 dev clips decided.
 - no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
   much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
   latents.
