@@ -237,8 +237,8 @@ class Generator:
                          factor, frames)
 
         # coupled coordinates (the patella's knee _beta) set from their independent ones, as OpenSim's coupler
-        # constraints set them: the decoder learnt _beta from sources that lack it or leave it free (near 0 at any
-        # knee angle); foot planting sets them too
+        # constraints set them, in every variant returned (foot planting sets them in q; the files' writer sets
+        # them again): the decoder learnt _beta from sources that lack it or leave it free, near 0 at any knee angle
         coupled = partial(apply_couplers, self.body)
         with torch.no_grad():  # the sample before guidance, at its own tempo
             unguided = coupled(make_guide(shift, None).kinematics(z_plain).q[:, :frames])

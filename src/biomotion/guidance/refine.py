@@ -26,9 +26,9 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
 - l_posture 3000 (ours, with a person's reference clips only: `losses.posture`) holds each clip's mean posture at
   the person's (`biomotion.generation.posture`). Chosen on the generator's dev subjects (9 training subjects set
   aside from its training, 22 clips; never evaluation subjects) by the identity probe of `biomotion eval
-  generation` as it was then, reading knee ``_beta`` (real clips 0.91, unguided sample 0.82): 0.68 without the term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at
-  1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 /
-  51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
+  generation` as it was then, reading knee ``_beta`` (real clips 0.91, unguided sample 0.82): 0.68 without the
+  term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at 1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit
+  violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 / 51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
   violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it). Checked
   again on 2026-12-04 with the tempo and planting, 3 repeats of 23 targets, after the probe stopped reading the
   coupled knee ``_beta`` and the posture stopped including it (``python benchmarks/dev_subjects.py --repeats 3
