@@ -1,7 +1,7 @@
 """Generation on the generator's dev subjects: the figures that choose settings; writes docs/results/dev_subjects.md.
 
     python benchmarks/dev_subjects.py [--cache build/dataset_lab] [--bundle checkpoints] [--bundle DIR ...]
-        [--contact kinematic] [--contact decoded] [--guidance NAME:KEY=VALUE,...] [--repeats R]
+        [--contact kinematic] [--contact decoded] [--guidance NAME:KEY=VALUE,...] [--repeats R] [--source S ...]
         [--out docs/results/dev_subjects.md]
 
 The dev subjects are the training subjects the generator's training sets aside for early stopping
@@ -28,6 +28,7 @@ import dataclasses
 import json
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from biomotion.body.kinematics import torch_threads
@@ -80,13 +81,14 @@ def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:
 
 
 def dev_rows(bundle: Path, cache: DatasetCache, data_root: str, configs: dict[str, GuidanceConfig | None],
-             repeats: int = 1) -> tuple[list[str], dict]:
+             repeats: int = 1, sources: Sequence[str] = ()) -> tuple[list[str], dict]:
     """Per variant ("reference" and each named guidance config; None: unguided): the identity probe (mean over
-    repeats) and the mean of each column over the clips of all repeats."""
+    repeats) and the mean of each column over the clips of all repeats; only targets of ``sources`` when given."""
     generator = Generator.load(data_root, bundle)
     train = generator.bundle.train_subjects
     seen = [s for s in train if not dev_subject(s, 0.15)]
-    targets = [t for t in unseen_targets(cache, seen, 6.0) if t.subject in train]
+    targets = [t for t in unseen_targets(cache, seen, 6.0)
+               if t.subject in train and (not sources or cache.records[t.index]["source"] in sources)]
     tables, identities = [], []
     for r in range(repeats):
         variants = {"reference": [t.motion for t in targets]}
@@ -132,6 +134,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--guidance", action="append", default=[], metavar="NAME:KEY=VALUE,...",
                         help="a variant: default guidance with these GuidanceConfig fields changed (repeatable)")
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--source", action="append", default=[],
+                        help="only the targets of this source, e.g. fukuchi (repeatable; default: every source)")
     parser.add_argument("--data-root", default="../shared/data")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", default="docs/results/dev_subjects.md")
@@ -148,7 +152,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     with torch_threads(args.threads):
         for bundle in bundles:
-            notes, rows = dev_rows(bundle, cache, args.data_root, configs, args.repeats)
+            notes, rows = dev_rows(bundle, cache, args.data_root, configs, args.repeats, args.source)
             lines.append(f"- `{bundle.as_posix()}`: {notes[0]}")
             for variant, row in rows.items():
                 cells = [f"{row[k]:.3g}" if row.get(k) is not None else "–" for k, _ in COLUMNS]
