@@ -95,6 +95,8 @@ def _generate(args: argparse.Namespace) -> int:
         command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")
+    for note in result["notes"]:
+        print(f"note: {note}")
     speed = "" if a.speed is None else f" at {a.speed:g} m/s"
     style = "" if a.style is None else f" ({a.style})"
     print(f"generated {args.samples} x {args.seconds:g} s of {a.action!r}{style}{speed} in "

@@ -174,3 +174,26 @@ def test_resolve_adds_the_labels_typical_speed_where_the_text_states_none(monkey
     assert vocabulary.resolve("walk, toe-in") == ActionRequest("walk", "toe-in", 1.25, "walk, toe-in")
     assert vocabulary.resolve("walk, toe-in at 1 m/s").speed == 1.0      # a stated speed is kept
     assert vocabulary.resolve("squat") == vocabulary.parse("squat")       # no speed known: none invented
+
+
+def test_notes_flag_a_speed_outside_the_actions_training_speeds(monkeypatch):
+    monkeypatch.setattr(actions, "sentence_encoder", lambda: pytest.fail("exact names need no encoder"))
+    vocabulary = ActionVocabulary.from_labels(HAND_LABELS)
+    assert vocabulary.speed_range("run") == (2.0, 5.0)
+    assert vocabulary.speed_range("walk") == (1.16, 1.5)      # over all its styles
+    assert vocabulary.speed_range("squat") is None
+    fast = vocabulary.resolve("run at 12 m/s")
+    assert vocabulary.notes("run at 12 m/s", fast) == [
+        "12 m/s is outside the speeds of 'run' in the training data (2-5 m/s): the motion is extrapolated and "
+        "less reliable"]
+    for text in ("run at 3.5 m/s", "run at 5 m/s", "walk, toe-in", "squat"):   # exact names, known speeds
+        assert vocabulary.notes(text, vocabulary.resolve(text)) == [], text
+
+
+def test_notes_name_an_inexact_match_and_its_score(vocabulary, encoder):
+    request = vocabulary.resolve("climb stairs")
+    label, score = vocabulary.match_score("climb stairs")
+    assert score < 1.0
+    assert vocabulary.notes("climb stairs", request) == [
+        f"'climb stairs' names no known action exactly: taken as {label!r}, the nearest label (cosine similarity "
+        f"{score:.2f}); `biomotion generate --list-actions` lists what is known"]

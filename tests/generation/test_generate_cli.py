@@ -52,6 +52,9 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     assert 0 < planting["frames_changed_over_1deg"] <= 1
     printed = capsys.readouterr().out
     assert "generated 1 x 1.5 s of 'run'" in printed and "at 3.5 m/s" in printed
+    # "running" is no label's exact name: the user is told what it was taken as, on the console and in the file
+    assert len(metrics["request"]["notes"]) == 1 and "taken as 'run on a treadmill'" in metrics["request"]["notes"][0]
+    assert f"note: {metrics['request']['notes'][0]}" in printed
 
 
 @pytest.mark.parametrize("args, message", [

@@ -215,6 +215,27 @@ class ActionVocabulary:
                   for s in e.speeds]
         return float(statistics.median(speeds)) if speeds else None
 
+    def speed_range(self, action: str) -> tuple[float, float] | None:
+        """(slowest, fastest) training speed (m/s) of an action over all its styles, or None where no label of the
+        action has one."""
+        speeds = [s for e in self._entries if e.action == action for s in e.speeds]
+        return (min(speeds), max(speeds)) if speeds else None
+
+    def notes(self, text: str, request: ActionRequest) -> list[str]:
+        """What a user should know about how ``text`` was understood as ``request`` (`resolve`'s result): a match
+        that is not an exact name, with its score, and a speed outside the training speeds of the action, which
+        the generator can only reach by extrapolating (guidance's speed term pushes the sample there)."""
+        notes = []
+        label, score = self.match_score(text)
+        if score < 1.0:
+            notes.append(f"{text!r} names no known action exactly: taken as {label!r}, the nearest label (cosine "
+                         f"similarity {score:.2f}); `biomotion generate --list-actions` lists what is known")
+        known = self.speed_range(request.action)
+        if request.speed is not None and known is not None and not known[0] <= request.speed <= known[1]:
+            notes.append(f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
+                         f"({known[0]:g}-{known[1]:g} m/s): the motion is extrapolated and less reliable")
+        return notes
+
     # ---- parsing -------------------------------------------------------------------------------------------
     def parse(self, text: str, *, min_similarity: float = MIN_SIMILARITY) -> ActionRequest:
         """The request ``text`` asks for (see the module docstring for the rules).

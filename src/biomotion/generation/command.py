@@ -61,7 +61,8 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                      reference_actions: Sequence[str] = (), seconds: float = 3.0,
                      seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
                      figures: bool = True, command: str = "", threads: int | None = None) -> dict:
-    """Run the whole request; returns a summary (files per sample, timings, the action understood).
+    """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
+    on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
 
     ``reference_actions``: what each reference clip shows, free text like ``action`` ("run at 2.5 m/s"), one per
     reference in order, or none (each clip's action is then inferred and its speed taken as the action's mean).
@@ -104,6 +105,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
         raise ConfigError(f"{error}; the full-body bundle ({folder}) also knows "
                           f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
                           f"({', '.join(full_body.styles)})") from None
+    notes = vocabulary.notes(action, request)
     shown = [vocabulary.parse(text) for text in reference_actions]
     loaded = time.perf_counter()
     with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
@@ -120,7 +122,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                                       else str(checkpoints), "biodata_used": personalised and chosen.biodata
                                       and profile is not None,
                                       "references": [str(p) for p in references],
-                                      "reference_actions": list(reference_actions)})
-    return {"action": request, "route": chosen, "files": files, "load_seconds": loaded - started,
+                                      "reference_actions": list(reference_actions), "notes": notes})
+    return {"action": request, "route": chosen, "notes": notes, "files": files, "load_seconds": loaded - started,
             "generate_seconds": done - loaded,
             "write_seconds": time.perf_counter() - done, "profile": profile}

@@ -131,6 +131,8 @@ class Generator:
     def load(cls, data_root: str | Path, checkpoints: str | Path = CHECKPOINTS, *, population: bool = False,
              surrogate: bool = True) -> Generator:
         """Shipped weights from ``checkpoints`` and the canonical Rajagopal model from ``data_root``."""
+        import torch._dynamo  # noqa: F401  (torch.optim's first optimizer imports it: ~1 s, a cost of loading)
+
         from biomotion.evaluation.clips import body_model
 
         checkpoints = Path(checkpoints)
