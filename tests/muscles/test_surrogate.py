@@ -3,6 +3,8 @@ shipped checkpoint against fresh static-optimization labels on a held-out clip."
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -244,3 +246,24 @@ def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_ro
     assert again.info["clips_resumed"] == 4
     np.testing.assert_array_equal(first.activations, again.activations)
     np.testing.assert_array_equal(first.com, again.com)
+
+
+def test_training_subjects_come_from_the_weights_or_else_the_model_card(tmp_path):
+    model = MuscleSurrogate(NAMES, TINY)
+    recorded = tmp_path / "recorded.safetensors"
+    model.save(recorded, metadata={"train_subjects": json.dumps(["fukuchi/RBDS001", "opencap/Subject4"])})
+    assert MuscleSurrogate.training_subjects(recorded) == {"fukuchi/RBDS001", "opencap/Subject4"}
+    older = tmp_path / "older.safetensors"                 # weights saved before they recorded their subjects
+    model.save(older)
+    assert MuscleSurrogate.training_subjects(older) is None
+    older.with_suffix(".json").write_text(json.dumps({"data": {"train_subjects": ["hamner/subject01"]}}))
+    assert MuscleSurrogate.training_subjects(older) == {"hamner/subject01"}
+
+
+def test_the_shipped_surrogate_names_its_training_subjects_and_no_held_out_one():
+    from biomotion.data.registry import subject_split
+
+    subjects = MuscleSurrogate.training_subjects(CHECKPOINT)
+    assert subjects is not None and len(subjects) == 36
+    assert all(subject_split(*key.split("/", 1)) == "train" for key in subjects)   # the split it was trained on
+    assert "fukuchi/RBDS012" not in subjects     # the held-out clip of the test above

@@ -60,3 +60,33 @@ def test_markdown_lists_the_surrogates_worst_muscles_first():
     section = text.split("lowest R²")[1]
     assert "| m0 | 0.500 |" in section and "| m9 | 0.590 |" in section
     assert "| m10 |" not in section                                 # ten rows only
+
+
+@pytest.fixture()
+def new_runners(tmp_path):
+    """A data root of two runners the project has never seen: RBDS098 with only its captures (static and 3.5 m/s
+    C3D, the scaled model and the setups: no shipped IK), RBDS097 with a running C3D and a model but no setups.
+    Both are RBDS010's files under new names (links into the shared data, nothing copied)."""
+    base = tmp_path / "root" / "fukuchi-running"
+    shared = data_path("fukuchi-running")
+    (base / "c3d").mkdir(parents=True)
+    (base / "generic-models").symlink_to(shared / "generic-models")
+    for runner, files in (("RBDS098", [*(shared / "RBDS010").iterdir()]),
+                          ("RBDS097", [shared / "RBDS010/RBDS010_simple.osim"])):
+        (base / runner).mkdir()
+        for source in files:
+            (base / runner / source.name.replace("RBDS010", runner)).symlink_to(source)
+    for name in ("RBDS098runT35.c3d", "RBDS098static.c3d", "RBDS097runT35.c3d"):
+        (base / "c3d" / name).symlink_to(shared / "c3d" / name.replace(name[:7], "RBDS010"))
+    return tmp_path / "root"
+
+
+def test_grf_check_solves_new_runners_from_their_captures_and_names_what_it_cannot(new_runners):
+    from biomotion.validation.dynamics import check_ground_reaction
+
+    report = check_ground_reaction(new_runners, progress=False)
+    assert [row["trial"] for row in report["grf_trials"]] == ["fukuchi/RBDS098/T35 (C3D, source chain)"]
+    assert report["skipped"] == ["GRF check: fukuchi-running/RBDS097: no ik/T35 motion, and the chain lacks "
+                                 "scale_setup, ik_setup, static"]
+    # RBDS010's plates against its motion solved by the chain: as with the shipped IK (R^2 0.962, 0.186 BW)
+    assert report["grf_vertical_r2"] >= 0.9 and report["grf_vertical_rmse_bw"] == pytest.approx(0.186, abs=0.01)

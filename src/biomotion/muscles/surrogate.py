@@ -241,6 +241,21 @@ class MuscleSurrogate(nn.Module):
         return model.eval()
 
     @staticmethod
+    def training_subjects(path: str | Path) -> set[str] | None:
+        """``source/subject`` of the people a saved surrogate was trained on, from its metadata or, for weights
+        saved before it recorded them, its model card (``<name>.json`` beside it, ``data.train_subjects``); None
+        where neither says."""
+        meta = MuscleSurrogate.metadata(path)
+        if "train_subjects" in meta:
+            return set(json.loads(meta["train_subjects"]))
+        card = Path(path).with_suffix(".json")
+        if card.is_file():
+            subjects = json.loads(card.read_text()).get("data", {}).get("train_subjects")
+            if subjects is not None:
+                return set(subjects)
+        return None
+
+    @staticmethod
     def metadata(path: str | Path) -> dict[str, str]:
         """The safetensors metadata of a saved surrogate (config, muscles, and what `save` was given)."""
         from safetensors import safe_open

@@ -221,6 +221,12 @@ def learning_rate(progress: float, step: int, lr: float, warmup: int) -> float:
     return lr * min(1.0, (step + 1) / max(warmup, 1)) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
+def training_subjects(cache) -> list[str]:
+    """``source/subject`` of every person whose clips the surrogate trains on (the cache's train split): what
+    `biomotion validate muscles` leaves out of its held-out figures, whoever the data root holds."""
+    return sorted({f"{r['source']}/{r['subject']}" for r in (cache.records[i] for i in cache.indices(split="train"))})
+
+
 def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: str | Path = "../shared/data",
           labels_path: str | Path | None = None, minutes: float | None = None, iterations: int | None = None,
           seed: int = 0, progress: bool = True, command: str = "") -> dict:
@@ -303,8 +309,10 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     after = evaluate(model, val_clips, min_std)
     on_train = evaluate(model, train_clips, min_std)
     out = Path(out)
+    subjects = training_subjects(cache)
     model.save(out, metadata={"labels_cache_sha256": labels.info.get("cache_sha256", ""),
-                              "muscle_curves": labels.info.get("muscle_curves", "")})
+                              "muscle_curves": labels.info.get("muscle_curves", ""),
+                              "train_subjects": json.dumps(subjects)})
     speed = time_clip(model, Labeler.from_data_root(data_root), cache)
     card = {
         "model": "biomotion MuscleSurrogate (PG-BIG Sec. 3.3 / A.8 muscle-activation surrogate)",
@@ -327,7 +335,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
                  "val_clips": len(val_clips), "val_frames": int(sum(len(c[2]) for c in val_clips)),
                  "val_frames_converged": int(sum(int(c[3].sum()) for c in val_clips)),
                  "clips_per_split": cache.manifest["counts"]["per_split"],
-                 "clips_per_source": cache.manifest["counts"]["per_source"]},
+                 "clips_per_source": cache.manifest["counts"]["per_source"], "train_subjects": subjects},
         "bounds": {"low_mean": float(model.low.mean()), "high_mean": float(model.high.mean())},
         "metrics_val_before": {k: v for k, v in before.items() if k not in ("per_muscle_r2", "key_muscles")},
         "metrics_val": after,
@@ -354,7 +362,9 @@ def _markdown(card: dict) -> str:
         f"- seed {card['seed']}, {card['iterations']} iterations, {card['train_seconds']} s of training\n"
         f"- data: {d['train_windows']} train windows from {d['train_clips']} clips ({d['train_frames']} frames); "
         f"val {d['val_clips']} clips, {d['val_frames']} frames ({d['val_frames_converged']} with converged labels)\n"
-        f"- labels: static optimization on the generic Rajagopal 2016 model, {lab['ground_reaction']}; "
+        + (f"- trained on {len(d['train_subjects'])} subjects (`data.train_subjects` in the JSON card; `biomotion "
+           "validate muscles` scores only the others)\n" if "train_subjects" in d else "")
+        + f"- labels: static optimization on the generic Rajagopal 2016 model, {lab['ground_reaction']}; "
         f"muscle curves {lab['muscle_curves']}; absent coordinates {lab['absent_coordinates']}; "
         f"{100 * lab['converged_share']:.2f} % of frames converged, reserve RMS {lab['reserve_rms_nm']:.1f} N·m; "
         f"computed in {lab['seconds']} s ({lab['so_seconds']} s in the solver)\n\n"

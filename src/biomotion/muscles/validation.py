@@ -28,11 +28,12 @@
   trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
   (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
-  under the data root whose subject the split rule holds out of training (val and test): mean R² over the muscles
-  whose labels vary (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each
-  one's R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. On a data root of
-  new subjects, those the rule would put in training are left out too (the surrogate keeps no list of its
-  subjects). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
+  under the data root whose subject the surrogate was not trained on: mean R² over the muscles whose labels vary
+  (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's R² in
+  ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the subjects
+  the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`), so on a
+  data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides (val and
+  test). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
   against the labels' whole-body COM velocity (acceleration), R² per ground axis over all frames of those clips,
   averaged over the three axes (PG-BIG A.8). Guidance itself takes the COM terms from the body model's kinematics,
   which are exact; the head is there for users who want them at the surrogate's speed.
@@ -572,9 +573,11 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
     started = time.perf_counter()
     handle, cache = build_temporary_cache(data_root, sources=present)
     with handle:
-        held_out = [i for i in range(len(cache)) if cache.records[i]["split"] != "train"]
+        trained = MuscleSurrogate.training_subjects(surrogate)
+        held_out = [i for i, r in enumerate(cache.records) if (r["split"] != "train" if trained is None
+                                                                 else f"{r['source']}/{r['subject']}" not in trained)]
         if not held_out:
-            skipped.append("surrogate agreement: every subject under the data root falls in the training split")
+            skipped.append("surrogate agreement: the surrogate was trained on every subject under the data root")
             return empty
         model = MuscleSurrogate.load(surrogate)
         labeler = Labeler.from_data_root(data_root)

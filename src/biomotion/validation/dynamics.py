@@ -8,7 +8,8 @@ Figures (keys of the JSON report, issue 3):
 - ``id_ref_rmse_rel``: end to end (our filtering and differentiation vs OpenSim's InverseDynamicsTool run fresh on
   the same model, coordinates, GRF and 6 Hz filter): RMSE / peak |moment| per coordinate whose peak > 10 N·m;
 - ``grf_vertical_r2``, ``grf_vertical_rmse_bw``, ``grf_com_baseline_rmse_bw``: vertical GRF inferred from
-  kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners and OpenCap Subject4 trials;
+  kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners (their shipped IK, or for a
+  runner with only captures, the C3D solved by the source's own chain) and OpenCap Subject4 trials;
 - ``zmp_cop_rmse_m`` (and ``zmp_cop_rmse_m_per_source``): the ZMP from kinematics against the plates' combined
   centre of pressure on the same trials (`biomotion.analysis.zmp_to_plate_cop`), the real-data check of the ZMP
   that the balance metrics use. Not an issue bar.
@@ -45,7 +46,7 @@ from biomotion.body.model import BodyModel
 from biomotion.io.c3d import read_c3d_forces
 from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
     write_external_loads_xml, write_ground_reaction, write_motion
-from biomotion.motion import GroundReaction
+from biomotion.motion import GroundReaction, Motion
 from biomotion.validation.oracle import Oracle, opensim, random_poses, run_inverse_dynamics_tool
 
 #: Models the issue names, as globs under the data root (whatever subjects are present are used).
@@ -213,33 +214,61 @@ def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) ->
     return {"id_ref_rmse_rel": worst, "id_ref_rmse_rel_per_trial": per_trial}
 
 
-def _grf_cases(data_root: Path) -> list[tuple[str, Path, Path, object]]:
-    cases = []
+def _fukuchi_chain_motion(base: Path, runner: str) -> Motion:
+    """A runner's T35 coordinates from their C3D by the source's own processing chain
+    (`biomotion.ik.fukuchi_chain`, within about 1 deg of the shipped IK), in the simple model's columns and sign."""
+    from biomotion.ik.fukuchi_chain import as_simple, solve_trial
+
+    result, _ = solve_trial(base, runner, "T35")
+    return as_simple(result.motion)
+
+
+def _grf_cases(data_root: Path) -> tuple[list[tuple[str, Path, object, object]], list[str]]:
+    """(name, model, motion loader, plate loader) of every trial with plates, and what was skipped and why.
+
+    A Fukuchi runner's motion is the shipped ``ik/T35`` IK; where a runner has none (a data root of new runners
+    may hold only their captures) it is solved from the running C3D by the source's chain, as the dataset
+    registry does."""
+    from biomotion.ik.fukuchi_chain import runner_files
+
+    cases, skipped = [], []
     fukuchi = data_root / "fukuchi-running"
     for c3d in sorted(fukuchi.glob("c3d/*runT35.c3d")):
         runner = c3d.name.removesuffix("runT35.c3d")
         ik = fukuchi / f"ik/T35/{runner}_T35_ik_simple.mot"
         model = fukuchi / runner / f"{runner}_simple.osim"
-        if ik.exists() and model.exists():
-            cases.append((f"fukuchi/{runner}/T35", model, ik, lambda c=c3d: read_c3d_forces(c)))
+        chain = [k for k in ("generic", "scale_setup", "ik_setup", "static")
+                 if not runner_files(fukuchi, runner, "T35")[k].exists()]
+        if not model.exists():
+            skipped.append(f"GRF check: fukuchi-running/{runner}: no {model.name}")
+        elif ik.exists():
+            cases.append((f"fukuchi/{runner}/T35", model, lambda p=ik: read_motion(p),
+                          lambda c=c3d: read_c3d_forces(c)))
+        elif not chain:
+            cases.append((f"fukuchi/{runner}/T35 (C3D, source chain)", model,
+                          lambda r=runner: _fukuchi_chain_motion(fukuchi, r), lambda c=c3d: read_c3d_forces(c)))
+        else:
+            skipped.append(f"GRF check: fukuchi-running/{runner}: no ik/T35 motion, and the chain lacks "
+                           f"{', '.join(chain)}")
     model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
     for trial in _subject4_trials(data_root) if model4.exists() else []:
         if trial.startswith("STS"):  # seated: the chair carries weight no plate measures, feet are not the only contact
             continue
         grf = data_root / SUBJECT4 / f"ID/{trial}_grf.mot"
-        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
+        cases.append((f"opencap/{trial}", model4, lambda p=data_root / SUBJECT4 / f"IK/{trial}_ik.mot": read_motion(p),
                       lambda g=grf: read_ground_reaction(g)))
-    return cases
+    return cases, skipped
 
 
 def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bool = True) -> dict:
     """Vertical GRF inferred from kinematics vs plates, per trial and pooled over all evaluated frames."""
     rows, pooled = [], {"ours": [], "base": [], "plates": [], "weight": []}
     zmp_distances: dict[str, list[np.ndarray]] = {}
-    for name, model_path, motion_path, load_forces in tqdm(_grf_cases(data_root), desc="GRF vs plates",
-                                                           unit="trial", disable=not progress):
+    cases, skipped = _grf_cases(data_root)
+    for name, model_path, load_motion, load_forces in tqdm(cases, desc="GRF vs plates", unit="trial",
+                                                           disable=not progress):
         model = BodyModel.from_osim(model_path)
-        motion = read_motion(motion_path)
+        motion = load_motion()
         forces = load_forces().slice(motion.times[0] - 0.1, motion.times[-1] + 0.1)
         started = time.perf_counter()
         result = analyze(motion, model, forces, cutoff_hz=cutoff_hz)
@@ -259,7 +288,7 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
             pooled[key].append(value)
     if not rows:
         return {"grf_vertical_r2": None, "grf_vertical_rmse_bw": None, "grf_com_baseline_rmse_bw": None,
-                "zmp_cop_rmse_m": None, "grf_trials": []}
+                "zmp_cop_rmse_m": None, "grf_trials": [], "skipped": skipped}
     plates = np.concatenate(pooled["plates"])
     ours = vertical_agreement(np.concatenate(pooled["ours"]), plates, 1.0)
     base = vertical_agreement(np.concatenate(pooled["base"]), plates, 1.0)
@@ -268,7 +297,7 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
             "grf_cutoff_hz": cutoff_hz, "grf_frames": int(len(plates)),
             "zmp_cop_rmse_m": _rms(np.concatenate([d for ds in zmp_distances.values() for d in ds])),
             "zmp_cop_rmse_m_per_source": {source: _rms(np.concatenate(ds)) for source, ds in zmp_distances.items()},
-            "grf_trials": rows}
+            "grf_trials": rows, "skipped": skipped}
 
 
 def _rms(x: np.ndarray) -> float | None:
@@ -280,8 +309,10 @@ def validate_kinematics(data_root: Path, progress: bool = True) -> dict:
 
 
 def validate_dynamics(data_root: Path, progress: bool = True) -> dict:
-    report = {}
-    report.update(check_inverse_dynamics_solver(data_root, progress))
-    report.update(check_inverse_dynamics_end_to_end(data_root, progress))
-    report.update(check_ground_reaction(data_root, progress=progress))
+    report: dict = {"skipped": []}
+    for check in (check_inverse_dynamics_solver(data_root, progress),
+                  check_inverse_dynamics_end_to_end(data_root, progress),
+                  check_ground_reaction(data_root, progress=progress)):
+        report["skipped"] += check.pop("skipped", [])
+        report.update(check)
     return report
