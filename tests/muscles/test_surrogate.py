@@ -267,3 +267,27 @@ def test_the_shipped_surrogate_names_its_training_subjects_and_no_held_out_one()
     assert subjects is not None and len(subjects) == 36
     assert all(subject_split(*key.split("/", 1)) == "train" for key in subjects)   # the split it was trained on
     assert "fukuchi/RBDS012" not in subjects     # the held-out clip of the test above
+
+
+def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
+    """Mirroring the motion mirrors the activations (muscles change sides) and the COM (z changes sign): exactly
+    for `predict_symmetric`, not for one pass of an untrained network."""
+    from biomotion.data.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
+
+    torch.manual_seed(0)
+    names = ("soleus_r", "soleus_l", "vaslat_r", "vaslat_l", "glmax1_r")   # glmax1_l absent: maps to itself
+    model = MuscleSurrogate(names, TINY).eval()
+    q, mask = _batch()
+    model.set_normalisation(q, mask)
+    q_m, mask_m = (torch.as_tensor(x) for x in mirror_coordinates(q.numpy(), mask.numpy()))
+    with torch.no_grad():
+        activations, com = model.predict_symmetric(q, mask)
+        mirrored, com_mirrored = model.predict_symmetric(q_m, mask_m)
+        one_pass, _ = model.predict(q, mask)
+        one_pass_mirrored, _ = model.predict(q_m, mask_m)
+    swapped = torch.as_tensor(mirror_labels(activations.numpy(), names))
+    assert torch.allclose(mirrored[..., :4], swapped[..., :4], atol=1e-6)
+    assert torch.allclose(com_mirrored, torch.as_tensor(mirror_ground_vectors(com.numpy())), atol=1e-5)
+    assert not torch.allclose(one_pass_mirrored[..., :4],
+                              torch.as_tensor(mirror_labels(one_pass.numpy(), names))[..., :4], atol=1e-3)
+    assert activations.shape == one_pass.shape and com.shape == (2, 20, len(COM_OUTPUTS))

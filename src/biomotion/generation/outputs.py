@@ -127,7 +127,7 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
     names: tuple[str, ...] = ()
     if generator.surrogate is not None:
         with torch.no_grad():
-            activations = generator.surrogate(generated.q.float()).double().numpy()
+            activations = generator.surrogate.predict_symmetric(generated.q.float())[0].double().numpy()
         names = tuple(generator.surrogate.names)
     guide_terms = {}
     if generated.history:

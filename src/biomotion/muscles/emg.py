@@ -67,7 +67,8 @@ the activation are compared at the same instant (``emg_lead_s`` in the detail re
 envelope leads the activation; it is not used for the figure).
 
 Measured (``python -m biomotion.muscles.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
-optimization and 0.767 with the shipped surrogate, both below the 0.80 bar; see ``tests/muscles/test_emg.py``.
+optimization and 0.759 with the shipped surrogate (`MuscleSurrogate.predict_symmetric`; 0.767 from one pass), both
+below the 0.80 bar; see ``tests/muscles/test_emg.py``.
 """
 
 from __future__ import annotations
@@ -486,8 +487,8 @@ def _surrogate_activations(checkpoint: Path, motion, labeler, data_root: Path) -
     clip = motion.select(CANONICAL_COORDINATES).resample(network.config.rate)
     clip = place_clip(clip, labeler.model, height=height if height > 0 else None, treadmill_speed=None)
     with torch.no_grad():
-        out = network(torch.as_tensor(clip.values, dtype=network.mean.dtype)[None],
-                      torch.as_tensor(clip.mask)[None])[0].double().numpy()
+        out = network.predict_symmetric(torch.as_tensor(clip.values, dtype=network.mean.dtype)[None],
+                                        torch.as_tensor(clip.mask)[None])[0][0].double().numpy()
     columns = [network.names.index(n) for n in labeler.muscle_names]
     return np.stack([np.interp(motion.times, clip.times, out[:, c]) for c in columns], axis=1)
 

@@ -42,6 +42,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
+from biomotion.data.mirror import NEGATED, mirror_permutation
 from biomotion.errors import ConfigError, ModelError
 from biomotion.settings import settings_from_dict
 
@@ -211,6 +212,29 @@ class MuscleSurrogate(nn.Module):
         hidden = self._trunk(q, mask)
         com = self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
         return torch.sigmoid(self.head(hidden)).transpose(1, 2), com
+
+    def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None
+                          ) -> tuple[torch.Tensor, torch.Tensor]:
+        """`predict` made exactly left-right equivariant: the mean of the prediction on the motion and the mirror
+        image of the prediction on its mirror image (`biomotion.data.mirror`: limb coordinates change sides,
+        midline rotations and pelvis_tz change sign; muscles change sides, the COM's z components change sign).
+
+        The body and its muscles are left-right symmetric, so the activations of a mirrored motion are the mirrored
+        activations; one network only approximates that (it was trained on both images of every clip), and
+        averaging the two images removes the asymmetric part of its error. On the 24 held-out clips of the lab
+        sources it raised the mean R² over muscles from 0.860 to 0.873 against the static-optimization labels
+        (RMSE 0.082 -> 0.077; `biomotion validate muscles`). Both images run as one batch. Guidance keeps the
+        single pass (`forward`) inside its 40 iterations, where only the activation bounds matter."""
+        swap = torch.as_tensor(mirror_permutation(CANONICAL_COORDINATES))
+        sign = torch.tensor([-1.0 if n in NEGATED else 1.0 for n in CANONICAL_COORDINATES], dtype=q.dtype)
+        both = torch.cat([q, q[..., swap] * sign])
+        masks = None if mask is None else torch.cat([mask, mask[..., swap]])
+        activations, com = self.predict(both, masks)
+        count = q.shape[0]
+        muscles = torch.as_tensor(mirror_permutation(self.names))
+        flip_z = torch.tensor([1.0, 1.0, -1.0] * (len(COM_OUTPUTS) // 3), dtype=com.dtype)
+        return (0.5 * (activations[:count] + activations[count:][..., muscles]),
+                0.5 * (com[:count] + com[count:] * flip_z))
 
     # -- persistence ----------------------------------------------------------------------------------------
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:

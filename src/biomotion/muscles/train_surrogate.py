@@ -148,14 +148,14 @@ def com_agreement(predicted: np.ndarray, reference: np.ndarray) -> dict:
 
 
 @torch.no_grad()
-def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02) -> dict:
+def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02, symmetric: bool = False) -> dict:
     """`agreement` of the surrogate run on each whole clip, over converged frames of all clips, and
-    `com_agreement` of its COM head over all frames."""
+    `com_agreement` of its COM head over all frames; ``symmetric``: of `MuscleSurrogate.predict_symmetric`."""
     was_training = model.training
     model.eval()
     predicted, reference, within, com_predicted, com_reference = [], [], [], [], []
     for q, mask, target, converged, com in clips:
-        activations, com_hat = model.predict(q, mask)
+        activations, com_hat = (model.predict_symmetric if symmetric else model.predict)(q, mask)
         predicted.append(activations[0][converged].numpy())
         reference.append(target[converged].numpy())
         com_predicted.append(com_hat[0].numpy())

@@ -23,14 +23,17 @@
 - ``so_r2_vs_opensim``: the lower of the two trials' mean R² over all muscles (``so_r2_gait2392``,
   ``so_rajagopal_r2_all``), so one figure holds the bar for both.
 - ``surrogate_ms_per_clip``, ``surrogate_speedup_vs_opensim``: the shipped surrogate on the same walk clip (after
-  model load) against OpenSim's static optimization of it, measured in the same run;
+  model load) against OpenSim's static optimization of it, measured in the same run: the activations it reports
+  (`MuscleSurrogate.predict_symmetric`, both mirror images in one batch), and one pass (what guidance runs) under
+  ``surrogate_ms_per_clip_one_pass``;
 - ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
   trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
   (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
-  under the data root whose subject the surrogate was not trained on: mean R² over the muscles whose labels vary
-  (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's R² in
-  ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the subjects
+  under the data root whose subject the surrogate was not trained on, of the activations it reports
+  (`MuscleSurrogate.predict_symmetric`; one pass under ``surrogate_r2_one_pass``): mean R² over the muscles whose
+  labels vary (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
+  R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the subjects
   the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`), so on a
   data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides (val and
   test). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
@@ -408,7 +411,9 @@ def r_squared(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
 
 def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path, repeats: int = 20) -> dict:
     """Best wall time (ms) of the shipped surrogate on the clip in ``coordinates`` (after model load; resampled
-    to its rate, placed like its training clips), and the clip's length (s)."""
+    to its rate, placed like its training clips): ``ms`` of the activations it reports
+    (`MuscleSurrogate.predict_symmetric`), ``ms_one_pass`` of one pass (what guidance runs); and the clip's
+    length (s)."""
     from biomotion.body.model import BodyModel
     from biomotion.data.canonical import CANONICAL_COORDINATES
     from biomotion.data.placement import place_clip
@@ -421,14 +426,17 @@ def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path,
                       BodyModel.from_osim(model_path), height=None, treadmill_speed=None)
     q = torch.as_tensor(clip.values, dtype=network.mean.dtype)[None]
     mask = torch.as_tensor(clip.mask)[None]
-    best = float("inf")
+    best = {}
     with torch.no_grad():
-        network(q, mask)
-        for _ in range(repeats):
-            tic = time.perf_counter()
-            network(q, mask)
-            best = min(best, time.perf_counter() - tic)
-    return {"ms": 1e3 * best, "clip_seconds": float(motion.times[-1] - motion.times[0]), "frames": clip.n_frames}
+        for name, run in (("ms", network.predict_symmetric), ("ms_one_pass", network.predict)):
+            run(q, mask)
+            best[name] = float("inf")
+            for _ in range(repeats):
+                tic = time.perf_counter()
+                run(q, mask)
+                best[name] = min(best[name], time.perf_counter() - tic)
+    return {"ms": 1e3 * best["ms"], "ms_one_pass": 1e3 * best["ms_one_pass"],
+            "clip_seconds": float(motion.times[-1] - motion.times[0]), "frames": clip.n_frames}
 
 
 def _moment_arm_figures(data_root: Path, poses: int) -> dict:
@@ -506,7 +514,9 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
         "so_rajagopal_r2_per_muscle": {m: float(v) for m, v in zip(reference.muscle_names, r2)},
     }
     if timing is not None:
-        figures.update({"surrogate_ms_per_clip": timing["ms"], "surrogate_clip_seconds": timing["clip_seconds"],
+        figures.update({"surrogate_ms_per_clip": timing["ms"],
+                        "surrogate_ms_per_clip_one_pass": timing["ms_one_pass"],
+                        "surrogate_clip_seconds": timing["clip_seconds"],
                         "surrogate_speedup_vs_opensim": 1e3 * reference.seconds / timing["ms"]})
     return figures
 
@@ -587,10 +597,12 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
             labels, com = labeler.label(motion)
             clips.append((torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None],
                           labels.activations, labels.converged, com[:, COM_LABEL_COLUMNS]))
-        scores = evaluate(model, clips)
+        scores = evaluate(model, clips, symmetric=True)
+        one_pass = evaluate(model, clips)
         subjects = sorted({f"{cache.records[i]['source']}/{cache.records[i]['subject']}" for i in held_out})
     return {**empty, "surrogate_r2": scores["r2_mean_per_muscle"], "surrogate_rmse": scores["rmse"],
             "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_muscles_in_mean": scores["muscles_in_mean"],
+            "surrogate_r2_one_pass": one_pass["r2_mean_per_muscle"], "surrogate_rmse_one_pass": one_pass["rmse"],
             "surrogate_r2_per_muscle": {name: round(value, 4) for name, value in sorted(
                 scores["per_muscle_r2"].items(), key=lambda item: item[1])},   # worst first: where to work next
             "surrogate_com_vel_r2": scores["com_vel_r2"],
