@@ -33,10 +33,10 @@
   under the data root whose subject the surrogate was not trained on, of the activations it reports
   (`MuscleSurrogate.predict_symmetric`; one pass under ``surrogate_r2_one_pass``): mean R² over the muscles whose
   labels vary (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
-  R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the subjects
-  the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`), so on a
-  data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides (val and
-  test). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
+  R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the
+  subjects the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`),
+  so on a data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides
+  (val and test). ``surrogate_com_vel_r2`` (and ``surrogate_com_acc_r2``, RMSEs beside them): the surrogate's COM head
   against the labels' whole-body COM velocity (acceleration), R² per ground axis over all frames of those clips,
   averaged over the three axes (PG-BIG A.8). Guidance itself takes the COM terms from the body model's kinematics,
   which are exact; the head is there for users who want them at the surrogate's speed.
