@@ -195,5 +195,5 @@ def test_notes_name_an_inexact_match_and_its_score(vocabulary, encoder):
     label, score = vocabulary.match_score("climb stairs")
     assert score < 1.0
     assert vocabulary.notes("climb stairs", request) == [
-        f"'climb stairs' names no known action exactly: taken as {label!r}, the nearest label (cosine similarity "
-        f"{score:.2f}); `biomotion generate --list-actions` lists what is known"]
+        f"'climb stairs' taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
+        "`biomotion generate --list-actions` lists them)"]

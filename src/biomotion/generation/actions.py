@@ -228,8 +228,8 @@ class ActionVocabulary:
         notes = []
         label, score = self.match_score(text)
         if score < 1.0:
-            notes.append(f"{text!r} names no known action exactly: taken as {label!r}, the nearest label (cosine "
-                         f"similarity {score:.2f}); `biomotion generate --list-actions` lists what is known")
+            notes.append(f"{text!r} taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
+                         "`biomotion generate --list-actions` lists them)")
         known = self.speed_range(request.action)
         if request.speed is not None and known is not None and not known[0] <= request.speed <= known[1]:
             notes.append(f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
