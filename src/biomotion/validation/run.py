@@ -81,6 +81,10 @@ def _cm(value: float | None) -> str:
     return "–" if value is None else f"{100.0 * value:.1f}"
 
 
+def _bw(value: float | None) -> str:
+    return "–" if value is None else f"{value:.3f}"
+
+
 def markdown(report: dict, command: str) -> str:
     """Tables of a validation report, for docs/results/."""
     lines = [f"# Validation: {report['check']}", "", f"Produced by `{command}` (biomotion {report['biomotion']}, "
@@ -90,11 +94,13 @@ def markdown(report: dict, command: str) -> str:
     if report.get("grf_trials"):
         lines += ["## Vertical GRF inferred from kinematics vs force plates", "",
                   ("| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) "
+                   "| RMSE against plates filtered as the coordinates, ours / baseline (BW) "
                    "| ZMP to plate CoP RMS (cm), frames |"),
-                  "|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|"]
         lines += [f"| {r['trial']} | {r['frames']} | {r['frames_left_out']} | {r['r2']:.3f} | {r['rmse_bw']:.3f} | "
-                  f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} | {_cm(r.get('zmp_cop_rmse_m'))}, "
-                  f"{r.get('zmp_cop_frames', 0)} |" for r in report["grf_trials"]]
+                  f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} | "
+                  f"{_bw(r.get('rmse_bw_plates_filtered'))} / {_bw(r.get('baseline_rmse_bw_plates_filtered'))} | "
+                  f"{_cm(r.get('zmp_cop_rmse_m'))}, {r.get('zmp_cop_frames', 0)} |" for r in report["grf_trials"]]
         if report.get("zmp_cop_rmse_m_per_source"):
             lines += ["", "ZMP to plate CoP per source (RMS, cm): " + ", ".join(
                 f"{source} {_cm(value)}" for source, value in report["zmp_cop_rmse_m_per_source"].items())
