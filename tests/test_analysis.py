@@ -4,8 +4,9 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
-from biomotion.analysis import analyze, plate_frames, summary, unwrapped, zmp_to_plate_cop
+from biomotion.analysis import analyze, model_motion, plate_feet, plate_frames, summary, unwrapped, zmp_to_plate_cop
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.errors import ModelError
@@ -101,3 +102,14 @@ def test_zmp_from_kinematics_lands_on_the_plates_centre_of_pressure(subject4):
     no_plates = analyze(motion, subject4)
     with pytest.raises(ModelError, match="measured forces"):
         zmp_to_plate_cop(no_plates)
+
+
+@pytest.mark.parametrize("trial", ["walking1", "DJ1", "squats1"])
+def test_plate_feet_finds_the_foot_on_each_plate(trial, subject4):
+    """opencap/SOURCE.md verified by hand (CoP against the calcaneus and toe markers at peak load) that plate 1 is
+    the right foot and plate 2 the left in every Subject4 trial; plate 3 is never loaded."""
+    model = subject4
+    motion = model_motion(read_motion(data_path(SUBJECT4 + f"IK/{trial}_ik.mot")), model)
+    forces = read_ground_reaction(data_path(SUBJECT4 + f"ID/{trial}_grf.mot"))
+    assert plate_feet(forces, model, torch.tensor(motion.values), motion.times) == {
+        "ground_force_1": "calcn_r", "ground_force_2": "calcn_l"}

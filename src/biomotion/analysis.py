@@ -89,6 +89,42 @@ def unwrapped(motion: Motion, model: BodyModel) -> Motion:
     return motion.with_values(values)
 
 
+def _nearest_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float
+                  ) -> tuple[GroundReaction, np.ndarray, np.ndarray]:
+    """The plates on the motion's frames, and per frame and channel [T, P] whether the plate is loaded (vertical
+    force above ``threshold`` N with a defined centre of pressure) and whether the right foot's contact points are
+    nearer its centre of pressure than the left's."""
+    points = foot_points(model)
+    same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
+    on_frames = forces if same_clock else forces.at(times)
+    positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
+    feet = np.array(points.feet)
+    force = np.nan_to_num(on_frames.force)  # no plate data beyond the recording: no load
+    cop = on_frames.cop
+    loaded = (np.abs(force[..., 1]) > threshold) & np.isfinite(cop).all(axis=-1)
+    distance = np.linalg.norm((positions[:, None] - np.nan_to_num(cop)[:, :, None])[..., [0, 2]], axis=-1)
+    nearest_right = distance[..., feet == "r"].min(-1) <= distance[..., feet == "l"].min(-1)
+    return on_frames, loaded, nearest_right
+
+
+def plate_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
+               threshold: float = 20.0) -> dict[str, str]:
+    """The foot body (``calcn_r``/``calcn_l``) each plate channel carries: the foot whose contact points are
+    nearest the plate's centre of pressure on most of the frames where it bears more than ``threshold`` N (the
+    usual stance threshold); channels never loaded so are left out.
+
+    For labs where each foot steps on its own plate, as an ExternalLoads file needs them. On OpenCap Subject4 it
+    gives plate 1 the right foot and plate 2 the left in every trial, the mapping opencap/SOURCE.md verified by
+    hand (the shipped ``*_external_forces.xml`` put every plate on ``talus_r``)."""
+    _, loaded, nearest_right = _nearest_feet(forces, model, q, times, threshold)
+    out = {}
+    for channel, name in enumerate(forces.names):
+        frames = loaded[:, channel]
+        if frames.any():
+            out[name] = "calcn_r" if 2 * int(nearest_right[frames, channel].sum()) >= int(frames.sum()) else "calcn_l"
+    return out
+
+
 def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
                    threshold: float = 1.0) -> GroundReaction:
     """Per-foot loads from plate channels: at every frame each loaded plate goes to the foot whose contact
@@ -97,21 +133,14 @@ def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, ti
     A plate loaded by both feet at once cannot be split and goes to the nearer foot. Loads above ``threshold``
     (N, vertical) with a defined centre of pressure are applied: light loads still move the torques.
     """
-    points = foot_points(model)
-    same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
-    on_frames = forces if same_clock else forces.at(times)
-    positions = points_in_ground(forward_kinematics(model, q), points.bodies, points.offsets).numpy()
-    feet = np.array(points.feet)
+    on_frames, loaded_all, nearest_all = _nearest_feet(forces, model, q, times, threshold)
     out_force = np.zeros((len(times), 2, 3))
     out_moment = np.zeros((len(times), 2, 3))
     weighted_cop = np.zeros((len(times), 2, 3))
     for channel in range(on_frames.n_channels):
-        force = on_frames.force[:, channel]
+        force = np.nan_to_num(on_frames.force[:, channel])
         cop = on_frames.cop[:, channel]
-        force = np.nan_to_num(force)  # no plate data beyond the recording: no load
-        loaded = (np.abs(force[:, 1]) > threshold) & np.isfinite(cop).all(axis=1)
-        distance = np.linalg.norm((positions - np.nan_to_num(cop)[:, None])[..., [0, 2]], axis=-1)
-        nearest_right = distance[:, feet == "r"].min(1) <= distance[:, feet == "l"].min(1)
+        loaded, nearest_right = loaded_all[:, channel], nearest_all[:, channel]
         for foot, chosen in ((0, nearest_right), (1, ~nearest_right)):
             use = loaded & chosen
             out_force[use, foot] += force[use]

@@ -12,29 +12,31 @@ from tests.conftest import data_path
 pytest.importorskip("opensim", reason="validation needs the opensim package (validate extra)")
 
 
-@pytest.fixture()
-def one_opencap_trial(tmp_path):
+@pytest.fixture(params=["Subject4", "Subject9"])
+def one_opencap_trial(tmp_path, request):
+    """Subject4's DJ2 (model, IK, plates), as Subject4 or as a subject the project has never seen ("another
+    AddBiomechanics subject" in the same layout): the plates go to the feet by `plate_feet`, not by name."""
     root = tmp_path / "root"
-    for relative in ("opencap/Subject4/Models/optimized_scale_and_markers.osim", "opencap/Subject4/IK/DJ2_ik.mot",
-                     "opencap/Subject4/ID/DJ2_grf.mot"):
-        target = root / relative
+    for relative in ("Models/optimized_scale_and_markers.osim", "IK/DJ2_ik.mot", "ID/DJ2_grf.mot"):
+        target = root / "opencap" / request.param / relative
         target.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy(data_path(relative), target)
-    return root
+        shutil.copy(data_path(f"opencap/Subject4/{relative}"), target)
+    return root, request.param
 
 
 def test_validate_dynamics_on_a_single_trial(one_opencap_trial, tmp_path):
+    root, subject = one_opencap_trial
     report_path = tmp_path / "dynamics.json"
-    assert main(["validate", "dynamics", "--data-root", str(one_opencap_trial), "--json", str(report_path),
+    assert main(["validate", "dynamics", "--data-root", str(root), "--json", str(report_path),
                  "--md", str(tmp_path / "dynamics.md"), "--quiet"]) == 0
     report = json.loads(report_path.read_text())
     assert any(s.startswith("opensim-models") for s in report["skipped"])
-    assert list(report["id_solver_per_trial_max_err_nm"]) == ["opencap/DJ2"]
+    assert list(report["id_solver_per_trial_max_err_nm"]) == [f"opencap/{subject}/DJ2"]
     assert report["id_solver_max_err_nm"] <= 1e-4             # issue 3 bar, N·m
     assert report["id_ref_rmse_rel"] <= 0.02                   # issue 3 bar: 2 % of peak
     assert report["grf_vertical_r2"] >= 0.9                    # measured 0.96 on DJ2
     assert report["grf_vertical_rmse_bw"] < report["grf_com_baseline_rmse_bw"]
-    assert "| opencap/DJ2 |" in (tmp_path / "dynamics.md").read_text()
+    assert f"| opencap/{subject}/DJ2 |" in (tmp_path / "dynamics.md").read_text()
 
 
 def test_validate_kinematics_on_one_model_and_an_empty_root(tmp_path):

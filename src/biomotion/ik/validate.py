@@ -61,7 +61,8 @@ from biomotion.io.trc import read_trc, write_trc
 from biomotion.motion import Markers, Motion, is_translation
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
-OPENCAP = "opencap/Subject4"
+OPENCAP = "opencap"
+OPENCAP_MODEL = "Models/optimized_scale_and_markers.osim"
 FUKUCHI = "fukuchi-running"
 RAJAGOPAL = "opensim-models/Pipelines/Rajagopal"
 OPENCAP_TRIALS = ("walking1", "DJ1", "squats1")
@@ -263,11 +264,18 @@ def gait2392_case(root: Path, repeats: int = 1) -> dict:
                     time_range=setup.time_range, repeats=repeats, accuracy=setup.accuracy)
 
 
-def opencap_case(root: Path, trial: str, repeats: int = 1) -> dict:
-    """An OpenCap Subject4 trial, whole (its setup names no time range), on the model its IK setups name."""
-    base = root / OPENCAP
+def opencap_subjects(root: Path) -> list[str]:
+    """The OpenCap (AddBiomechanics) subjects under ``root``: folders of ``opencap/`` with markers and the scaled
+    model (Subject4 here; a data root of new subjects may hold others in the same layout)."""
+    return sorted(p.name for p in (root / OPENCAP).glob("*")
+                  if (p / "MarkerData").is_dir() and (p / OPENCAP_MODEL).is_file())
+
+
+def opencap_case(root: Path, trial: str, repeats: int = 1, subject: str = "Subject4") -> dict:
+    """An OpenCap subject's trial, whole (its setup names no time range), on the model its IK setups name."""
+    base = root / OPENCAP / subject
     setup = read_ik_setup(base / "IK" / f"{trial}_ik_setup.xml")
-    return run_case(base / "Models" / "optimized_scale_and_markers.osim",
+    return run_case(base / OPENCAP_MODEL,
                     read_trc(base / "MarkerData" / f"{trial}.trc"), weights=setup.marker_weights,
                     coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range, repeats=repeats,
                     accuracy=setup.accuracy)
@@ -357,9 +365,9 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
                 rajagopal: bool = True, bvh: bool = True, progress: bool = False) -> dict:
     """Run every IK and scaling check whose data is under ``data_root``; see the module docstring.
 
-    ``opencap_trials`` picks OpenCap Subject4 trials (``("all",)`` for every trial); ``runners`` caps the Fukuchi
-    runners whose 3.5 m/s trial is solved (scaling is checked on every runner present); ``bvh`` retargets every
-    Bandai-Namco clip present (`biomotion.ik.validate_bvh`).
+    ``opencap_trials`` picks the trials of each OpenCap subject (``("all",)`` for every trial with markers and an
+    IK setup); ``runners`` caps the Fukuchi runners whose 3.5 m/s trial is solved (scaling is checked on every
+    runner present); ``bvh`` retargets every Bandai-Namco clip present (`biomotion.ik.validate_bvh`).
     """
     root = Path(data_root)
     cases: dict[str, dict] = {}
@@ -368,14 +376,16 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
         cases["gait2392_subject01_walk1"] = gait2392_case(root)
     else:
         skipped.append(f"{GAIT}: absent")
-    if (root / OPENCAP / "MarkerData").is_dir():
-        available = sorted(p.stem for p in (root / OPENCAP / "MarkerData").glob("*.trc"))
+    for subject in opencap_subjects(root):
+        folder = root / OPENCAP / subject
+        available = sorted(p.stem for p in (folder / "MarkerData").glob("*.trc")
+                           if (folder / "IK" / f"{p.stem}_ik_setup.xml").exists())
         wanted = available if tuple(opencap_trials) == ("all",) else [t for t in opencap_trials if t in available]
-        skipped += [f"{OPENCAP}/{t}: absent" for t in opencap_trials if t != "all" and t not in available]
+        skipped += [f"{OPENCAP}/{subject}/{t}: absent" for t in opencap_trials if t != "all" and t not in available]
         for trial in wanted:
-            cases[f"opencap_subject4_{trial}"] = opencap_case(root, trial)
-    else:
-        skipped.append(f"{OPENCAP}: absent")
+            cases[f"opencap_{subject.lower()}_{trial}"] = opencap_case(root, trial, subject=subject)
+    if not opencap_subjects(root):
+        skipped.append(f"{OPENCAP}: no subject with MarkerData/ and {OPENCAP_MODEL}")
     trials = sorted((root / FUKUCHI / "c3d").glob("*runT35.c3d")) if (root / FUKUCHI / "c3d").is_dir() else []
     fukuchi_runners = [r for r in (p.name.removesuffix("runT35.c3d") for p in trials)
                        if (root / FUKUCHI / r / f"{r}_simple.osim").exists()

@@ -4,12 +4,13 @@ force plates.
 Figures (keys of the JSON report, issue 3):
 - ``fk_max_err_m``: max body-origin (and marker) error vs OpenSim over random in-range poses of every model found;
 - ``id_solver_max_err_nm``: our inverse dynamics vs OpenSim's InverseDynamicsSolver given identical q, q̇, q̈ and
-  external loads (gait2392 subject01 walk, OpenCap Subject4 trials);
+  external loads (gait2392 subject01 walk, the trials of OpenCap Subject4 and of any other subject under
+  ``opencap/``, each plate applied to the foot `biomotion.analysis.plate_feet` finds on it);
 - ``id_ref_rmse_rel``: end to end (our filtering and differentiation vs OpenSim's InverseDynamicsTool run fresh on
   the same model, coordinates, GRF and 6 Hz filter): RMSE / peak |moment| per coordinate whose peak > 10 N·m;
 - ``grf_vertical_r2``, ``grf_vertical_rmse_bw``, ``grf_com_baseline_rmse_bw``: vertical GRF inferred from
   kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners (their shipped IK, or for a
-  runner with only captures, the C3D solved by the source's own chain) and OpenCap Subject4 trials;
+  runner with only captures, the C3D solved by the source's own chain) and the OpenCap trials;
 - ``*_plates_filtered``: the same against the plates' vertical force low-passed exactly as the coordinates are
   (`Motion.smoothed` at the evaluation's cutoff). The issue states its runner-1 baseline (R² 0.976, RMSE 0.152 BW
   at 10 Hz) without saying what it did to the plates; on RBDS001 the baseline reads 0.172 BW against the raw
@@ -43,7 +44,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.analysis import analyze, model_motion, plate_frames, torque_labels, unwrapped, \
+from biomotion.analysis import analyze, model_motion, plate_feet, plate_frames, torque_labels, unwrapped, \
     vertical_agreement, zmp_to_plate_cop
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
@@ -62,15 +63,15 @@ MODEL_GLOBS = (
     "opensim-models/Pipelines/Gait2392_Simbody/OutputReference/subject01_simbody.osim",
     "fukuchi-running/*/*_simple.osim",
     "fukuchi-running/generic-models/*.osim",
-    "opencap/Subject4/Models/*.osim",
+    "opencap/*/Models/*.osim",
     "Hamner2013/*/*.osim",
     "SchreiberMoissenet2019/*/*.osim",
 )
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody/"
-SUBJECT4 = "opencap/Subject4/"
-#: OpenCap Subject4 plates (opencap/SOURCE.md): 1 = right foot, 2 = left foot, 3 = empty.
-SUBJECT4_PLATES = {"ground_force_1": "calcn_r", "ground_force_2": "calcn_l"}
+OPENCAP = "opencap"
+#: An OpenCap (AddBiomechanics) subject folder's scaled model, which its ``IK/*_ik.mot`` and ID setups use.
+OPENCAP_MODEL = "Models/optimized_scale_and_markers.osim"
 
 
 def check_forward_kinematics(data_root: Path, poses_per_model: int = 3, progress: bool = True) -> dict:
@@ -139,11 +140,24 @@ def _id_solver_case(model_path: Path, motion_path: Path, grf_path: Path, assignm
     return worst
 
 
-def _subject4_trials(data_root: Path) -> list[str]:
-    folder = data_root / SUBJECT4
-    return sorted(p.name.removesuffix("_grf.mot") for p in (folder / "ID").glob("*_grf.mot")
-                  if (folder / "IK" / f"{p.name.removesuffix('_grf.mot')}_ik.mot").exists()
-                  and not p.name.startswith("static"))
+def _opencap_trials(data_root: Path) -> list[tuple[str, Path, Path, Path]]:
+    """(name, model, IK motion, GRF) of every trial with both of every subject under ``opencap/`` (Subject4 and any
+    other AddBiomechanics subject in the same layout), static trials left out."""
+    cases = []
+    for folder in sorted(p for p in (data_root / OPENCAP).glob("*") if (p / OPENCAP_MODEL).is_file()):
+        for grf in sorted((folder / "ID").glob("*_grf.mot")):
+            trial = grf.name.removesuffix("_grf.mot")
+            if (folder / "IK" / f"{trial}_ik.mot").exists() and not trial.startswith("static"):
+                cases.append((f"opencap/{folder.name}/{trial}", folder / OPENCAP_MODEL,
+                              folder / "IK" / f"{trial}_ik.mot", grf))
+    return cases
+
+
+def _plate_bodies(model_path: Path, motion_path: Path, forces: GroundReaction) -> dict[str, str]:
+    """Each loaded plate's foot body (`biomotion.analysis.plate_feet`) on the trial's IK motion."""
+    model = BodyModel.from_osim(model_path)
+    motion = model_motion(read_motion(motion_path), model)
+    return plate_feet(forces, model, torch.tensor(motion.values, dtype=model.dtype), motion.times)
 
 
 def check_inverse_dynamics_solver(data_root: Path, progress: bool = True) -> dict:
@@ -152,10 +166,9 @@ def check_inverse_dynamics_solver(data_root: Path, progress: bool = True) -> dic
         cases.append(("gait2392/subject01_walk1", data_root / GAIT / "OutputReference/subject01_simbody.osim",
                       data_root / GAIT / "subject01_walk1_ik.mot", data_root / GAIT / "subject01_walk1_grf.mot",
                       {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
-    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
-    for trial in _subject4_trials(data_root) if model4.exists() else []:
-        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
-                      data_root / SUBJECT4 / f"ID/{trial}_grf.mot", SUBJECT4_PLATES))
+    for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
+        cases.append((name, model_path, motion_path, grf_path,
+                      _plate_bodies(model_path, motion_path, read_ground_reaction(grf_path))))
     errors = {}
     for name, model_path, motion_path, grf_path, assignment in tqdm(cases, desc="ID vs OpenSim solver",
                                                                     unit="trial", disable=not progress):
@@ -204,10 +217,9 @@ def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) ->
                       data_root / GAIT / "subject01_walk1_ik.mot",
                       read_ground_reaction(data_root / GAIT / "subject01_walk1_grf.mot"),
                       {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
-    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
-    for trial in _subject4_trials(data_root) if model4.exists() else []:
-        cases.append((f"opencap/{trial}", model4, data_root / SUBJECT4 / f"IK/{trial}_ik.mot",
-                      read_ground_reaction(data_root / SUBJECT4 / f"ID/{trial}_grf.mot"), SUBJECT4_PLATES))
+    for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
+        forces = read_ground_reaction(grf_path)
+        cases.append((name, model_path, motion_path, forces, _plate_bodies(model_path, motion_path, forces)))
     per_trial = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, model_path, motion_path, forces, assignment in tqdm(cases, desc="ID vs OpenSim ID tool",
@@ -255,13 +267,11 @@ def _grf_cases(data_root: Path) -> tuple[list[tuple[str, Path, object, object]],
         else:
             skipped.append(f"GRF check: fukuchi-running/{runner}: no ik/T35 motion, and the chain lacks "
                            f"{', '.join(chain)}")
-    model4 = data_root / SUBJECT4 / "Models/optimized_scale_and_markers.osim"
-    for trial in _subject4_trials(data_root) if model4.exists() else []:
-        if trial.startswith("STS"):  # seated: the chair carries weight no plate measures, feet are not the only contact
+    for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
+        if name.rsplit("/", 1)[1].startswith("STS"):  # seated: the chair carries weight no plate measures
             continue
-        grf = data_root / SUBJECT4 / f"ID/{trial}_grf.mot"
-        cases.append((f"opencap/{trial}", model4, lambda p=data_root / SUBJECT4 / f"IK/{trial}_ik.mot": read_motion(p),
-                      lambda g=grf: read_ground_reaction(g)))
+        cases.append((name, model_path, lambda p=motion_path: read_motion(p),
+                      lambda g=grf_path: read_ground_reaction(g)))
     return cases, skipped
 
 

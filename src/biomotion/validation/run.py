@@ -13,10 +13,10 @@ from biomotion.io.atomic import atomic_write
 
 #: Sources each check looks for (relative to the data root); absent ones are reported as skipped.
 SOURCES = {
-    "kinematics": ("opensim-models", "fukuchi-running", "opencap/Subject4", "Hamner2013", "SchreiberMoissenet2019"),
-    "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap/Subject4", "fukuchi-running/c3d"),
+    "kinematics": ("opensim-models", "fukuchi-running", "opencap", "Hamner2013", "SchreiberMoissenet2019"),
+    "dynamics": ("opensim-models/Pipelines/Gait2392_Simbody", "opencap", "fukuchi-running/c3d"),
     "muscles": ("opensim-models/Models/Rajagopal", "opensim-models/Pipelines/Gait2392_Simbody"),
-    "ik": ("opensim-models/Pipelines/Gait2392_Simbody", "opensim-models/Pipelines/Rajagopal", "opencap/Subject4",
+    "ik": ("opensim-models/Pipelines/Gait2392_Simbody", "opensim-models/Pipelines/Rajagopal", "opencap",
            "fukuchi-running/c3d", "bandai-namco"),
 }
 
