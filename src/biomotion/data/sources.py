@@ -155,15 +155,26 @@ _OPENCAP_ACTIVITIES = (  # (trial-name prefix, action, style), longest prefixes 
     ("STS", "sit-to-stand", "normal"), ("static", "static", "normal"),
 )
 
-#: Subject 4 of the OpenCap validation set (``opencap/SOURCE.md``: 62.6 kg, 1.68 m from ``rescaling_setup.xml``).
-OPENCAP_SUBJECT4 = Profile(subject_id="Subject4", mass=62.6, height=1.68)
+def _opencap_profile(subject_dir: Path) -> Profile:
+    """A subject's mass and height from the ScaleTool setup AddBiomechanics writes beside the models
+    (``Models/rescaling_setup.xml``; Subject4: 62.6 kg, 1.68 m, as ``opencap/SOURCE.md`` says); the height is read
+    as metres, or as millimetres (OpenSim's unit for it) when above 3. Absent or unset (-1) values stay unknown."""
+    from biomotion.ik.setup import read_scale_setup
+
+    setup_file = subject_dir / "Models" / "rescaling_setup.xml"
+    if not setup_file.is_file():
+        return Profile(subject_id=subject_dir.name)
+    setup = read_scale_setup(setup_file)
+    height = setup.height / 1000.0 if setup.height > 3.0 else setup.height
+    return Profile(subject_id=subject_dir.name, mass=setup.mass if setup.mass > 0 else None,
+                   height=height if height > 0 else None)
 
 
 def _opencap_discover(root: Path) -> list[ClipSpec]:
     specs = []
     for subject_dir in sorted(p for p in (root / "opencap").glob("Subject*") if p.is_dir()):
         subject = subject_dir.name
-        profile = OPENCAP_SUBJECT4 if subject == "Subject4" else Profile(subject_id=subject)
+        profile = _opencap_profile(subject_dir)
         for path in sorted(subject_dir.glob("IK/*_ik.mot")):
             if path.stem.endswith("_manual_scaling_ik"):  # the lab's hand-scaled model: same trials again
                 continue
