@@ -97,7 +97,7 @@ def test_list_actions_names_both_bundles_and_generate_without_action_is_one_clea
     assert main(["generate", "--list-actions"]) == 0
     listing = capsys.readouterr().out
     assert "lab bundle" in listing and "full-body bundle" in listing
-    assert "  run (median 3.50 m/s)" in listing and "wave both hands" in listing and "elderly" in listing
+    assert "  run (2-5 m/s, median 3.50)" in listing and "wave both hands" in listing and "elderly" in listing
     assert main(["generate", "--out", str(tmp_path / "o")]) == 2
     assert "generate needs --action" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

@@ -88,7 +88,7 @@ def route(text: str, checkpoints: str | Path) -> Route:
 
 
 def vocabulary_listing(checkpoints: str | Path) -> str:
-    """The actions each shipped bundle knows, with their styles and median training speeds, for the console
+    """The actions each shipped bundle knows, with their styles and training speeds (range, median), for the console
     (``biomotion generate --list-actions``); the full-body bundle's list leaves out what the lab bundle has."""
     def styles(vocabulary, action: str) -> set[str]:
         return {e.style for e in vocabulary.entries(action) if e.style not in (None, "normal")}
@@ -100,7 +100,9 @@ def vocabulary_listing(checkpoints: str | Path) -> str:
             if action in known and not new:
                 continue
             speed = vocabulary.typical_speed(action) if action not in known else None
-            out.append(f"  {action}" + (f" (median {speed:.2f} m/s)" if speed is not None else "")
+            span = vocabulary.speed_range(action)
+            out.append(f"  {action}" + (f" ({round(span[0], 2):g}-{round(span[1], 2):g} m/s, median {speed:.2f})" if speed is not None
+                                        else "")
                        + (f"; styles: {', '.join(new)}" if new else ""))
         return out
 
