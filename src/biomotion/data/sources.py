@@ -155,6 +155,10 @@ _OPENCAP_ACTIVITIES = (  # (trial-name prefix, action, style), longest prefixes 
     ("STS", "sit-to-stand", "normal"), ("static", "static", "normal"),
 )
 
+#: An OpenCap (AddBiomechanics) subject folder's scaled model, which its ``IK/*_ik.mot`` and setups use.
+OPENCAP_MODEL_FILE = "Models/optimized_scale_and_markers.osim"
+
+
 def _opencap_profile(subject_dir: Path) -> Profile:
     """A subject's mass and height from the ScaleTool setup AddBiomechanics writes beside the models
     (``Models/rescaling_setup.xml``; Subject4: 62.6 kg, 1.68 m, as ``opencap/SOURCE.md`` says); the height is read

@@ -233,7 +233,8 @@ class ActionVocabulary:
         known = self.speed_range(request.action)
         if request.speed is not None and known is not None and not known[0] <= request.speed <= known[1]:
             notes.append(f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
-                         f"({round(known[0], 2):g}-{round(known[1], 2):g} m/s): the motion is extrapolated and less reliable")
+                         f"({round(known[0], 2):g}-{round(known[1], 2):g} m/s): the motion is extrapolated and less "
+                         "reliable")
         return notes
 
     # ---- parsing -------------------------------------------------------------------------------------------

@@ -101,9 +101,8 @@ def vocabulary_listing(checkpoints: str | Path) -> str:
                 continue
             speed = vocabulary.typical_speed(action) if action not in known else None
             span = vocabulary.speed_range(action)
-            out.append(f"  {action}" + (f" ({round(span[0], 2):g}-{round(span[1], 2):g} m/s, median {speed:.2f})" if speed is not None
-                                        else "")
-                       + (f"; styles: {', '.join(new)}" if new else ""))
+            speeds = f" ({round(span[0], 2):g}-{round(span[1], 2):g} m/s, median {speed:.2f})" if speed else ""
+            out.append(f"  {action}{speeds}" + (f"; styles: {', '.join(new)}" if new else ""))
         return out
 
     checkpoints = Path(checkpoints)

@@ -49,6 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.body.model import BodyModel
+from biomotion.data.sources import OPENCAP_MODEL_FILE
 from biomotion.ik.fukuchi_chain import validate_fukuchi_chain
 from biomotion.ik.markers import IKResult, evaluate_ik, solve_ik
 from biomotion.ik.scaling import body_scale_factors, scale_static, write_scaled_osim
@@ -62,7 +63,6 @@ from biomotion.motion import Markers, Motion, is_translation
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
 OPENCAP = "opencap"
-OPENCAP_MODEL = "Models/optimized_scale_and_markers.osim"
 FUKUCHI = "fukuchi-running"
 RAJAGOPAL = "opensim-models/Pipelines/Rajagopal"
 OPENCAP_TRIALS = ("walking1", "DJ1", "squats1")
@@ -268,14 +268,14 @@ def opencap_subjects(root: Path) -> list[str]:
     """The OpenCap (AddBiomechanics) subjects under ``root``: folders of ``opencap/`` with markers and the scaled
     model (Subject4 here; a data root of new subjects may hold others in the same layout)."""
     return sorted(p.name for p in (root / OPENCAP).glob("*")
-                  if (p / "MarkerData").is_dir() and (p / OPENCAP_MODEL).is_file())
+                  if (p / "MarkerData").is_dir() and (p / OPENCAP_MODEL_FILE).is_file())
 
 
 def opencap_case(root: Path, trial: str, repeats: int = 1, subject: str = "Subject4") -> dict:
     """An OpenCap subject's trial, whole (its setup names no time range), on the model its IK setups name."""
     base = root / OPENCAP / subject
     setup = read_ik_setup(base / "IK" / f"{trial}_ik_setup.xml")
-    return run_case(base / OPENCAP_MODEL,
+    return run_case(base / OPENCAP_MODEL_FILE,
                     read_trc(base / "MarkerData" / f"{trial}.trc"), weights=setup.marker_weights,
                     coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range, repeats=repeats,
                     accuracy=setup.accuracy)
@@ -376,7 +376,8 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
         cases["gait2392_subject01_walk1"] = gait2392_case(root)
     else:
         skipped.append(f"{GAIT}: absent")
-    for subject in opencap_subjects(root):
+    subjects = opencap_subjects(root)
+    for subject in subjects:
         folder = root / OPENCAP / subject
         available = sorted(p.stem for p in (folder / "MarkerData").glob("*.trc")
                            if (folder / "IK" / f"{p.stem}_ik_setup.xml").exists())
@@ -384,8 +385,8 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
         skipped += [f"{OPENCAP}/{subject}/{t}: absent" for t in opencap_trials if t != "all" and t not in available]
         for trial in wanted:
             cases[f"opencap_{subject.lower()}_{trial}"] = opencap_case(root, trial, subject=subject)
-    if not opencap_subjects(root):
-        skipped.append(f"{OPENCAP}: no subject with MarkerData/ and {OPENCAP_MODEL}")
+    if not subjects:
+        skipped.append(f"{OPENCAP}: no subject with MarkerData/ and {OPENCAP_MODEL_FILE}")
     trials = sorted((root / FUKUCHI / "c3d").glob("*runT35.c3d")) if (root / FUKUCHI / "c3d").is_dir() else []
     fukuchi_runners = [r for r in (p.name.removesuffix("runT35.c3d") for p in trials)
                        if (root / FUKUCHI / r / f"{r}_simple.osim").exists()

@@ -49,6 +49,7 @@ from biomotion.analysis import analyze, model_motion, plate_feet, plate_frames, 
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
+from biomotion.data.sources import OPENCAP_MODEL_FILE
 from biomotion.io.c3d import read_c3d_forces
 from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
     write_external_loads_xml, write_ground_reaction, write_motion
@@ -70,8 +71,6 @@ MODEL_GLOBS = (
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody/"
 OPENCAP = "opencap"
-#: An OpenCap (AddBiomechanics) subject folder's scaled model, which its ``IK/*_ik.mot`` and ID setups use.
-OPENCAP_MODEL = "Models/optimized_scale_and_markers.osim"
 
 
 def check_forward_kinematics(data_root: Path, poses_per_model: int = 3, progress: bool = True) -> dict:
@@ -144,11 +143,11 @@ def _opencap_trials(data_root: Path) -> list[tuple[str, Path, Path, Path]]:
     """(name, model, IK motion, GRF) of every trial with both of every subject under ``opencap/`` (Subject4 and any
     other AddBiomechanics subject in the same layout), static trials left out."""
     cases = []
-    for folder in sorted(p for p in (data_root / OPENCAP).glob("*") if (p / OPENCAP_MODEL).is_file()):
+    for folder in sorted(p for p in (data_root / OPENCAP).glob("*") if (p / OPENCAP_MODEL_FILE).is_file()):
         for grf in sorted((folder / "ID").glob("*_grf.mot")):
             trial = grf.name.removesuffix("_grf.mot")
             if (folder / "IK" / f"{trial}_ik.mot").exists() and not trial.startswith("static"):
-                cases.append((f"opencap/{folder.name}/{trial}", folder / OPENCAP_MODEL,
+                cases.append((f"opencap/{folder.name}/{trial}", folder / OPENCAP_MODEL_FILE,
                               folder / "IK" / f"{trial}_ik.mot", grf))
     return cases
 
