@@ -78,3 +78,27 @@ def test_property_round_trip(tmp_path, frames, count, units, seed):
                       positions=positions)
     back = read_trc(write_trc(tmp_path / "p.trc", markers, units=units, rate=50.0))
     np.testing.assert_allclose(back.positions, positions, rtol=1e-12, atol=1e-15)
+
+
+def test_short_rows_empty_fields_and_bad_tokens(tmp_path):
+    """Rows may leave trailing markers out or fields empty (gaps); such files take the field-by-field path and
+    must read the same numbers as full rows, and a bad token is named with its line."""
+    source = data_path("opencap/Subject4/MarkerData/DJ1.trc")
+    full = read_trc(source)
+    lines = source.read_text().splitlines()
+    short = lines[:6] + ["\t".join(lines[6].split("\t")[:-3])] + lines[7:]   # frame 1 without its last marker
+    empty = lines[:7] + [lines[7].replace("\t" + lines[7].split("\t")[2] + "\t", "\t\t", 1)] + lines[8:]
+    for name, content, frame, marker in (("short", short, 0, -1), ("empty", empty, 1, 0)):
+        path = tmp_path / f"{name}.trc"
+        path.write_text("\n".join(content))
+        markers = read_trc(path)
+        assert np.isnan(markers.positions[frame, marker, 0])
+        expected = full.positions.copy()
+        expected[frame, marker, 0 if name == "empty" else slice(None)] = np.nan
+        np.testing.assert_array_equal(markers.positions, expected)
+    bad = lines[:9] + ["\t".join(lines[9].split("\t")[:2] + ["1.0x"] + lines[9].split("\t")[3:])] + lines[10:]
+    path = tmp_path / "bad.trc"
+    path.write_text("\n".join(bad))
+    with pytest.raises(DataFormatError, match="not a number: '1.0x'") as info:
+        read_trc(path)
+    assert ":10:" in str(info.value)
