@@ -44,13 +44,20 @@ def _data_build(args: argparse.Namespace) -> int:
 
 
 def _data_augment(args: argparse.Namespace) -> int:
-    from biomotion.data.augment import time_warped_cache
+    from biomotion.data.augment import augmented_cache
 
-    manifest = time_warped_cache(args.cache, args.out, args.time_warp, split=args.split, progress=not args.quiet)
+    model = None
+    if args.posture_copies > 0:
+        from biomotion.evaluation.clips import body_model
+
+        model = body_model(args.data_root)
+    manifest = augmented_cache(args.cache, args.out, args.time_warp, posture_copies=args.posture_copies,
+                               model=model, seed=args.seed, split=args.split, progress=not args.quiet)
     counts = manifest["counts"]
-    print(f"wrote {counts['clips']} clips ({manifest['augmentation']['copies']} time-warped copies of the "
-          f"{args.split} split at x{', x'.join(f'{f:g}' for f in args.time_warp)}) in "
-          f"{manifest['build_seconds']:.1f} s -> {args.out}")
+    kinds = [f"time-warped x{', x'.join(f'{f:g}' for f in args.time_warp)}"] if args.time_warp else []
+    kinds += [f"{args.posture_copies} posture offset(s) each"] if args.posture_copies > 0 else []
+    print(f"wrote {counts['clips']} clips ({manifest['augmentation']['copies']} copies of the {args.split} split: "
+          f"{'; '.join(kinds)}) in {manifest['build_seconds']:.1f} s -> {args.out}")
     return 0
 
 
@@ -322,15 +329,22 @@ def build_parser() -> argparse.ArgumentParser:
     build.add_argument("--quiet", action="store_true", help="no progress bar")
     build.set_defaults(run=_data_build)
     augment = data_verbs.add_parser(
-        "augment", help="add time-warped copies of the training clips (for the muscle surrogate)",
+        "augment", help="add time-warped and posture-offset copies of the training clips (for the muscle surrogate)",
         description="Copy a cache and append its training-split clips played faster or slower (--time-warp "
-                    "factors; 1.25 = 25 % faster), resampled at the cache rate. Validation and test clips are "
-                    "left as they are. Label the result with `biomotion muscles label` and train the surrogate "
-                    "on it (see biomotion.data.augment).")
+                    "factors; 1.25 = 25 % faster), resampled at the cache rate, and with random marker-placement "
+                    "posture offsets (--posture-copies: pelvis turned, thighs and trunk kept, hip axial rotation "
+                    "offset; see biomotion.data.posture). Validation and test clips are left as they are. Label the "
+                    "result with `biomotion muscles label` and train the surrogate on it (see "
+                    "biomotion.data.augment).")
     augment.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
     augment.add_argument("--out", type=Path, required=True, help="new cache folder to write")
-    augment.add_argument("--time-warp", type=float, nargs="+", default=[0.8, 0.9, 1.1, 1.25], metavar="F",
-                         help="speed factors of the copies (default: %(default)s)")
+    augment.add_argument("--time-warp", type=float, nargs="*", default=[0.8, 0.9, 1.1, 1.25], metavar="F",
+                         help="speed factors of the copies; none for no time-warped copies (default: %(default)s)")
+    augment.add_argument("--posture-copies", type=int, default=0, metavar="N",
+                         help="posture-offset copies per clip (default: %(default)s)")
+    augment.add_argument("--seed", type=int, default=0, help="seed of the posture offsets (default: %(default)s)")
+    augment.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+                         help="data root holding the canonical model, for posture copies (default: %(default)s)")
     augment.add_argument("--split", default="train", choices=("train", "val", "test"),
                          help="split whose clips are copied (default: %(default)s)")
     augment.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from biomotion.cli import main
-from biomotion.data.augment import time_warped_cache
+from biomotion.data.augment import augmented_cache
 from biomotion.data.registry import DatasetCache, build_cache
 from biomotion.errors import ConfigError
 
@@ -26,7 +26,8 @@ def test_copies_replay_each_training_clip_faster_and_slower(tmp_path, hamner):
     train = hamner.indices(split="train")
     assert len(train) == len(hamner) == 6                        # Hamner's three subjects all hash to train
     assert len(warped) == len(hamner) + 2 * len(train)
-    assert warped.manifest["augmentation"] == {"time_warp": [0.8, 1.25], "split": "train", "from": str(hamner.folder),
+    assert warped.manifest["augmentation"] == {"time_warp": [0.8, 1.25], "posture_copies": 0, "seed": 0,
+                                               "split": "train", "from": str(hamner.folder),
                                                "copies": 12}
     for i in range(len(hamner)):                                 # the originals unchanged, first
         assert warped.records[i] == hamner.records[i]
@@ -54,10 +55,10 @@ def test_copies_replay_each_training_clip_faster_and_slower(tmp_path, hamner):
 
 def test_bad_factors_and_same_folder_are_refused(tmp_path, hamner):
     with pytest.raises(ConfigError, match="positive and not 1"):
-        time_warped_cache(hamner.folder, tmp_path / "x", [1.0])
+        augmented_cache(hamner.folder, tmp_path / "x", [1.0])
     with pytest.raises(ConfigError, match="positive and not 1"):
-        time_warped_cache(hamner.folder, tmp_path / "x", [-0.5])
+        augmented_cache(hamner.folder, tmp_path / "x", [-0.5])
     with pytest.raises(ConfigError, match="must differ"):
-        time_warped_cache(hamner.folder, hamner.folder, [1.1])
+        augmented_cache(hamner.folder, hamner.folder, [1.1])
     with pytest.raises(ConfigError, match="no 'val' clips"):
-        time_warped_cache(hamner.folder, tmp_path / "x", [1.1], split="val")
+        augmented_cache(hamner.folder, tmp_path / "x", [1.1], split="val")

@@ -33,17 +33,27 @@ from biomotion.data.registry import ARRAYS, MANIFEST, ClipRecord, DatasetCache, 
 from biomotion.errors import ConfigError
 from biomotion.io.atomic import atomic_write
 
+POSTURE_DRAWS = 5
+"""Draws of a posture offset per copy before the copy is given up (each must keep every joint in its range)."""
 MIN_FRAMES = 20
 """Copies shorter than this (frames) are not written: too short for the surrogate's training windows to mean much."""
 
 
-def time_warped_cache(cache: str | Path, out: str | Path, factors: Sequence[float], *, split: str = "train",
-                      progress: bool = True) -> dict:
-    """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips played ``factors`` times
-    faster; returns the new manifest. Files are written atomically, the manifest last."""
+def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float] = (), *, posture_copies: int = 0,
+                    model=None, seed: int = 0, split: str = "train", progress: bool = True) -> dict:
+    """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips: played ``factors`` times
+    faster, and ``posture_copies`` with random marker-placement offsets (`biomotion.data.posture`, needs the
+    canonical ``model``; offsets drawn from ``seed``, a draw that would leave a joint range is drawn again, at
+    most `POSTURE_DRAWS` times). Returns the new manifest. Files are written atomically, the manifest last."""
+    from biomotion.data.posture import keeps_ranges, posture_offset, random_offsets
+
     factors = tuple(float(f) for f in factors)
-    if not factors or any(not np.isfinite(f) or f <= 0 or f == 1.0 for f in factors):
+    if any(not np.isfinite(f) or f <= 0 or f == 1.0 for f in factors):
         raise ConfigError(f"time-warp factors must be positive and not 1, got {list(factors)}")
+    if not factors and posture_copies <= 0:
+        raise ConfigError("nothing to add: give time-warp factors or posture copies")
+    if posture_copies > 0 and model is None:
+        raise ConfigError("posture copies need the canonical body model")
     source, out = DatasetCache(cache), Path(out)
     if out.resolve() == source.folder.resolve():
         raise ConfigError(f"--out must differ from --cache ({out})")
@@ -53,22 +63,39 @@ def time_warped_cache(cache: str | Path, out: str | Path, factors: Sequence[floa
     offset = int(source.values.shape[0])
     chosen = source.indices(split=split)
     if not chosen:
-        raise ConfigError(f"the cache {source.folder} has no {split!r} clips to warp")
-    for index in tqdm(chosen, desc="time warp", unit="clip", disable=not progress):
+        raise ConfigError(f"the cache {source.folder} has no {split!r} clips to augment")
+    rng = np.random.default_rng(seed)
+    defaults = None if model is None else model.defaults.numpy()
+    for index in tqdm(chosen, desc="augment", unit="clip", disable=not progress):
         motion, record = source.motion(index), source.records[index]
+        copies = []
         for factor in factors:
             warped = replace(motion, times=motion.times[0] + (motion.times - motion.times[0]) / factor)
-            copy = warped.resample(source.rate)
+            copies.append((warped.resample(source.rate), f"@x{factor:g}", {"time_warp": factor},
+                           factor, f" (time-warped x{factor:g})"))
+        filled = motion if model is None else motion.with_values(np.where(motion.mask[None], motion.values,
+                                                                          defaults[None]))
+        for k in range(posture_copies):
+            for _ in range(POSTURE_DRAWS):
+                offsets = random_offsets(rng)
+                moved = posture_offset(filled, model, offsets)
+                if keeps_ranges(filled, moved, model):
+                    kept = np.where(motion.mask[None], moved.values, motion.values)
+                    copies.append((motion.with_values(kept), f"@posture{k + 1}",
+                                   {"posture_deg": {n: round(v, 3) for n, v in offsets.items()}}, 1.0,
+                                   f" (posture offset {k + 1})"))
+                    break
+        for copy, suffix, how, factor, note in copies:
             if copy.n_frames < MIN_FRAMES:
                 continue
             labels = dict(record["labels"])
             if labels.get("speed") is not None:
                 labels["speed"] = round(labels["speed"] * factor, 4)
             if labels.get("text"):
-                labels["text"] = f"{labels['text']} (time-warped x{factor:g})"
-            records.append({**record, "clip_id": f"{record['clip_id']}@x{factor:g}", "labels": labels,
+                labels["text"] = f"{labels['text']}{note}"
+            records.append({**record, "clip_id": f"{record['clip_id']}{suffix}", "labels": labels,
                             "offset": offset, "n_frames": copy.n_frames, "start_time": float(copy.times[0]),
-                            "augmentation": {"time_warp": factor, "from": record["clip_id"]}})
+                            "augmentation": {**how, "from": record["clip_id"]}})
             values.append(copy.values.astype(np.float32))
             masks.append(source.masks[index].astype(np.uint8)[None])
             offset += copy.n_frames
@@ -84,7 +111,8 @@ def time_warped_cache(cache: str | Path, out: str | Path, factors: Sequence[floa
     fields = ClipRecord.__dataclass_fields__
     manifest = {**source.manifest, "clips": records,
                 "counts": _counts([ClipRecord(**{k: r[k] for k in fields}) for r in records]),
-                "augmentation": {"time_warp": list(factors), "split": split, "from": str(source.folder),
+                "augmentation": {"time_warp": list(factors), "posture_copies": posture_copies, "seed": seed,
+                                 "split": split, "from": str(source.folder),
                                  "copies": len(records) - len(source.records)},
                 "build_seconds": round(time.perf_counter() - started, 2)}
     with atomic_write(out / MANIFEST) as handle:
