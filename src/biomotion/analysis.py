@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.body.balance import center_of_mass_motion, body_motion, mechanical_energy, zero_moment_point
+from biomotion.body.balance import (
+    MIN_VERTICAL_LOAD_BW,
+    body_motion,
+    center_of_mass_motion,
+    mechanical_energy,
+    zero_moment_point,
+)
 from biomotion.body.contact import ContactSettings, InferredForces, foot_points, infer_ground_reaction
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import apply_couplers, forward_kinematics, points_in_ground
@@ -305,15 +311,13 @@ def summary(result: Analysis) -> dict:
     return out
 
 
-ZMP_MIN_LOAD_BW = 0.2
-"""Body weights the plates must carry for a frame's ZMP-to-CoP comparison: near touch-down and lift-off both
-points are ratios of small numbers (moment over vertical force) and say nothing about either estimate."""
-
 
 def zmp_to_plate_cop(result: Analysis, keep: np.ndarray | None = None) -> np.ndarray:
     """Horizontal distance (m) between the ZMP from kinematics and the plates' combined centre of pressure, on the
     frames of ``keep`` (default `plate_frames`: every supporting foot on a plate) where the plates carry at least
-    `ZMP_MIN_LOAD_BW` body weights.
+    `biomotion.body.balance.MIN_VERTICAL_LOAD_BW` body weights (near touch-down and lift-off both points are ratios
+    of small numbers, moment over vertical force, and say nothing about either estimate) and the kinematics give
+    a ZMP (they ask as much of the ground).
 
     On level ground the centre of pressure of the total ground reaction is the ZMP (Sardain & Bessonnet 2004,
     IEEE Trans. Syst. Man Cybern. A 34(5):630, "Forces acting on a biped robot. Center of pressure - zero moment
@@ -325,7 +329,7 @@ def zmp_to_plate_cop(result: Analysis, keep: np.ndarray | None = None) -> np.nda
     keep = plate_frames(result) if keep is None else keep
     vertical = result.measured.force[..., 1]
     total = vertical.sum(1)
-    loaded = keep & (total >= ZMP_MIN_LOAD_BW * result.body_weight)
+    loaded = keep & (total >= MIN_VERTICAL_LOAD_BW * result.body_weight) & np.isfinite(result.zmp).all(-1)
     cop = (np.nan_to_num(result.measured.cop) * vertical[..., None]).sum(1)[loaded] / total[loaded, None]
     return np.linalg.norm((result.zmp[loaded] - cop)[:, [0, 2]], axis=1)
 
@@ -337,7 +341,7 @@ def zmp_inside_support(result: Analysis) -> float:
 
     points = torch.tensor(result.contact_points)
     points = torch.cat([points[..., :1], torch.zeros_like(points[..., 1:2]), points[..., 2:]], dim=-1)
-    share = share_inside_support(torch.tensor(np.nan_to_num(result.zmp)), points,
+    share = share_inside_support(torch.tensor(result.zmp), points,
                                  contact=torch.tensor(result.contact_loaded), margin=0.01)
     return float(share)
 

@@ -88,6 +88,20 @@ def test_zmp_shifts_back_under_forward_pelvis_acceleration(model):
     assert float(zmp[0, 0]) == pytest.approx(expected, abs=1e-9)
 
 
+def test_zmp_is_undefined_near_free_fall(model):
+    """The whole body accelerating down at a (no rotation) asks m (g - a) of the ground: a ZMP at or above
+    `MIN_VERTICAL_LOAD_BW` body weights (the COM's projection here), NaN below it (flight)."""
+    q = model.default_q().expand(3, -1).clone()
+    qd, qdd = torch.zeros_like(q), torch.zeros_like(q)
+    g = 9.80665
+    qdd[:, model.coordinate_index("pelvis_ty")] = torch.tensor([-0.79, -0.81, -1.0], dtype=q.dtype) * g
+    zmp = zero_moment_point(model, q, qd, qdd)
+    com = center_of_mass(model, q)
+    assert float(zmp[0, 0]) == pytest.approx(float(com[0, 0]), abs=1e-9)       # 0.21 body weights: loaded
+    assert torch.isnan(zmp[1:, [0, 2]]).all()                                   # 0.19 and 0: in flight
+    assert torch.isfinite(zero_moment_point(model, q, qd, qdd, min_load_bw=0.1)[1]).all()
+
+
 def test_potential_energy_is_weight_times_com_height(model):
     q, qd, _ = random_state(model, 4, seed=5)
     _, potential = mechanical_energy(model, q, qd)

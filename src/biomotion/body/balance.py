@@ -75,15 +75,25 @@ def _world_inertia(model: BodyModel, rotations: torch.Tensor) -> torch.Tensor:
     return rotations @ model.inertias @ rotations.transpose(-1, -2)
 
 
+MIN_VERTICAL_LOAD_BW = 0.2
+"""Body weights the ground must carry, by the kinematics (m (g + a_COM,y)), for a frame to have a zero-moment
+point. Below it the body is close to free fall (running's flight, a jump, the instants of touch-down and
+lift-off): the ZMP, a horizontal moment over that small vertical force, then lies metres from the body (-15 to
+47 m on a generated 3 s run before this rule) and says nothing about balance. The ZMP-to-plate comparison asks the
+same load of the plates (`biomotion.analysis.zmp_to_plate_cop`)."""
+
+
 def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
-                      ground_height: float = 0.0, bodies: BodyMotion | None = None) -> torch.Tensor:
+                      ground_height: float = 0.0, bodies: BodyMotion | None = None,
+                      min_load_bw: float = MIN_VERTICAL_LOAD_BW) -> torch.Tensor:
     """[..., 3] zero-moment point on the horizontal ground plane y = ``ground_height`` (y up).
 
     The point where the gravito-inertial wrench of all bodies has no horizontal moment (Vukobratović & Borovac
     2004; HUMOS uses it as its stability criterion): with F = Σ mᵢ(g − aᵢ) and
     M_O = Σ rᵢ × mᵢ(g − aᵢ) − Σ Ḣᵢ, where Ḣᵢ = Iᵢω̇ᵢ + ωᵢ × Iᵢωᵢ about each body's COM, the contact wrench
     (−F, −M_O) has zero horizontal moment about p = (M_z / F_y, h, −M_x / F_y) taken relative to the plane.
-    NaN where the vertical gravito-inertial force vanishes (flight).
+    NaN where the vertical contact force this asks for is below ``min_load_bw`` body weights (flight; see
+    `MIN_VERTICAL_LOAD_BW`).
     """
     bodies = body_motion(model, q, qd, qdd) if bodies is None else bodies
     masses = model.masses[:, None]
@@ -99,7 +109,8 @@ def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: 
     moment = torch.cross(arm, force_each, dim=-1).sum(-2) - spin.sum(-2)
     contact_force, contact_moment = -force, -moment
     fy = contact_force[..., 1]
-    fy = torch.where(fy.abs() > 1e-9, fy, torch.full_like(fy, float("nan")))
+    weight = model.total_mass * torch.linalg.vector_norm(gravity)
+    fy = torch.where(fy >= max(min_load_bw, 1e-12) * weight, fy, torch.full_like(fy, float("nan")))
     x = contact_moment[..., 2] / fy
     z = -contact_moment[..., 0] / fy
     return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1)

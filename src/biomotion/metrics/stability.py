@@ -7,7 +7,8 @@ points are joint centres along the foot's axis (two points per foot span no area
 COM given as [..., T, 3] (y up; x and z are used) or [..., T, 2] (x, z).
 
 Frames without any contact (flight) have no support and are left out of every average here, as are frames whose
-query is NaN (the body model's ZMP, `biomotion.body.balance.zero_moment_point`, is NaN in flight).
+query is NaN (the body model's ZMP, `biomotion.body.balance.zero_moment_point`, is NaN in flight: where the
+kinematics ask the ground for less than `biomotion.body.balance.MIN_VERTICAL_LOAD_BW` body weights).
 """
 
 from __future__ import annotations
