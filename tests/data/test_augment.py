@@ -62,3 +62,23 @@ def test_bad_factors_and_same_folder_are_refused(tmp_path, hamner):
         augmented_cache(hamner.folder, hamner.folder, [1.1])
     with pytest.raises(ConfigError, match="no 'val' clips"):
         augmented_cache(hamner.folder, tmp_path / "x", [1.1], split="val")
+
+
+def test_posture_copies_through_the_command(tmp_path, hamner, data_root):
+    out = tmp_path / "posture"
+    assert main(["data", "augment", "--cache", str(hamner.folder), "--out", str(out), "--time-warp",
+                 "--posture-copies", "1", "--seed", "3", "--data-root", str(data_root), "--quiet"]) == 0
+    posed = DatasetCache(out)
+    assert len(posed) == 2 * len(hamner)
+    tilt = hamner.coordinates.index("pelvis_tilt")
+    for i in range(len(hamner)):
+        record, original = posed.records[len(hamner) + i], hamner.motion(i)
+        assert record["clip_id"] == f"{hamner.records[i]['clip_id']}@posture1"
+        offsets = record["augmentation"]["posture_deg"]
+        assert set(offsets) >= {"pelvis_tilt", "hip_rotation_r"} and all(abs(v) <= 8.0 for v in offsets.values())
+        copy = posed.motion(len(hamner) + i)
+        turned = copy.values[:, tilt] - original.values[:, tilt]   # offsets kept to 1e-3 deg, values in float32
+        np.testing.assert_allclose(turned, np.radians(offsets["pelvis_tilt"]), atol=2e-5)
+        np.testing.assert_array_equal(copy.mask, original.mask)
+    with pytest.raises(ConfigError, match="nothing to add"):
+        augmented_cache(hamner.folder, tmp_path / "y", [])

@@ -1,4 +1,5 @@
-"""Time-warped copies of a cache's training clips, for training the muscle-activation surrogate on more motions.
+"""Time-warped and posture-offset copies of a cache's training clips, for training the muscle-activation surrogate
+on more motions.
 
 The surrogate's labels are a deterministic function of the kinematics (`biomotion.muscles.surrogate_labels`:
 inverse dynamics with the ground reaction inferred from the motion, then static optimization), so any plausible
@@ -15,6 +16,13 @@ faster, as `biomotion.data.registry.build_cache` resamples the sources). A copy'
 ``<clip_id>@x<f>``; its record keeps the original's fields, with ``labels.speed`` multiplied by ``f``, the text
 label marked, and ``augmentation`` = {"time_warp": f, "from": clip_id}. The bounds files are the original
 cache's (the real clips' percentiles); the surrogate's activation bounds come from its own labels.
+
+Posture copies (``posture_copies`` per clip) give the clip a random marker-placement offset
+(`biomotion.data.posture`: the pelvis turned with the thighs and trunk kept in the ground, the hips' axial
+rotation offset), the way another lab's markers would have reported the same movement; ``clip_id``
+``<clip_id>@posture<k>``, ``augmentation`` = {"posture_deg": offsets, "from": clip_id}. Measured with two copies per
+clip on top of the four time warps (27-minute cap, 40000 iterations, one seed each, 2026-12-04): held-out mean R²
+per muscle 0.880 against 0.875 for the same training without them (`checkpoints/surrogate.md`).
 """
 
 from __future__ import annotations
