@@ -311,7 +311,6 @@ def summary(result: Analysis) -> dict:
     return out
 
 
-
 def zmp_to_plate_cop(result: Analysis, keep: np.ndarray | None = None) -> np.ndarray:
     """Horizontal distance (m) between the ZMP from kinematics and the plates' combined centre of pressure, on the
     frames of ``keep`` (default `plate_frames`: every supporting foot on a plate) where the plates carry at least

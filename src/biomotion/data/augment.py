@@ -33,6 +33,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
@@ -41,6 +42,9 @@ from biomotion.data.registry import ARRAYS, MANIFEST, ClipRecord, DatasetCache, 
 from biomotion.errors import ConfigError
 from biomotion.io.atomic import atomic_write
 
+if TYPE_CHECKING:
+    from biomotion.body.model import BodyModel
+
 POSTURE_DRAWS = 5
 """Draws of a posture offset per copy before the copy is given up (each must keep every joint in its range)."""
 MIN_FRAMES = 20
@@ -48,7 +52,7 @@ MIN_FRAMES = 20
 
 
 def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float] = (), *, posture_copies: int = 0,
-                    model=None, seed: int = 0, split: str = "train", progress: bool = True) -> dict:
+                    model: BodyModel | None = None, seed: int = 0, split: str = "train", progress: bool = True) -> dict:
     """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips: played ``factors`` times
     faster, and ``posture_copies`` with random marker-placement offsets (`biomotion.data.posture`, needs the
     canonical ``model``; offsets drawn from ``seed``, a draw that would leave a joint range is drawn again, at
