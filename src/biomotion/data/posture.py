@@ -30,7 +30,7 @@ from biomotion.motion import Motion
 
 PELVIS = "ground_pelvis"
 TURNED_BACK = ("hip_r", "hip_l", "back")   # the joints whose child keeps its ground orientation
-AXIAL = {"r": "hip_rotation_r", "l": "hip_rotation_l"}
+AXIAL = ("hip_rotation_r", "hip_rotation_l")   # offset about each femur's own long axis
 #: half-widths (deg) of the uniform offsets `random_offsets` draws: about twice the standard deviation of the
 #: Fukuchi runners' per-runner means (module docstring); list and rotation about the same share of their ranges
 SPREAD_DEG = {"pelvis_tilt": 8.0, "pelvis_list": 2.0, "pelvis_rotation": 3.0, "hip_rotation_r": 6.0,
@@ -96,7 +96,7 @@ def posture_offset(motion: Motion, model: BodyModel, offsets_deg: Mapping[str, f
     hips = 0.5 * (_joint(model, "hip_r").parent_translation + _joint(model, "hip_l").parent_translation).numpy()
     translations = [model.coordinate_index(f"pelvis_t{k}") for k in "xyz"]
     values[:, translations] += old.apply(hips) - new.apply(hips)
-    for name in AXIAL.values():
+    for name in AXIAL:
         values[:, model.coordinate_index(name)] += np.radians(offsets_deg.get(name, 0.0))
     return motion.with_values(values)
 
@@ -109,7 +109,11 @@ def random_offsets(rng: np.random.Generator, spread_deg: Mapping[str, float] = S
 def keeps_ranges(original: Motion, offset: Motion, model: BodyModel) -> bool:
     """Whether the offset copy puts no clamped coordinate outside the model's range at a frame where the
     original had it inside (the sources' own data leave ranges here and there: that is not the offset's doing)."""
-    ranges = model.ranges.numpy()
     check = original.mask & model.clamped.numpy()
-    outside = lambda m: (m.values[:, check] < ranges[check, 0] - 1e-9) | (m.values[:, check] > ranges[check, 1] + 1e-9)
+    low, high = model.ranges.numpy()[check].T
+
+    def outside(motion: Motion) -> np.ndarray:
+        part = motion.values[:, check]
+        return (part < low - 1e-9) | (part > high + 1e-9)
+
     return not bool(np.any(outside(offset) & ~outside(original)))
