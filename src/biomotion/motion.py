@@ -96,6 +96,17 @@ def _resample(times: np.ndarray, values: np.ndarray, new_times: np.ndarray, rate
     return out.reshape((len(new_times),) + values.shape[1:])
 
 
+def within_window(times: np.ndarray, start: float | None, stop: float | None) -> np.ndarray:
+    """[T] True where ``start <= t <= stop`` (seconds; None = open end), to a nanosecond, so a bound written
+    with a few digits still keeps the frame it names."""
+    keep = np.ones(len(times), dtype=bool)
+    if start is not None:
+        keep &= times >= start - 1e-9
+    if stop is not None:
+        keep &= times <= stop + 1e-9
+    return keep
+
+
 @dataclass(frozen=True)
 class _Series:
     """A time series on ``times`` (seconds, strictly increasing); subclasses say which arrays follow the clock."""
@@ -136,12 +147,7 @@ class _Series:
 
     def slice(self, start: float | None = None, stop: float | None = None):
         """Frames with ``start <= t <= stop`` (seconds; None = open end)."""
-        keep = np.ones(self.n_frames, dtype=bool)
-        if start is not None:
-            keep &= self.times >= start - 1e-9
-        if stop is not None:
-            keep &= self.times <= stop + 1e-9
-        return self.frames(np.flatnonzero(keep))
+        return self.frames(np.flatnonzero(within_window(self.times, start, stop)))
 
     def frames(self, index: np.ndarray | slice):
         """Frames picked by an index array or a Python slice."""

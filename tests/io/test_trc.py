@@ -102,3 +102,29 @@ def test_short_rows_empty_fields_and_bad_tokens(tmp_path):
     with pytest.raises(DataFormatError, match="not a number: '1.0x'") as info:
         read_trc(path)
     assert ":10:" in str(info.value)
+
+
+def test_time_range_parses_only_the_window(tmp_path):
+    """A window read equals the whole file sliced the same way (OpenSim's inclusive ``time_range``), whatever the
+    rows outside it hold; a window with no frame names the field."""
+    rng = np.random.default_rng(3)
+    times = np.arange(40) / 100.0
+    markers = Markers(times=times, names=("a", "b"), positions=rng.normal(size=(40, 2, 3)))
+    path = write_trc(tmp_path / "w.trc", markers)
+    window = read_trc(path, (0.1, 0.25))
+    whole = read_trc(path).slice(0.1, 0.25)
+    assert window.n_frames == 16 and np.array_equal(window.times, whole.times)
+    np.testing.assert_array_equal(window.positions, whole.positions)
+    lines = path.read_text().splitlines()
+    lines[5 + 35] = lines[5 + 35].replace(lines[5 + 35].split("\t")[3], "oops")   # a bad token outside the window
+    path.write_text("\n".join(lines) + "\n")
+    assert read_trc(path, (0.1, 0.25)).n_frames == 16
+    with pytest.raises(DataFormatError, match="not a number"):
+        read_trc(path)
+    with pytest.raises(DataFormatError, match="no frame within time range") as error:
+        read_trc(path, (1.0, 2.0))
+    assert error.value.field == "time_range"
+    lines[5 + 20] = "21\t0.3\t" + "\t".join(lines[5 + 20].split("\t")[2:])             # time goes back: still found
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError, match="time does not increase"):
+        read_trc(path, (0.0, 0.05))

@@ -36,11 +36,13 @@ SKELETON_SUFFIXES = (".bvh", ".bvh.gz")
 SUMMARY_COLUMNS = ["trial", "frames", "rms_error_m", "max_error_m", "frames_dropped", "output", "error"]
 
 
-def read_markers(path: Path) -> Markers:
-    """Markers of a ``.trc`` or ``.c3d`` file, in metres (C3D exact zeros are gaps)."""
+def read_markers(path: Path, time_range: tuple[float, float] | None = None) -> Markers:
+    """Markers of a ``.trc`` or ``.c3d`` file, in metres (C3D exact zeros are gaps); with ``time_range`` only the
+    frames inside it (a TRC file parses only those rows)."""
     if path.suffix.lower() == ".c3d":
-        return read_c3d_markers(path)
-    return read_trc(path)
+        markers = read_c3d_markers(path)
+        return markers if time_range is None else markers.slice(*time_range)
+    return read_trc(path, time_range)
 
 
 def is_skeleton(path: Path) -> bool:
@@ -97,9 +99,6 @@ def _summary(name: str, frames: int, errors: np.ndarray, output: str) -> TrialSu
 
 def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
                       filter_hz: float | None, setup: IKSetup | None) -> TrialSummary:
-    markers = read_markers(path)
-    if filter_hz:
-        markers = markers.filtered(filter_hz)
     tasks, data, time_range = (), None, None
     if setup is not None:
         tasks, time_range = setup.coordinate_tasks, setup.time_range
@@ -109,6 +108,10 @@ def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weight
                 raise ConfigError(f"{setup.path}: its coordinate tasks read values from a coordinate file, and "
                                   f"{source or 'none'} is not there")
             data = read_motion(source)
+    # the filter runs over the whole capture (its edges are not the window's), so only unfiltered reads are cut
+    markers = read_markers(path, None if filter_hz else time_range)
+    if filter_hz:
+        markers = markers.filtered(filter_hz)
     result = solve_ik(model, markers, weights=dict(weights) if weights else None, coordinate_tasks=tasks,
                       coordinate_data=data, time_range=time_range)
     output = write_motion(out / f"{name}.mot", result.motion)

@@ -3,6 +3,10 @@
 Layout: ``PathFileType`` line; a line of keys (``DataRate CameraRate NumFrames NumMarkers Units ...``) and a line of
 their values; a line ``Frame# Time <marker> <tab> <tab> <marker> ...``; a line ``X1 Y1 Z1 X2 ...``; then one row
 per frame. Missing samples are empty fields or NaN. Units (``mm``, ``cm``, ``m``) are converted to metres here.
+
+Parsing the numbers is most of the cost of reading (about 0.3 us a number with numpy's C parser: 0.13 s for a
+4500-frame, 32-marker Fukuchi trial), so a ``time_range`` reads only the times of every row and parses the rows
+inside the window: an IK setup's window of 1057 of those 4500 frames is read in a quarter of the time.
 """
 
 from __future__ import annotations
@@ -13,13 +17,16 @@ import numpy as np
 
 from biomotion.errors import DataFormatError
 from biomotion.io.atomic import atomic_write
-from biomotion.motion import Markers
+from biomotion.motion import Markers, within_window
 
 UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
 
 
-def read_trc(path: str | Path) -> Markers:
-    """Read a ``.trc`` file as `Markers` in metres (NaN where a marker is missing)."""
+def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) -> Markers:
+    """Read a ``.trc`` file as `Markers` in metres (NaN where a marker is missing).
+
+    ``time_range`` (start, end) in seconds keeps the frames with ``start <= t <= end`` (as `Markers.slice` and
+    OpenSim's ``time_range``), parsing only those rows; the header and every row's time are still checked."""
     path = Path(path)
     try:
         lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
@@ -52,11 +59,46 @@ def read_trc(path: str | Path) -> Markers:
     if len(names) != declared_markers:
         raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}",
                               line=4)
-    data, numbers = _data_rows(path, lines, 2 + 3 * len(names), len(names))
-    if len(data) < declared_frames:
-        raise DataFormatError(path, f"truncated: header declares {declared_frames} frames, file has {len(data)}",
-                              line=numbers[-1])
+    body = [text.rstrip() for text in lines[5:]]
+    numbers = [number + 6 for number, text in enumerate(body) if text.strip()]
+    if not numbers:
+        raise DataFormatError(path, "no data rows", line=6)
+    if len(numbers) < declared_frames:
+        raise DataFormatError(path, f"truncated: header declares {declared_frames} frames, file has "
+                                    f"{len(numbers)}", line=numbers[-1])
+    if time_range is not None:
+        times = _times(path, body, numbers)
+        start, end = time_range
+        keep = np.flatnonzero(within_window(times, start, end))
+        if not len(keep):
+            raise DataFormatError(path, f"no frame within time range {start}-{end} s (the file spans "
+                                        f"{times[0]}-{times[-1]} s)", field="time_range")
+        numbers = [numbers[k] for k in keep]
+    data = _data_rows(path, [body[number - 6] for number in numbers], numbers, 2 + 3 * len(names), len(names))
     times = data[:, 1]
+    _check_times(path, times, numbers)
+    positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
+    return Markers(times=times, names=tuple(names), positions=positions)
+
+
+def _times(path: Path, body: list[str], numbers: list[int]) -> np.ndarray:
+    """The time (second field) of the data rows on file lines ``numbers``, checked to be finite and increasing."""
+    fields = [body[number - 6].split("\t", 2) for number in numbers]
+    tokens = [row[1] if len(row) > 1 else "nan" for row in fields]
+    try:
+        times = np.array(tokens, dtype=float)
+    except ValueError:
+        for token, number in zip(tokens, numbers):
+            try:
+                float(token)
+            except ValueError:
+                raise DataFormatError(path, f"not a number: {token!r}", line=number) from None
+        raise
+    _check_times(path, times, numbers)
+    return times
+
+
+def _check_times(path: Path, times: np.ndarray, numbers: list[int]) -> None:
     if not np.all(np.isfinite(times)):
         raise DataFormatError(path, "time is missing", line=numbers[int(np.flatnonzero(~np.isfinite(times))[0])])
     steps = np.diff(times)
@@ -64,39 +106,33 @@ def read_trc(path: str | Path) -> Markers:
         row = int(np.flatnonzero(steps <= 0)[0]) + 1
         raise DataFormatError(path, f"time does not increase ({times[row - 1]} then {times[row]})",
                               line=numbers[row])
-    positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
-    return Markers(times=times, names=tuple(names), positions=positions)
 
 
-def _data_rows(path: Path, lines: list[str], width: int, markers: int) -> tuple[np.ndarray, list[int]]:
-    """The data rows as floats [frames, width] (NaN for empty fields) and the file line number of each.
+def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, markers: int) -> np.ndarray:
+    """The data ``rows`` (text, from file lines ``numbers``) as floats [frames, width], NaN for empty fields.
 
     Full rows go through numpy's C parser at once (2.5x faster than field by field on a 4500-frame, 32-marker
     file); a file with short rows (trailing markers left out), empty fields or a bad token takes the field-by-field
     path, which pads the rows and names the line of a bad token."""
-    body = [text.rstrip() for text in lines[5:]]
-    numbers = [number + 6 for number, text in enumerate(body) if text.strip()]
-    if not numbers:
-        raise DataFormatError(path, "no data rows", line=6)
     try:
-        data = np.loadtxt(body, delimiter="\t", dtype=float, ndmin=2)
+        data = np.loadtxt(rows, delimiter="\t", dtype=float, ndmin=2)
         if data.shape == (len(numbers), width):
-            return data, numbers
+            return data
     except ValueError:
         pass
-    rows = []
-    for number in numbers:
-        fields = body[number - 6].split("\t")
+    table_rows = []
+    for text, number in zip(rows, numbers):
+        fields = text.split("\t")
         if len(fields) > width:
             raise DataFormatError(path, f"{len(fields)} fields, expected {width} (2 + 3 x {markers} markers)",
                                   line=number)
-        rows.append(fields + [""] * (width - len(fields)))
-    table = np.array(rows, dtype=object)
+        table_rows.append(fields + [""] * (width - len(fields)))
+    table = np.array(table_rows, dtype=object)
     table[table == ""] = "nan"
     try:
-        return table.astype(float), numbers
+        return table.astype(float)
     except ValueError:
-        for fields, number in zip(rows, numbers):
+        for fields, number in zip(table_rows, numbers):
             for token in fields:
                 try:
                     float(token or "nan")
