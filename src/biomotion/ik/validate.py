@@ -226,8 +226,9 @@ def run_case(model_path: Path, markers: Markers, *, weights: Mapping[str, float]
              coordinate_tasks: Sequence[CoordinateTask] = (), time_range: tuple[float, float] | None = None,
              repeats: int = 1, accuracy: float = 1e-5) -> dict:
     """Our IK and OpenSim's on the same inputs, compared, with timings. Both sides read the same TRC file (ours
-    parses the rows of the setup's window only, `read_trc`'s ``time_range``) and write a .mot; ours is the best of ``repeats`` runs (and, apart, its solve alone), OpenSim's ``run()`` is timed
-    once at ``accuracy`` (the setup's); the agreement is with OpenSim run to ``ORACLE_ACCURACY``."""
+    parses the rows of the setup's window only, `read_trc`'s ``time_range``) and write a .mot; ours is the best
+    of ``repeats`` runs (and, apart, its solve alone), OpenSim's ``run()`` is timed once at ``accuracy`` (the
+    setup's); the agreement is with OpenSim run to ``ORACLE_ACCURACY``."""
     model = BodyModel.from_osim(model_path)
     with tempfile.TemporaryDirectory(prefix="biomotion-case-") as folder:
         trc = write_trc(Path(folder) / "markers.trc", markers)
