@@ -291,3 +291,17 @@ def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
     assert not torch.allclose(one_pass_mirrored[..., :4],
                               torch.as_tensor(mirror_labels(one_pass.numpy(), names))[..., :4], atol=1e-3)
     assert activations.shape == one_pass.shape and com.shape == (2, 20, len(COM_OUTPUTS))
+
+
+def test_per_muscle_loss_weights_follow_the_label_spread():
+    """Off: ones. On: inversely proportional to each muscle's label std, floored, mean 1."""
+    from biomotion.muscles.train_surrogate import muscle_loss_weights
+
+    generator = torch.Generator().manual_seed(0)
+    labels = torch.rand(500, 3, generator=generator, dtype=torch.float64) * torch.tensor([0.5, 0.1, 0.001])
+    assert torch.equal(muscle_loss_weights(labels, False, 0.02), torch.ones(3, dtype=torch.float64))
+    weight = muscle_loss_weights(labels, True, 0.02)
+    spread = labels.std(0)
+    assert torch.isclose(weight.mean(), torch.tensor(1.0, dtype=torch.float64))
+    assert torch.isclose(weight[1] / weight[0], spread[0] / spread[1])
+    assert torch.isclose(weight[2] / weight[0], spread[0] / 0.02)          # the tiny muscle is floored
