@@ -6,7 +6,7 @@ per frame. Missing samples are empty fields or NaN. Units (``mm``, ``cm``, ``m``
 
 Parsing the numbers is most of the cost of reading (about 0.3 us a number with numpy's C parser: 0.13 s for a
 4500-frame, 32-marker Fukuchi trial), so a ``time_range`` reads only the times of every row and parses the rows
-inside the window: an IK setup's window of 1057 of those 4500 frames is read in a quarter of the time.
+inside the window: an IK setup's window of 1057 of those 4500 frames reads in 0.045 s instead of 0.14 s.
 """
 
 from __future__ import annotations
@@ -76,7 +76,8 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
         numbers = [numbers[k] for k in keep]
     data = _data_rows(path, [body[number - 6] for number in numbers], numbers, 2 + 3 * len(names), len(names))
     times = data[:, 1]
-    _check_times(path, times, numbers)
+    if time_range is None:   # a window's times were checked, over the whole file, by `_times`
+        _check_times(path, times, numbers)
     positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
     return Markers(times=times, names=tuple(names), positions=positions)
 
