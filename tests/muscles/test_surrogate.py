@@ -305,3 +305,23 @@ def test_per_muscle_loss_weights_follow_the_label_spread():
     assert torch.isclose(weight.mean(), torch.tensor(1.0, dtype=torch.float64))
     assert torch.isclose(weight[1] / weight[0], spread[0] / spread[1])
     assert torch.isclose(weight[2] / weight[0], spread[0] / 0.02)          # the tiny muscle is floored
+
+
+def test_contact_features_need_the_body_and_keep_the_prediction_left_right_equivariant(data_root):
+    from biomotion.data.mirror import mirror_coordinates, mirror_labels
+    from biomotion.evaluation.clips import body_model
+
+    config = SurrogateConfig(width=16, depth=1, contact=True)
+    with pytest.raises(ModelError, match="canonical body"):
+        MuscleSurrogate(["soleus_r", "soleus_l"], config)
+    model = MuscleSurrogate(["soleus_r", "soleus_l"], config, body=body_model(data_root)).eval()
+    assert model.mean.shape == (N_FEATURES + 20,)  # height and vertical speed of 5 points per foot
+    torch.manual_seed(0)
+    q = 0.2 * torch.randn(1, 24, len(CANONICAL_COORDINATES))
+    heights = model.foot_heights(q)
+    with torch.no_grad():  # heights given by the caller (guidance) or computed inside give the same answer
+        torch.testing.assert_close(model(q, heights=heights), model(q))
+        a, _ = model.predict_symmetric(q)
+        q_m, _ = mirror_coordinates(q.numpy())
+        a_m, _ = model.predict_symmetric(torch.from_numpy(q_m))
+    np.testing.assert_allclose(mirror_labels(a_m.numpy(), model.names), a.numpy(), atol=1e-5)

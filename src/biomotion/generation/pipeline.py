@@ -138,12 +138,12 @@ class Generator:
         checkpoints = Path(checkpoints)
         tokenizer = MotionVQVAE.load(checkpoints / TOKENIZER_FILE)
         bundle = GeneratorBundle.load(checkpoints / (POPULATION_FILE if population else GENERATOR_FILE))
-        muscles = None
+        body, muscles = body_model(data_root), None
         if surrogate:
             from biomotion.muscles.surrogate import MuscleSurrogate
 
-            muscles = MuscleSurrogate.load(checkpoints / SURROGATE_FILE)
-        return cls(tokenizer, bundle, body_model(data_root), muscles)
+            muscles = MuscleSurrogate.load(checkpoints / SURROGATE_FILE, body=body)
+        return cls(tokenizer, bundle, body, muscles)
 
     @torch.no_grad()
     def condition(self, action: ActionRequest, profile: Profile | None = None,

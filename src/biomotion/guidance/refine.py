@@ -82,6 +82,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from biomotion.errors import ModelError
 from biomotion.generation.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.guidance.planting import PlantingConfig, plant_feet
@@ -166,6 +167,10 @@ class Guide:
         self.feet_bodies, self.feet_offsets = feet.bodies, feet.offsets.to(torch.float32)
         self.feet_sides = feet.feet
         self.contact_members = group_members(feet.names)  # [4, K]: the foot points of each contact channel
+        self.surrogate_reads_feet = getattr(surrogate, "points", None) is not None
+        if self.surrogate_reads_feet and surrogate.points.names != feet.names:
+            raise ModelError(f"the muscle surrogate's foot points {surrogate.points.names} are not the guidance "
+                             f"body's {feet.names}")
         self.speed_high, self.jerk_high = speed_high.to(torch.float32), jerk_high.to(torch.float32)
         self.rate = tokenizer.config.rate
         ranges = self.body.ranges.to(torch.float32)
@@ -229,7 +234,8 @@ class Guide:
         if self.posture_target is not None:
             out["posture"] = losses.posture(k.q, self.posture_target)
         if self.surrogate is not None:
-            activations = self.surrogate(k.q)
+            # a surrogate with contact features reads the foot heights computed above (the same points)
+            activations = self.surrogate(k.q, heights=k.feet[..., 1]) if self.surrogate_reads_feet else self.surrogate(k.q)
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
         return out
 

@@ -480,7 +480,7 @@ def _surrogate_activations(checkpoint: Path, motion, labeler, data_root: Path) -
     from biomotion.ik.setup import read_scale_setup
     from biomotion.muscles.surrogate import MuscleSurrogate
 
-    network = MuscleSurrogate.load(checkpoint)
+    network = MuscleSurrogate.load(checkpoint, body=labeler.model)
     if set(network.names) != set(labeler.muscle_names):
         raise ModelError(f"{checkpoint}: the surrogate's muscles are not the Rajagopal model's")
     height = read_scale_setup(data_root / RAJAGOPAL / "Scale" / RAJAGOPAL_SCALE_STEPS[-1]).height / 1000.0

@@ -17,6 +17,13 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
 - velocities and accelerations of every coordinate but the knee ``_beta`` ones, by central finite differences
   along T (the edge frames copy their neighbour's value);
 
+- with ``config.contact`` (ours), per foot contact point of the canonical body (`biomotion.body.contact.foot_points`,
+  five per foot), its height above the point's 2nd-percentile height over the sequence and its vertical velocity:
+  the labels' ground reaction is inferred with a contact gate on exactly these quantities (PhysPT Eq. 4, the
+  rest height taken over the whole clip), which a receptive field of 17 frames cannot see from the coordinates
+  alone. The heights come from forward kinematics of the body given to the surrogate, or from the caller (guidance
+  already has its foot points);
+
 standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
 replicate padding; receptive field 1 + 4 (1 + depth) frames) shared by two 1x1 heads: the activations (sigmoid)
 and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
@@ -41,6 +48,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from biomotion.body.contact import ContactSettings, foot_points
+from biomotion.body.kinematics import forward_kinematics, points_in_ground
 from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
 from biomotion.data.mirror import NEGATED, mirror_permutation
 from biomotion.errors import ConfigError, ModelError
@@ -55,17 +64,21 @@ COM_OUTPUTS = ("com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
 POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in COUPLED_COORDINATES + _NO_POSITION)
 DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in COUPLED_COORDINATES)
 N_FEATURES = len(POSITION_COORDS) + 2 * len(DERIVATIVE_COORDS)
+#: Quantile of a foot point's height over a sequence taken as its rest height (the labels' contact gate's rule).
+REST_QUANTILE = ContactSettings().rest_percentile / 100.0
 
 
 @dataclass(frozen=True)
 class SurrogateConfig:
-    """Network sizes. ``rate``: frame rate (Hz) of the q the surrogate is given."""
+    """Network sizes. ``rate``: frame rate (Hz) of the q the surrogate is given; ``contact``: foot-contact
+    features from forward kinematics of the canonical body (see the module docstring)."""
 
     width: int = 128
     depth: int = 3
     kernel: int = 5
     dropout: float = 0.1
     rate: float = DEFAULT_RATE
+    contact: bool = False
 
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
@@ -114,19 +127,29 @@ class MuscleSurrogate(nn.Module):
     training split by `set_normalisation`, `set_bounds` and `set_com_scale`.
     """
 
-    def __init__(self, names: Sequence[str], config: SurrogateConfig | None = None) -> None:
+    def __init__(self, names: Sequence[str], config: SurrogateConfig | None = None, body=None) -> None:
         super().__init__()
         self.config = config = config or SurrogateConfig()
         self.names = tuple(names)
         if not self.names:
             raise ModelError("a muscle surrogate needs at least one muscle name")
+        self.body, self.points, self.point_mirror = None, None, None
+        n_features = N_FEATURES
+        if config.contact:
+            if body is None:
+                raise ModelError("this muscle surrogate computes foot-contact features: give it the canonical body "
+                                 "model (biomotion.evaluation.clips.body_model(data_root), Rajagopal 2016)")
+            self.body = body.to(torch.float32)
+            self.points = foot_points(self.body)
+            self.point_mirror = torch.as_tensor(mirror_permutation(self.points.names))
+            n_features += 2 * len(self.points.names)
         w, k = config.width, config.kernel
-        self.stem = nn.Conv1d(N_FEATURES, w, k, padding=k // 2, padding_mode="replicate")
+        self.stem = nn.Conv1d(n_features, w, k, padding=k // 2, padding_mode="replicate")
         self.blocks = nn.Sequential(*[_Block(w, k, config.dropout) for _ in range(config.depth)])
         self.head = nn.Conv1d(w, len(self.names), 1)
         self.com_head = nn.Conv1d(w, len(COM_OUTPUTS), 1)
-        self.register_buffer("mean", torch.zeros(N_FEATURES))
-        self.register_buffer("std", torch.ones(N_FEATURES))
+        self.register_buffer("mean", torch.zeros(n_features))
+        self.register_buffer("std", torch.ones(n_features))
         self.register_buffer("low", torch.zeros(len(self.names)))
         self.register_buffer("high", torch.ones(len(self.names)))
         self.register_buffer("com_mean", torch.zeros(len(COM_OUTPUTS)))
@@ -143,27 +166,49 @@ class MuscleSurrogate(nn.Module):
         if mask is not None and tuple(mask.shape) != (q.shape[0], N_COORDS):
             raise ModelError(f"muscle surrogate expects mask [B, {N_COORDS}]; got {tuple(mask.shape)}")
 
-    def raw_features(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Unstandardised per-frame features [B, T, N_FEATURES]: positions, velocities, accelerations."""
-        self._check(q, mask)
+    def _masked(self, q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
         q = q.to(self.mean.dtype)
-        if mask is not None:
-            keep = mask.to(torch.bool).unsqueeze(-2)
-            q = torch.where(keep, q, torch.zeros_like(q))
+        if mask is None:
+            return q
+        return torch.where(mask.to(torch.bool).unsqueeze(-2), q, torch.zeros_like(q))
+
+    def foot_heights(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor | None:
+        """Heights [B, T, K] of the body's foot points (``self.points``) for q [B, T, 39], masked coordinates
+        at 0 as in the features; None for a surrogate without contact features."""
+        if self.body is None:
+            return None
+        self._check(q, mask)
+        q = self._masked(q, mask)
+        poses = forward_kinematics(self.body, q.reshape(-1, q.shape[-1]))
+        return points_in_ground(poses, self.points.bodies, self.points.offsets)[..., 1].reshape(*q.shape[:2], -1)
+
+    def raw_features(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                     heights: torch.Tensor | None = None) -> torch.Tensor:
+        """Unstandardised per-frame features [B, T, F]: positions, velocities, accelerations and, with contact
+        features, the foot points' heights above their rest height and vertical velocities (``heights`` [B, T, K]
+        as `foot_heights` gives them, computed here when not given)."""
+        self._check(q, mask)
+        q = self._masked(q, mask)
         velocity, acceleration = finite_differences(q, self.config.rate)
         d = list(DERIVATIVE_COORDS)
-        return torch.cat([q[..., list(POSITION_COORDS)], velocity[..., d], acceleration[..., d]], dim=-1)
+        parts = [q[..., list(POSITION_COORDS)], velocity[..., d], acceleration[..., d]]
+        if self.config.contact:
+            heights = self.foot_heights(q) if heights is None else heights.to(q.dtype)
+            above = heights - torch.quantile(heights, REST_QUANTILE, dim=-2, keepdim=True)
+            parts += [above, finite_differences(above, self.config.rate)[0]]
+        return torch.cat(parts, dim=-1)
 
-    def features(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Standardised features [B, T, N_FEATURES]."""
-        return (self.raw_features(q, mask) - self.mean) / self.std
+    def features(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                 heights: torch.Tensor | None = None) -> torch.Tensor:
+        """Standardised features [B, T, F]."""
+        return (self.raw_features(q, mask, heights) - self.mean) / self.std
 
     @torch.no_grad()
     def set_normalisation(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                          weights: torch.Tensor | None = None) -> None:
-        """Feature mean/std from training windows q [N, T, 39] (mask [N, 39]); ``weights`` [N, T] leaves out
-        padding frames. Constant features keep std 1."""
-        f = self.raw_features(q, mask).double()
+                          weights: torch.Tensor | None = None, heights: torch.Tensor | None = None) -> None:
+        """Feature mean/std from training windows q [N, T, 39] (mask [N, 39], foot heights [N, T, K]);
+        ``weights`` [N, T] leaves out padding frames. Constant features keep std 1."""
+        f = self.raw_features(q, mask, heights).double()
         w = (torch.ones(f.shape[:2], dtype=torch.float64) if weights is None else weights.double()).unsqueeze(-1)
         count = w.sum()
         mean = (f * w).sum((0, 1)) / count
@@ -192,29 +237,32 @@ class MuscleSurrogate(nn.Module):
         self.com_std.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).to(self.com_std.dtype))
 
     # -- model ----------------------------------------------------------------------------------------------
-    def _trunk(self, q: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+    def _trunk(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+               heights: torch.Tensor | None = None) -> torch.Tensor:
         """Shared hidden sequence [B, width, T]."""
-        return F.gelu(self.blocks(self.stem(self.features(q, mask).transpose(1, 2))))
+        return F.gelu(self.blocks(self.stem(self.features(q, mask, heights).transpose(1, 2))))
 
-    def logits(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def logits(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+               heights: torch.Tensor | None = None) -> torch.Tensor:
         """Pre-sigmoid activation outputs [B, T, M]."""
-        return self.head(self._trunk(q, mask)).transpose(1, 2)
+        return self.head(self._trunk(q, mask, heights)).transpose(1, 2)
 
-    def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                heights: torch.Tensor | None = None) -> torch.Tensor:
         """Activations [B, T, M] in (0, 1) from canonical coordinates q [B, T, 39] (mask [B, 39] optional:
-        masked coordinates are treated as 0)."""
-        return torch.sigmoid(self.logits(q, mask))
+        masked coordinates are treated as 0; foot heights [B, T, K] optional, see `raw_features`)."""
+        return torch.sigmoid(self.logits(q, mask, heights))
 
-    def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None
+    def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and
         m/s^2) in one pass."""
-        hidden = self._trunk(q, mask)
+        hidden = self._trunk(q, mask, heights)
         com = self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
         return torch.sigmoid(self.head(hidden)).transpose(1, 2), com
 
-    def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None
-                          ) -> tuple[torch.Tensor, torch.Tensor]:
+    def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                          heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """`predict` made exactly left-right equivariant: the mean of the prediction on the motion and the mirror
         image of the prediction on its mirror image (`biomotion.data.mirror`: limb coordinates change sides,
         midline rotations and pelvis_tz change sign; muscles change sides, the COM's z components change sign).
@@ -224,13 +272,17 @@ class MuscleSurrogate(nn.Module):
         averaging the two images removes the asymmetric part of its error. On the 24 held-out clips of the lab
         sources it raises the shipped network's mean R² over muscles from 0.866 to 0.880 against the
         static-optimization labels (RMSE 0.080 -> 0.075; `biomotion validate muscles`; 0.860 -> 0.873 for the
-        previous network). Both images run as one batch. Guidance keeps the
-        single pass (`forward`) inside its 40 iterations, where only the activation bounds matter."""
+        previous network). Both images run as one batch; the mirror image's foot heights are the motion's with
+        the feet swapped (the body is symmetric), so forward kinematics runs once. Guidance keeps the single pass
+        (`forward`) inside its 40 iterations, where only the activation bounds matter."""
         swap = torch.as_tensor(mirror_permutation(CANONICAL_COORDINATES))
         sign = torch.tensor([-1.0 if n in NEGATED else 1.0 for n in CANONICAL_COORDINATES], dtype=q.dtype)
         both = torch.cat([q, q[..., swap] * sign])
         masks = None if mask is None else torch.cat([mask, mask[..., swap]])
-        activations, com = self.predict(both, masks)
+        if self.config.contact and heights is None:
+            heights = self.foot_heights(q, mask)
+        both_heights = None if heights is None else torch.cat([heights, heights[..., self.point_mirror]])
+        activations, com = self.predict(both, masks, both_heights)
         count = q.shape[0]
         muscles = torch.as_tensor(mirror_permutation(self.names))
         flip_z = torch.tensor([1.0, 1.0, -1.0] * (len(COM_OUTPUTS) // 3), dtype=com.dtype)
@@ -252,8 +304,9 @@ class MuscleSurrogate(nn.Module):
             handle.write(save(state, metadata=meta))
 
     @classmethod
-    def load(cls, path: str | Path, map_location: str = "cpu") -> MuscleSurrogate:
-        """A surrogate saved by `save`, in eval mode."""
+    def load(cls, path: str | Path, map_location: str = "cpu", body=None) -> MuscleSurrogate:
+        """A surrogate saved by `save`, in eval mode; ``body``: the canonical body model, needed by a surrogate
+        with contact features (ignored by one without)."""
         from safetensors import safe_open
         from safetensors.torch import load_file
 
@@ -261,7 +314,7 @@ class MuscleSurrogate(nn.Module):
             meta = handle.metadata() or {}
         if meta.get("format") != FORMAT or "config" not in meta or "muscles" not in meta:
             raise ModelError(f"{path}: not a muscle-surrogate file (format {meta.get('format')!r})")
-        model = cls(json.loads(meta["muscles"]), SurrogateConfig.from_dict(json.loads(meta["config"])))
+        model = cls(json.loads(meta["muscles"]), SurrogateConfig.from_dict(json.loads(meta["config"])), body)
         model.load_state_dict(load_file(str(path), device=map_location))
         return model.eval()
 

@@ -45,6 +45,7 @@ from tqdm import tqdm
 from biomotion.data.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
+from biomotion.evaluation.clips import body_model
 from biomotion.guidance.losses import activation
 from biomotion.models.cards import environment, write_card
 from biomotion.muscles.surrogate import COM_OUTPUTS, MuscleSurrogate, SurrogateConfig
@@ -218,6 +219,17 @@ def time_clip(model: MuscleSurrogate, labeler: Labeler, cache: DatasetCache, spl
             "speedup_vs_pipeline": round(pipeline / forward, 1)}
 
 
+@torch.no_grad()
+def window_heights(model: MuscleSurrogate, q: torch.Tensor, mask: torch.Tensor, chunk: int = 1024
+                   ) -> torch.Tensor | None:
+    """Foot heights [N, T, K] of every training window, computed once (`MuscleSurrogate.foot_heights`, in chunks of
+    ``chunk`` windows), so the training loop does not repeat the forward kinematics of fixed data; None for a
+    surrogate without contact features."""
+    if not model.config.contact:
+        return None
+    return torch.cat([model.foot_heights(q[i:i + chunk], mask[i:i + chunk]) for i in range(0, len(q), chunk)])
+
+
 def learning_rate(progress: float, step: int, lr: float, warmup: int) -> float:
     """Linear warm-up over ``warmup`` steps, then cosine decay to 0 at progress 1."""
     return lr * min(1.0, (step + 1) / max(warmup, 1)) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
@@ -275,8 +287,9 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         com_weight = torch.cat([com_weight, com_weight])
     val_clips = clip_arrays(cache, labels, "val")
     train_clips = clip_arrays(cache, labels, "train")
-    model = MuscleSurrogate(labels.muscle_names, model_cfg)
-    model.set_normalisation(q, mask, weight)
+    model = MuscleSurrogate(labels.muscle_names, model_cfg, body_model(data_root) if model_cfg.contact else None)
+    heights = window_heights(model, q, mask)
+    model.set_normalisation(q, mask, weight, heights)
     train_rows = np.concatenate([np.arange(r["offset"], r["offset"] + r["n_frames"])
                                  for r in (cache.records[i] for i in cache.indices(split="train"))])
     train_rows = train_rows[labels.converged[train_rows]]
@@ -301,7 +314,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         for group in optimiser.param_groups:
             group["lr"] = learning_rate(max(step / total, elapsed / budget), step, lr, warmup)
         pick = torch.randint(len(q), (batch,), generator=generator)
-        predicted, com_hat = model.predict(q[pick], mask[pick])
+        predicted, com_hat = model.predict(q[pick], mask[pick], None if heights is None else heights[pick])
         w, w_com = weight[pick].unsqueeze(-1), com_weight[pick].unsqueeze(-1)
         loss_activation = ((predicted - target[pick]).abs() * muscle_weight * w).sum() \
             / (w.sum() * model.n_muscles).clamp_min(1)

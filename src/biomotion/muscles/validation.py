@@ -409,18 +409,20 @@ def r_squared(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return 1 - ((estimate - reference) ** 2).sum(0) / np.maximum(total, 1e-12)
 
 
-def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path, repeats: int = 20) -> dict:
+def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path, canonical_path: Path,
+                          repeats: int = 20) -> dict:
     """Best wall time (ms) of the shipped surrogate on the clip in ``coordinates`` (after model load; resampled
-    to its rate, placed like its training clips): ``ms`` of the activations it reports
-    (`MuscleSurrogate.predict_symmetric`), ``ms_one_pass`` of one pass (what guidance runs); and the clip's
-    length (s)."""
+    to its rate, placed like its training clips on the model at ``model_path``; ``canonical_path``: the canonical
+    body a surrogate with contact features runs its forward kinematics on, inside the timed call):
+    ``ms`` of the activations it reports (`MuscleSurrogate.predict_symmetric`), ``ms_one_pass`` of one pass (what
+    guidance runs); and the clip's length (s)."""
     from biomotion.body.model import BodyModel
     from biomotion.data.canonical import CANONICAL_COORDINATES
     from biomotion.data.placement import place_clip
     from biomotion.io.mot import read_motion
     from biomotion.muscles.surrogate import MuscleSurrogate
 
-    network = MuscleSurrogate.load(checkpoint)
+    network = MuscleSurrogate.load(checkpoint, body=BodyModel.from_osim(canonical_path))
     motion = read_motion(coordinates)
     clip = place_clip(motion.select(CANONICAL_COORDINATES).resample(network.config.rate),
                       BodyModel.from_osim(model_path), height=None, treadmill_speed=None)
@@ -479,7 +481,7 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
                                                 inputs.force_set, *inputs.time_range)
         rajagopal_static_optimization(inputs, reference)          # warm-up
         result, seconds = rajagopal_static_optimization(inputs, reference)
-        timing = (surrogate_clip_timing(surrogate, inputs.coordinates, inputs.model)
+        timing = (surrogate_clip_timing(surrogate, inputs.coordinates, inputs.model, data_root / RAJAGOPAL_MODEL)
                   if surrogate is not None and Path(surrogate).exists() else None)
         torques, state_error = solver_torques(inputs, reference)
         muscles = read_muscles(inputs.model)
@@ -589,8 +591,8 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
         if not held_out:
             skipped.append("surrogate agreement: the surrogate was trained on every subject under the data root")
             return empty
-        model = MuscleSurrogate.load(surrogate)
         labeler = Labeler.from_data_root(data_root)
+        model = MuscleSurrogate.load(surrogate, body=labeler.model)
         clips = []
         for i in held_out:
             motion = cache.motion(i)
