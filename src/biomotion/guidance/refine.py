@@ -235,7 +235,8 @@ class Guide:
             out["posture"] = losses.posture(k.q, self.posture_target)
         if self.surrogate is not None:
             # a surrogate with contact features reads the foot heights computed above (the same points)
-            activations = self.surrogate(k.q, heights=k.feet[..., 1]) if self.surrogate_reads_feet else self.surrogate(k.q)
+            heights = {"heights": k.feet[..., 1]} if self.surrogate_reads_feet else {}
+            activations = self.surrogate(k.q, **heights)
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
         return out
 

@@ -16,7 +16,6 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
   joint torques (gravity is vertical);
 - velocities and accelerations of every coordinate but the knee ``_beta`` ones, by central finite differences
   along T (the edge frames copy their neighbour's value);
-
 - with ``config.contact`` (ours), per foot contact point of the canonical body (`biomotion.body.contact.foot_points`,
   five per foot), its height above the point's 2nd-percentile height over the sequence and its vertical velocity:
   the labels' ground reaction is inferred with a contact gate on exactly these quantities (PhysPT Eq. 4, the
