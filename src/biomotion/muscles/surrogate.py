@@ -269,11 +269,12 @@ class MuscleSurrogate(nn.Module):
         The body and its muscles are left-right symmetric, so the activations of a mirrored motion are the mirrored
         activations; one network only approximates that (it was trained on both images of every clip), and
         averaging the two images removes the asymmetric part of its error. On the 24 held-out clips of the lab
-        sources it raises the shipped network's mean R² over muscles from 0.866 to 0.880 against the
-        static-optimization labels (RMSE 0.080 -> 0.075; `biomotion validate muscles`; 0.860 -> 0.873 for the
-        previous network). Both images run as one batch; the mirror image's foot heights are the motion's with
-        the feet swapped (the body is symmetric), so forward kinematics runs once. Guidance keeps the single pass
-        (`forward`) inside its 40 iterations, where only the activation bounds matter."""
+        sources it raises the shipped network's mean R² over muscles from 0.879 to 0.895 against the
+        static-optimization labels (RMSE 0.075 -> 0.070; `biomotion validate muscles`; 0.866 -> 0.880 for the
+        previous network, without contact features). Both images run as one batch; the mirror image's foot
+        heights are the motion's with the feet swapped (the body is symmetric), so forward kinematics runs once.
+        Guidance keeps the single pass (`forward`) inside its 40 iterations, where only the activation bounds
+        matter."""
         swap = torch.as_tensor(mirror_permutation(CANONICAL_COORDINATES))
         sign = torch.tensor([-1.0 if n in NEGATED else 1.0 for n in CANONICAL_COORDINATES], dtype=q.dtype)
         both = torch.cat([q, q[..., swap] * sign])

@@ -241,10 +241,11 @@ def muscle_loss_weights(activations: torch.Tensor, per_muscle_scale: bool, min_s
     learning rate carries over. Scaled so, the loss weighs muscles as the mean per-muscle R^2 of issue 5's bar
     does; unscaled, the large, variable muscles dominate it.
 
-    Measured once (2026-12-05, seed 0, same cache, config and command as the shipped checkpoint, 38118 of 40000
-    iterations in the 27 minutes): held-out `surrogate_r2` 0.880 -> 0.884, val mean per-muscle R^2 0.866 -> 0.871,
-    but EMG on/off agreement with the surrogate 0.785 -> 0.761 (the recorded muscles are large ones). The gain is
-    under the seed-to-seed spread (0.007), so the shipped configuration leaves it off."""
+    Measured once (2026-12-05, seed 0, same cache, config and command as the checkpoint then shipped, without
+    contact features; 38118 of 40000 iterations in the 27 minutes): held-out `surrogate_r2` 0.880 -> 0.884, val
+    mean per-muscle R^2 0.866 -> 0.871, but EMG on/off agreement with the surrogate 0.785 -> 0.761 (the recorded
+    muscles are large ones). The gain is under the seed-to-seed spread (0.007), so the shipped configuration leaves
+    it off."""
     if not per_muscle_scale:
         return torch.ones(activations.shape[-1], dtype=activations.dtype)
     weight = 1.0 / activations.std(0).clamp_min(min_std)
