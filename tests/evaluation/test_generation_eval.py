@@ -53,6 +53,10 @@ def test_done_when_reads_each_bar_from_the_table():
     worse = done_when(_table(full_jerk=2.5, full_zmp_in_support=80.0), {"full": 0.5, "reference": 0.9}, None)
     assert not worse["jerk_within_2x_reference"] and not worse["zmp_in_support_at_least_90"]
     assert not worse["identity_within_5_points_of_real"]
+    # 84 of 120 clips against 90 of 120: exactly 5 points, though 0.75 - 0.7 is 0.05000000000000004 in floats
+    edge = done_when(_table(), {"full": 84 / 120, "reference": 90 / 120}, None)
+    assert edge["identity_within_5_points_of_real"]
+    assert not done_when(_table(), {"full": 83 / 120, "reference": 90 / 120}, None)["identity_within_5_points_of_real"]
 
 
 def test_speed_error_is_measured_at_the_persons_size():
