@@ -38,7 +38,9 @@ table pools the per-clip values of every repeat (mean and std over clips x repea
 same in each repeat, so its figures do not change), the identity accuracy is the mean over repeats, and each
 figure carries its per-repeat means and the 95 % interval of their mean (1.96 s / sqrt(R), s the sample standard
 deviation across repeats). The bars are judged on these pooled means. The profile-manipulation study draws its
-own 8 samples per profile and is run once.
+own 8 samples per profile and is run once; beside it, the report gives the direction in which the real clips of the
+same action under the data root move with each manipulated field (`biomotion.evaluation.manipulation_data`), since
+the generator can only learn what its data shows.
 """
 
 from __future__ import annotations
@@ -384,9 +386,37 @@ def markdown(report: dict) -> str:
                          f"{r['expected']} | {'yes' if r['as_documented'] else 'no'} |\n"
                          for f, r in man["fields"].items())
                      + "".join(f"\n{f}: not measured, {why}.\n" for f, why in man.get("skipped", {}).items()) + "\n")
+        if man.get("real_data"):
+            lines.append(_real_data_table(man["real_data"]))
     lines.append("## Bars (issue 7)\n\n| Bar | met |\n|---|---|\n" + "".join(
         f"| {k} | {'–' if v is None else 'yes' if v else 'no'} |\n" for k, v in report["bars"].items()))
     return "\n".join(lines)
+
+
+def _real_data_table(real: dict) -> str:
+    """The manipulated fields against the real clips of the same action (`biomotion.evaluation.manipulation_data`)."""
+    def values(row: dict) -> str:
+        v = row["values"]
+        if "from" in v:
+            return f"{v['from']:.3g} to {v['to']:.3g}"
+        return ", ".join(f"{value}: {n}" for value, n in v.items()) or "–"
+
+    def reading(row: dict) -> str:
+        if row["direction"] is None:
+            return "none: every subject has the same value" if len(row["values"]) == 1 else "none: too few subjects"
+        strength = "p < 0.05" if row["p"] < 0.05 else "not significant"
+        return f"{row['direction']} ({strength}; {'as' if row['agrees'] else 'against'} the documented direction)"
+
+    return ("What the real clips of the same action under the data root show (Spearman's rank correlation across "
+            "subjects between the field and the subject's mean measure; level on the generator's ordinal scale, "
+            "injury 1 for an injury at the manipulated location and 0 for none; "
+            "`biomotion.evaluation.manipulation_data`):\n\n"
+            "| Field | measure | subjects | field values (subjects) | Spearman ρ | p | the data's direction |\n"
+            "|---|---|---|---|---|---|---|\n" + "".join(
+                f"| {f} | {r['measure']} | {r['subjects']} | {values(r)} | "
+                + ("–" if r["rho"] is None else f"{r['rho']:+.2f}") + " | "
+                + ("–" if r["p"] is None else f"{r['p']:.2f}") + f" | {reading(r)} |\n"
+                for f, r in real.items()) + "\n")
 
 
 #: The figures the bars judge, shown per repeat in the Markdown report: (variant, metric key).
@@ -563,6 +593,7 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         raise BiomotionError(f"--repeats must be at least 1, got {repeats}")
     from biomotion.evaluation.clips import body_model, build_temporary_cache
     from biomotion.evaluation.harness import write_json, write_text
+    from biomotion.evaluation.manipulation_data import real_data_directions
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
 
     checkpoints = Path(checkpoints or CHECKPOINTS)
@@ -601,6 +632,10 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         manipulation = manipulation_study(generator, MANIPULATION_BASE, run, samples=manipulation_samples, seed=seed,
                                           style_generator=style_generator)
         manipulation["style_checkpoints"] = _shown(style_checkpoints)
+        # what the real clips of the action show, over every subject of the data root (trained on or not)
+        everyone_handle, everyone = build_temporary_cache(data_root, sources=trained_sources)
+        with everyone_handle:
+            manipulation["real_data"] = real_data_directions(everyone, run, MANIPULATIONS, kinematic_measures)
     report = {"command": command, "seed": seed, "repeats": repeats, "repeat_seeds": seeds, "targets": len(targets),
               "subjects": len({t.subject for t in targets}), "clips": names, "table": table, "identity": identity,
               "manipulation": manipulation, "bars": done_when(table, identity, manipulation)}
