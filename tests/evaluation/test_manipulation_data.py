@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from biomotion.evaluation.generation import MANIPULATIONS, _real_data_table, kinematic_measures
-from biomotion.evaluation.manipulation_data import action_clips, field_value, real_data_directions
+from biomotion.evaluation.manipulation_data import (action_clips, field_value, real_data_directions,
+                                                       sources_with_action)
 from biomotion.generation.actions import ActionRequest
 from tests.conftest import data_path
 
@@ -23,7 +24,8 @@ def test_field_values_are_on_the_generators_scales():
     assert field_value({"level": None}, "level", {"level": "elite"}) is None
     assert field_value({"age": 40}, "age", {"age": 65.0}) == 40.0
     assert field_value({}, "age", {"age": 65.0}) is None
-    assert field_value({"injuries": []}, "injuries", ACL) == 0.0
+    assert field_value({"injuries": [], "extra": {"Injury": "No"}}, "injuries", ACL) == 0.0
+    assert field_value({"injuries": []}, "injuries", ACL) is None          # no answer is not "no injury"
     assert field_value({"injuries": [{"location": "left knee "}]}, "injuries", ACL) == 1.0
     assert field_value({"injuries": [{"location": "Right ankle"}]}, "injuries", ACL) is None  # elsewhere: left out
 
@@ -45,7 +47,8 @@ class _Cache:
         from tests.evaluation.test_generation_eval import _running
 
         self.records = [{"source": "lab", "subject": f"s{k}", "labels": {"action": "run", "speed": 3.5},
-                         "profile": {"age": age, "level": level, "experience_years": 5.0, "injuries": []}}
+                         "profile": {"age": age, "level": level, "experience_years": 5.0, "injuries": [],
+                                     "extra": {"Injury": "No"}}}
                         for k, age in enumerate(ages)]
         self.clips = [_running(0.72, 0.5, 0.01 + 0.001 * age, 3.5) for age in ages]
 
@@ -82,7 +85,10 @@ def test_the_fukuchi_runners_levels_are_read_as_the_participant_table_gives_them
                 levels[int(row["Subject"])] = row["Level"].strip().lower()
     expected = {f"{v:g}": sum(1 for level in levels.values() if {"competitive": 0.5, "elite": 1.0}[level] == v)
                 for v in (0.5, 1.0)}
-    handle, cache = build_temporary_cache(data_root, sources=["fukuchi"])
+    listed = sources_with_action(data_root, ["fukuchi", "opencap", "bandai-namco"], RUN)
+    assert "opencap" not in listed and "bandai-namco" not in listed   # no run / runs without a speed label
+    assert listed == ["fukuchi"]
+    handle, cache = build_temporary_cache(data_root, sources=listed)
     with handle:
         real = real_data_directions(cache, RUN, MANIPULATIONS, kinematic_measures)
     assert real["level"]["subjects"] == len(levels)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from biomotion.data.canonical import CANONICAL_COORDINATES
-from biomotion.errors import ModelError
+from biomotion.errors import ConfigError, ModelError
 from biomotion.guidance.losses import activation
 from biomotion.muscles.surrogate import (
     COM_OUTPUTS,
@@ -118,6 +118,39 @@ def test_com_head_shares_the_trunk_and_is_rescaled_to_the_labels():
     # reflection z -> -z: lateral velocity and acceleration change sign
     flipped = mirror_ground_vectors(np.arange(1.0, 7.0))
     np.testing.assert_array_equal(flipped, [1, 2, -3, 4, 5, -6])
+
+
+def test_ensemble_members_are_independent_networks_and_predictions_their_mean(tmp_path):
+    """``members`` networks side by side (grouped convolutions after a shared-input stem): a member's outputs depend
+    on its own weights only, and `predict` is the members' mean (a deep ensemble)."""
+    import dataclasses
+
+    torch.manual_seed(0)
+    config = dataclasses.replace(TINY, members=2)
+    model = MuscleSurrogate(NAMES, config).eval()
+    q, mask = _batch()
+    model.set_normalisation(q, mask)
+    activations, com = model.predict_members(q, mask)
+    assert activations.shape == (2, 2, 20, len(NAMES)) and com.shape == (2, 2, 20, len(COM_OUTPUTS))
+    assert not torch.allclose(activations[:, 0], activations[:, 1])   # each member starts from its own weights
+    mean_activations, mean_com = model.predict(q, mask)
+    torch.testing.assert_close(mean_activations, activations.mean(1))
+    torch.testing.assert_close(mean_com, com.mean(1))
+    torch.testing.assert_close(model(q, mask), activations.mean(1))
+    with torch.no_grad():   # change member 1's blocks and heads (its half of every grouped weight): member 0 stays
+        for module in (model.blocks[0].conv, model.blocks[0].mix, model.head, model.com_head):
+            half = module.weight.shape[0] // 2
+            module.weight[half:] += 1.0
+    changed, changed_com = model.predict_members(q, mask)
+    torch.testing.assert_close(changed[:, 0], activations[:, 0])
+    torch.testing.assert_close(changed_com[:, 0], com[:, 0])
+    assert not torch.allclose(changed[:, 1], activations[:, 1])
+    path = tmp_path / "ensemble.safetensors"
+    model.save(path)
+    loaded = MuscleSurrogate.load(path)
+    assert loaded.config.members == 2 and torch.equal(loaded(q, mask), model(q, mask))
+    with pytest.raises(ConfigError, match="members"):
+        SurrogateConfig.from_dict({"members": 0})
 
 
 def test_save_load_round_trip_is_exact(tmp_path):

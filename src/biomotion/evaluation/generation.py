@@ -593,7 +593,7 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         raise BiomotionError(f"--repeats must be at least 1, got {repeats}")
     from biomotion.evaluation.clips import body_model, build_temporary_cache
     from biomotion.evaluation.harness import write_json, write_text
-    from biomotion.evaluation.manipulation_data import real_data_directions
+    from biomotion.evaluation.manipulation_data import real_data_directions, sources_with_action
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
 
     checkpoints = Path(checkpoints or CHECKPOINTS)
@@ -633,9 +633,11 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
                                           style_generator=style_generator)
         manipulation["style_checkpoints"] = _shown(style_checkpoints)
         # what the real clips of the action show, over every subject of the data root (trained on or not)
-        everyone_handle, everyone = build_temporary_cache(data_root, sources=trained_sources)
-        with everyone_handle:
-            manipulation["real_data"] = real_data_directions(everyone, run, MANIPULATIONS, kinematic_measures)
+        sources = sources_with_action(data_root, trained_sources, run)
+        if sources:
+            everyone_handle, everyone = build_temporary_cache(data_root, sources=sources)
+            with everyone_handle:
+                manipulation["real_data"] = real_data_directions(everyone, run, MANIPULATIONS, kinematic_measures)
     report = {"command": command, "seed": seed, "repeats": repeats, "repeat_seeds": seeds, "targets": len(targets),
               "subjects": len({t.subject for t in targets}), "clips": names, "table": table, "identity": identity,
               "manipulation": manipulation, "bars": done_when(table, identity, manipulation)}

@@ -11,19 +11,22 @@ two-sided p-value and the subject count). A field the data holds at one value, o
 Field values: numbers as the profile gives them (age, experience_years); ``level`` on the generator's ordinal
 scale (`biomotion.generation.conditioning.LEVELS`: recreational 0, competitive 0.5, elite 1); ``injuries`` 1 for a
 subject with an injury at a location of the manipulated injury (e.g. "Left knee", case-insensitive), 0 for a
-subject whose profile records no injury, and left out otherwise (an injury elsewhere). Clips of the action: the
+subject whose profile answers that it has none (`biomotion.generation.conditioning.injury_known`, as the generator
+reads it), and left out otherwise (an injury elsewhere, or no answer). Clips of the action: the
 same action label and, when the request has a speed, a labelled speed within `SPEED_TOLERANCE` of it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 
 import numpy as np
 from scipy.stats import spearmanr
 
 from biomotion.generation.actions import ActionRequest
-from biomotion.generation.conditioning import LEVELS
+from biomotion.generation.conditioning import LEVELS, injury_known
+from biomotion.profile import Profile
 
 MIN_SUBJECTS = 3
 MAX_LISTED = 4          # a field with at most this many distinct values lists the subjects per value
@@ -36,6 +39,8 @@ def field_value(profile: Mapping, key: str, high: Mapping) -> float | None:
     if key == "level":
         return LEVELS.get(str(profile.get("level") or "").strip().lower())
     if key == "injuries":
+        if not injury_known(Profile.from_dict(profile)):
+            return None
         recorded = profile.get("injuries") or []
         if not recorded:
             return 0.0
@@ -45,17 +50,28 @@ def field_value(profile: Mapping, key: str, high: Mapping) -> float | None:
     return None if value is None else float(value)
 
 
-def action_clips(records: Sequence[Mapping], action: ActionRequest) -> list[int]:
-    """Indices of the records of ``action`` (label, and speed within `SPEED_TOLERANCE` when one is asked)."""
-    def matches(labels: Mapping) -> bool:
-        if labels.get("action") != action.action:
-            return False
-        if action.speed is None:
-            return True
-        speed = labels.get("speed")
-        return speed is not None and abs(float(speed) - action.speed) <= SPEED_TOLERANCE
+def _matches(action: ActionRequest, label: str | None, speed: float | None) -> bool:
+    """A clip labelled ``label`` at ``speed`` is of ``action`` (label, and speed within `SPEED_TOLERANCE` when the
+    request has one)."""
+    if label != action.action:
+        return False
+    return action.speed is None or (speed is not None and abs(float(speed) - action.speed) <= SPEED_TOLERANCE)
 
-    return [i for i, record in enumerate(records) if matches(record["labels"])]
+
+def action_clips(records: Sequence[Mapping], action: ActionRequest) -> list[int]:
+    """Indices of the cache records of ``action``."""
+    return [i for i, record in enumerate(records)
+            if _matches(action, record["labels"].get("action"), record["labels"].get("speed"))]
+
+
+def sources_with_action(data_root: str | Path, sources: Sequence[str], action: ActionRequest) -> list[str]:
+    """The ``sources`` present under ``data_root`` whose clips include ``action``, read from their file listings
+    (`Source.discover`), so that no motion is loaded or retargeted for the others."""
+    from biomotion.data.registry import SOURCES
+
+    root = Path(data_root)
+    return [name for name in sources if name in SOURCES and SOURCES[name].present(root)
+            and any(_matches(action, spec.labels.action, spec.labels.speed) for spec in SOURCES[name].discover(root))]
 
 
 def real_data_directions(cache, action: ActionRequest, manipulations: Sequence[tuple],

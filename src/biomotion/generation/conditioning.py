@@ -51,7 +51,9 @@ class Features:
         return torch.cat([self.values * self.mask, self.mask], -1)
 
 
-def _injury_known(profile: Profile) -> bool:
+def injury_known(profile: Profile) -> bool:
+    """Whether ``profile`` says anything of its injury history: injuries listed, or a table's Injury column
+    answered yes or no (an empty list alone is no answer)."""
     return bool(profile.injuries) or str(profile.extra.get("Injury", "")).strip().lower() in ("yes", "no")
 
 
@@ -76,7 +78,7 @@ def biodata_features(profile: Profile | None) -> Features:
             put(f"sport_{sport}", float(profile.sport.strip().lower() == sport))
     put("level", LEVELS.get((profile.level or "").strip().lower()))
     put("experience", None if profile.experience_years is None else profile.experience_years / 10.0)
-    if _injury_known(profile):
+    if injury_known(profile):
         text = " ".join(f"{i.location or ''} {i.diagnosis or ''}".lower() for i in profile.injuries)
         put("injury_any", float(bool(profile.injuries)))
         for region, words in INJURY_REGIONS.items():

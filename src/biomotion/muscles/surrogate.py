@@ -27,7 +27,12 @@ standardised with mean/std buffers from the training split, then a Conv1d stem a
 replicate padding; receptive field 1 + 4 (1 + depth) frames) shared by two 1x1 heads: the activations (sigmoid)
 and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
 A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2), de-standardised with
-the ``com_mean``/``com_std`` buffers of the training labels. Masked coordinates are set to 0 before anything
+the ``com_mean``/``com_std`` buffers of the training labels. With ``config.members`` m > 1 (ours) the network is
+m such networks side by side, each ``width`` wide and started from its own random weights: one stem, then grouped
+convolutions and heads, so a member's channels see only its own; each member is fitted to the labels on its own
+(`predict_members`, `biomotion.muscles.train_surrogate`) and a prediction is the members' mean, a deep ensemble
+(Lakshminarayanan, Pritzel & Blundell 2017, "Simple and scalable predictive uncertainty estimation using deep
+ensembles", NeurIPS), which removes part of the error that depends on the random start. Masked coordinates are set to 0 before anything
 else, which is also how the labels treated absent coordinates (`biomotion.muscles.surrogate_labels`). Everything
 is differentiable with respect to q.
 
@@ -70,7 +75,8 @@ REST_QUANTILE = ContactSettings().rest_percentile / 100.0
 @dataclass(frozen=True)
 class SurrogateConfig:
     """Network sizes. ``rate``: frame rate (Hz) of the q the surrogate is given; ``contact``: foot-contact
-    features from forward kinematics of the canonical body (see the module docstring)."""
+    features from forward kinematics of the canonical body; ``members``: networks of ``width`` channels averaged
+    (a deep ensemble; see the module docstring)."""
 
     width: int = 128
     depth: int = 3
@@ -78,12 +84,15 @@ class SurrogateConfig:
     dropout: float = 0.1
     rate: float = DEFAULT_RATE
     contact: bool = False
+    members: int = 1
 
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
         config = settings_from_dict(cls, values, "surrogate model")
         if config.kernel % 2 == 0 or config.kernel < 1:
             raise ConfigError(f"surrogate kernel must be odd, got {config.kernel}")
+        if config.members < 1:
+            raise ConfigError(f"surrogate members must be at least 1, got {config.members}")
         return config
 
 
@@ -106,10 +115,10 @@ def finite_differences(q: torch.Tensor, rate: float) -> tuple[torch.Tensor, torc
 class _Block(nn.Module):
     """x + Conv1x1(Dropout(GELU(Conv_k(GELU(x)))))."""
 
-    def __init__(self, width: int, kernel: int, dropout: float) -> None:
+    def __init__(self, width: int, kernel: int, dropout: float, groups: int = 1) -> None:
         super().__init__()
-        self.conv = nn.Conv1d(width, width, kernel, padding=kernel // 2, padding_mode="replicate")
-        self.mix = nn.Conv1d(width, width, 1)
+        self.conv = nn.Conv1d(width, width, kernel, padding=kernel // 2, padding_mode="replicate", groups=groups)
+        self.mix = nn.Conv1d(width, width, 1, groups=groups)
         self.dropout = nn.Dropout(dropout)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -142,11 +151,11 @@ class MuscleSurrogate(nn.Module):
             self.points = foot_points(self.body)
             self.point_mirror = torch.as_tensor(mirror_permutation(self.points.names))
             n_features += 2 * len(self.points.names)
-        w, k = config.width, config.kernel
+        w, k, m = config.width * config.members, config.kernel, config.members
         self.stem = nn.Conv1d(n_features, w, k, padding=k // 2, padding_mode="replicate")
-        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout) for _ in range(config.depth)])
-        self.head = nn.Conv1d(w, len(self.names), 1)
-        self.com_head = nn.Conv1d(w, len(COM_OUTPUTS), 1)
+        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout, m) for _ in range(config.depth)])
+        self.head = nn.Conv1d(w, m * len(self.names), 1, groups=m)
+        self.com_head = nn.Conv1d(w, m * len(COM_OUTPUTS), 1, groups=m)
         self.register_buffer("mean", torch.zeros(n_features))
         self.register_buffer("std", torch.ones(n_features))
         self.register_buffer("low", torch.zeros(len(self.names)))
@@ -238,27 +247,33 @@ class MuscleSurrogate(nn.Module):
     # -- model ----------------------------------------------------------------------------------------------
     def _trunk(self, q: torch.Tensor, mask: torch.Tensor | None = None,
                heights: torch.Tensor | None = None) -> torch.Tensor:
-        """Shared hidden sequence [B, width, T]."""
+        """Hidden sequence [B, members x width, T]: the members' channels side by side."""
         return F.gelu(self.blocks(self.stem(self.features(q, mask, heights).transpose(1, 2))))
 
-    def logits(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-               heights: torch.Tensor | None = None) -> torch.Tensor:
-        """Pre-sigmoid activation outputs [B, T, M]."""
-        return self.head(self._trunk(q, mask, heights)).transpose(1, 2)
+    def _per_member(self, out: torch.Tensor) -> torch.Tensor:
+        """A head's output [B, members x C, T] as [B, members, T, C]."""
+        return out.view(out.shape[0], self.config.members, -1, out.shape[-1]).transpose(2, 3)
+
+    def predict_members(self, q: torch.Tensor, mask: torch.Tensor | None = None,
+                        heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each member's activations [B, members, T, M] and COM velocity and acceleration [B, members, T, 6]
+        (what training fits, each member on its own)."""
+        hidden = self._trunk(q, mask, heights)
+        com = self._per_member(self.com_head(hidden)) * self.com_std + self.com_mean
+        return torch.sigmoid(self._per_member(self.head(hidden))), com
 
     def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None,
                 heights: torch.Tensor | None = None) -> torch.Tensor:
         """Activations [B, T, M] in (0, 1) from canonical coordinates q [B, T, 39] (mask [B, 39] optional:
         masked coordinates are treated as 0; foot heights [B, T, K] optional, see `raw_features`)."""
-        return torch.sigmoid(self.logits(q, mask, heights))
+        return self.predict(q, mask, heights)[0]
 
     def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and
-        m/s^2) in one pass."""
-        hidden = self._trunk(q, mask, heights)
-        com = self.com_head(hidden).transpose(1, 2) * self.com_std + self.com_mean
-        return torch.sigmoid(self.head(hidden)).transpose(1, 2), com
+        m/s^2) in one pass: the mean over the members."""
+        activations, com = self.predict_members(q, mask, heights)
+        return activations.mean(1), com.mean(1)
 
     def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None,
                           heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -315,13 +315,15 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         for group in optimiser.param_groups:
             group["lr"] = learning_rate(max(step / total, elapsed / budget), step, lr, warmup)
         pick = torch.randint(len(q), (batch,), generator=generator)
-        predicted, com_hat = model.predict(q[pick], mask[pick], None if heights is None else heights[pick])
-        w, w_com = weight[pick].unsqueeze(-1), com_weight[pick].unsqueeze(-1)
-        loss_activation = ((predicted - target[pick]).abs() * muscle_weight * w).sum() \
-            / (w.sum() * model.n_muscles).clamp_min(1)
-        com_error = F.smooth_l1_loss((com_hat - com[pick]) / model.com_std, torch.zeros_like(com_hat),
+        # every member of an ensemble fits the labels on its own: [B, members, T, .] against [B, 1, T, .]
+        predicted, com_hat = model.predict_members(q[pick], mask[pick], None if heights is None else heights[pick])
+        members = predicted.shape[1]
+        w, w_com = weight[pick][:, None, :, None], com_weight[pick][:, None, :, None]
+        loss_activation = ((predicted - target[pick][:, None]).abs() * muscle_weight * w).sum() \
+            / (w.sum() * members * model.n_muscles).clamp_min(1)
+        com_error = F.smooth_l1_loss((com_hat - com[pick][:, None]) / model.com_std, torch.zeros_like(com_hat),
                                      reduction="none")
-        loss_com = (com_error * w_com).sum() / (w_com.sum() * len(COM_OUTPUTS)).clamp_min(1)
+        loss_com = (com_error * w_com).sum() / (w_com.sum() * members * len(COM_OUTPUTS)).clamp_min(1)
         loss = loss_activation + com_loss_weight * loss_com
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
