@@ -10,7 +10,8 @@ optimization converged (with ``train.per_muscle_scale: true`` each muscle's erro
 of its train-split labels, floored at ``data.min_label_std``, `muscle_loss_weights`) plus
 ``train.com_weight`` times the smooth-L1 (PG-BIG A.8's loss) of the standardised COM velocity and acceleration
 over all real frames, AdamW with linear warm-up then cosine decay over the run (the run's progress is the larger
-of iterations done and time used when ``--minutes`` is given), gradient clipping.
+of iterations done and time used when ``--minutes`` is given), gradient clipping; with ``train.ema_decay`` > 0
+the weights evaluated and saved are an exponential moving average of the trained ones (`weight_average`).
 The ``low``/``high`` bounds are the 5th/95th percentiles of the train-split labels (PG-BIG Table 1).
 
 Validation (PG-BIG A.8, Table 7) runs the surrogate on each whole val clip and compares with the labels on
@@ -235,6 +236,17 @@ def learning_rate(progress: float, step: int, lr: float, warmup: int) -> float:
     return lr * min(1.0, (step + 1) / max(warmup, 1)) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
+def weight_average(model: MuscleSurrogate, decay: float) -> torch.optim.swa_utils.AveragedModel | None:
+    """An exponential moving average of ``model``'s weights (Polyak and Juditsky 1992), updated after every
+    optimiser step, whose weights are the ones evaluated and saved; None when ``decay`` is 0 (train.ema_decay).
+    Buffers (normalisation, bounds; fixed before training) are copied from ``model``, not averaged."""
+    if not 0.0 <= decay < 1.0:
+        raise ConfigError(f"train.ema_decay must lie in [0, 1), got {decay}")
+    if decay == 0.0:
+        return None
+    return torch.optim.swa_utils.AveragedModel(model, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(decay))
+
+
 def muscle_loss_weights(activations: torch.Tensor, per_muscle_scale: bool, min_std: float) -> torch.Tensor:
     """[M] weight of each muscle's L1 error, from the train-split labels ``activations`` [N, M]: ones, or with
     ``per_muscle_scale`` 1 / std of the muscle's labels (floored at ``min_std``), normalised to mean 1 so the
@@ -300,6 +312,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     muscle_weight = muscle_loss_weights(torch.from_numpy(labels.activations[train_rows]).to(target.dtype),
                                         bool(train_cfg.get("per_muscle_scale", False)), min_std)
     optimiser = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=float(train_cfg["weight_decay"]))
+    averaged = weight_average(model, float(train_cfg.get("ema_decay", 0.0)))
     total = int(iterations or train_cfg["iterations"])
     budget = 60 * minutes if minutes else math.inf
     generator = torch.Generator().manual_seed(seed)
@@ -329,10 +342,12 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), float(train_cfg["grad_clip"]))
         optimiser.step()
+        if averaged is not None:
+            averaged.update_parameters(model)
         if step % 20 == 0:
             bar.set_postfix(l1=f"{loss_activation.item():.4f}", com=f"{loss_com.item():.4f}")
         if (step + 1) % int(train_cfg["eval_every"]) == 0:
-            m = evaluate(model, val_clips, min_std)
+            m = evaluate(model if averaged is None else averaged.module, val_clips, min_std)
             history.append({"step": step + 1, "seconds": round(time.monotonic() - started, 1),
                             "train_l1": loss_activation.item(), "train_com": loss_com.item(),
                             "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"],
@@ -342,6 +357,8 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     else:
         step = total
     train_seconds = time.monotonic() - started
+    if averaged is not None:
+        model.load_state_dict(averaged.module.state_dict())
     model.eval()
     after = evaluate(model, val_clips, min_std)
     on_train = evaluate(model, train_clips, min_std)
