@@ -341,7 +341,6 @@ def test_per_muscle_loss_weights_follow_the_label_spread():
     assert torch.isclose(weight[2] / weight[0], spread[0] / 0.02)          # the tiny muscle is floored
 
 
-
 def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only():
     """Off at decay 0, refused outside [0, 1); after updates w1, w2 it holds d w1 + (1 - d) w2; buffers are copied."""
     from biomotion.muscles.train_surrogate import weight_average
@@ -362,6 +361,7 @@ def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only(
     for mean, start in zip(averaged.module.parameters(), first):
         assert torch.allclose(mean, 0.9 * start + 0.1 * (start + 1.0), atol=1e-6)
     assert torch.equal(averaged.module.mean, model.mean)
+
 
 def test_contact_features_need_the_body_and_keep_the_prediction_left_right_equivariant(data_root):
     from biomotion.data.mirror import mirror_coordinates, mirror_labels
