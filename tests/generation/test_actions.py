@@ -197,3 +197,27 @@ def test_notes_name_an_inexact_match_and_its_score(vocabulary, encoder):
     assert vocabulary.notes("climb stairs", request) == [
         f"'climb stairs' taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
         "`biomotion generate --list-actions` lists them)"]
+
+
+def test_a_pace_word_without_a_number_picks_a_quartile_of_the_training_speeds(monkeypatch):
+    """'run slowly' is the lower quartile of the run labels' speeds (one per clip: 2.0-5.0 m/s here, quartiles
+    2.75 and 4.25), 'sprint' the upper; a stated number wins, both kinds of word together say nothing, and a label
+    trained at one speed says so instead of pretending to honour the word."""
+    vocabulary = ActionVocabulary.from_labels(HAND_LABELS)
+    monkeypatch.setattr(vocabulary, "_best", lambda rest, with_speed: (vocabulary._exact(
+        "walk, toe-in" if "toe-in" in rest else "run", with_speed=with_speed), 1.0))   # matching is not on trial
+    assert actions.find_pace("Jog SLOWLY") == ("slowly", 0.25)
+    assert actions.find_pace("slow, then fast") is None
+    assert actions.find_pace("breakfast run") is None                  # whole words only
+    assert vocabulary.resolve("run slowly").speed == 2.75
+    assert vocabulary.resolve("sprint").speed == 4.25
+    assert vocabulary.resolve("run").speed == 3.5                      # the median, as before
+    assert vocabulary.resolve("run fast at 3 m/s").speed == 3.0
+    assert vocabulary.notes("run slowly", vocabulary.resolve("run slowly")) == [
+        "'slowly' read as 2.75 m/s, the lower quartile of the training speeds of 'run'; state a speed in m/s or "
+        "km/h to choose another"]
+    toe_in = vocabulary.resolve("walk, toe-in, slowly")
+    assert toe_in.speed == 1.25
+    assert vocabulary.notes("walk, toe-in, slowly", toe_in) == [
+        "'slowly' asks for a pace, but 'walk' (toe-in) was trained at 1.25 m/s only: state a speed in m/s or km/h "
+        "to ask for another"]

@@ -16,8 +16,9 @@ a label the generator knows:
    ("sprint" is nearer "run" than any label text).
 
 A speed the text states is kept even where the matched action has no speed in the vocabulary; a text without a
-speed gives ``speed=None`` (masked in the conditioning); `ActionVocabulary.typical_speed` gives the training
-median where a caller wants one.
+speed gives ``speed=None`` (masked in the conditioning); `ActionVocabulary.resolve` fills in a training speed where
+a caller wants one: the lower or upper quartile of the label's training speeds for a text that says how fast
+without a number ("jog slowly", "a brisk walk", "sprint": `PACE_WORDS`), else the median (`typical_speed`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from __future__ import annotations
 import functools
 import os
 import re
-import statistics
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, is_dataclass
 from typing import Any
@@ -50,6 +50,13 @@ _SPEED = re.compile(
     re.IGNORECASE)
 MAX_SPEED = 12.5
 """m/s: faster than any human run (a sprinter's peak is about 12.4 m/s); a parsed speed above is an error."""
+PACE_WORDS: dict[str, float] = {
+    **dict.fromkeys(("slow", "slowly", "easy", "gentle", "gently", "leisurely", "relaxed"), 0.25),
+    **dict.fromkeys(("fast", "quick", "quickly", "brisk", "briskly", "rapid", "rapidly", "sprint", "sprinting"), 0.75),
+}
+"""Words that say how fast without a number, and the quantile of the label's training speeds each asks for: the
+quartiles rather than the extremes keep the request inside the speeds most of the training clips show."""
+_PACE = re.compile(r"\b(" + "|".join(sorted(PACE_WORDS, key=len, reverse=True)) + r")\b", re.IGNORECASE)
 MIN_SIMILARITY = 0.3
 """Cosine similarity below which no vocabulary label is taken to match a text (all-MiniLM-L6-v2 scores of
 unrelated short sentences are mostly below 0.2)."""
@@ -107,6 +114,15 @@ def find_speed(text: str) -> SpeedMention | None:
                           f"speed (0 to {MAX_SPEED} m/s)")
     rest = _SPEED.sub(" ", text)
     return SpeedMention(value, matches[0].group(0).strip(), _normalise(rest))
+
+
+def find_pace(text: str) -> tuple[str, float] | None:
+    """(the word, the quantile of training speeds it asks for) where ``text`` says how fast with `PACE_WORDS`
+    only; None where it says nothing, or both slow and fast ("slow, then fast": no one speed)."""
+    words = [m.group(1).lower() for m in _PACE.finditer(text)]
+    if not words or len({PACE_WORDS[w] for w in words}) > 1:
+        return None
+    return words[0], PACE_WORDS[words[0]]
 
 
 def _speed_value(match: re.Match) -> float:
@@ -211,9 +227,14 @@ class ActionVocabulary:
 
     def typical_speed(self, action: str, style: str | None = None) -> float | None:
         """Median training speed (m/s) of an action (and style, if given), or None where no label has one."""
+        return self.speed_quantile(action, style, 0.5)
+
+    def speed_quantile(self, action: str, style: str | None, quantile: float) -> float | None:
+        """The ``quantile`` of the training speeds (m/s, one per clip) of an action (and style, if given), linearly
+        interpolated, or None where no label has a speed."""
         speeds = [s for e in self._entries if e.action == action and (style is None or e.style == style)
                   for s in e.speeds]
-        return float(statistics.median(speeds)) if speeds else None
+        return float(np.quantile(speeds, quantile)) if speeds else None
 
     def speed_range(self, action: str) -> tuple[float, float] | None:
         """(slowest, fastest) training speed (m/s) of an action over all its styles, or None where no label of the
@@ -230,6 +251,16 @@ class ActionVocabulary:
         if score < 1.0:
             notes.append(f"{text!r} taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
                          "`biomotion generate --list-actions` lists them)")
+        pace = find_pace(text) if find_speed(text) is None else None
+        if pace is not None and request.speed is not None:
+            lowest, highest = (self.speed_quantile(request.action, request.style, q) for q in (0.0, 1.0))
+            if lowest == highest:
+                notes.append(f"{pace[0]!r} asks for a pace, but {_shown_label(request)} was trained at "
+                             f"{request.speed:g} m/s only: state a speed in m/s or km/h to ask for another")
+            else:
+                side = "lower" if pace[1] < 0.5 else "upper"
+                notes.append(f"{pace[0]!r} read as {request.speed:g} m/s, the {side} quartile of the training speeds "
+                             f"of {_shown_label(request)}; state a speed in m/s or km/h to choose another")
         known = self.speed_range(request.action)
         if request.speed is not None and known is not None and not known[0] <= request.speed <= known[1]:
             notes.append(f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
@@ -254,13 +285,15 @@ class ActionVocabulary:
         return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
 
     def resolve(self, text: str, *, min_similarity: float = MIN_SIMILARITY) -> ActionRequest:
-        """`parse`, and where the text states no speed, the label's median training speed (`typical_speed`) where
-        it has one: what `biomotion generate` asks the generator for (guidance's speed term holds it)."""
+        """`parse`, and where the text states no speed, a training speed of the label where it has any: the
+        quantile a pace word asks for (`find_pace`: "jog slowly" the lower quartile), else the median
+        (`typical_speed`). What `biomotion generate` asks the generator for (guidance's speed term holds it)."""
         request = self.parse(text, min_similarity=min_similarity)
-        if request.speed is None and self.typical_speed(request.action, request.style) is not None:
-            return ActionRequest(request.action, request.style, self.typical_speed(request.action, request.style),
-                                 request.text)
-        return request
+        if request.speed is not None:
+            return request
+        pace = find_pace(text)
+        speed = self.speed_quantile(request.action, request.style, 0.5 if pace is None else pace[1])
+        return request if speed is None else ActionRequest(request.action, request.style, speed, request.text)
 
     def match_score(self, text: str) -> tuple[str, float]:
         """How well the vocabulary knows ``text``: the speed-free text of the label `parse` would take and its
@@ -316,6 +349,11 @@ class ActionVocabulary:
             return None
         return min(named, key=lambda e: (with_speed and not any(find_speed(t) for t in e.texts), e.prompt != rest,
                                          e.prompt != e.action.lower(), e.style not in ("normal", None), -e.count))
+
+
+def _shown_label(request: ActionRequest) -> str:
+    """The action, and its style where it has a telling one, as notes name them: 'run', 'walk' (fast)."""
+    return repr(request.action) + (f" ({request.style})" if request.style not in (None, "normal") else "")
 
 
 def _label_text(entry: _Entry, speed: float | None) -> str:
