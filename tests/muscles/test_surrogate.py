@@ -363,6 +363,16 @@ def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only(
     assert torch.equal(averaged.module.mean, model.mean)
 
 
+
+def test_activation_loss_is_the_absolute_or_squared_error_and_refuses_others():
+    from biomotion.muscles.train_surrogate import activation_loss
+
+    error = torch.tensor([-0.5, 0.0, 2.0])
+    assert torch.equal(activation_loss("l1")(error), torch.tensor([0.5, 0.0, 2.0]))
+    assert torch.equal(activation_loss("mse")(error), torch.tensor([0.25, 0.0, 4.0]))
+    with pytest.raises(ConfigError, match="activation_loss"):
+        activation_loss("huber")
+
 def test_contact_features_need_the_body_and_keep_the_prediction_left_right_equivariant(data_root):
     from biomotion.data.mirror import mirror_coordinates, mirror_labels
     from biomotion.evaluation.clips import body_model

@@ -5,8 +5,8 @@
 
 Labels come from `biomotion.muscles.surrogate_labels` (``--labels``, default ``<cache>/surrogate_labels.safetensors``;
 computed and written there when missing or made from another cache). Training uses the train split only:
-windows of ``data.window`` frames, L1 loss on the activations (BIGE's surrogate loss) over frames whose static
-optimization converged (with ``train.per_muscle_scale: true`` each muscle's error divided by the standard deviation
+windows of ``data.window`` frames, L1 loss on the activations (BIGE's surrogate loss; ``train.activation_loss:
+mse`` the squared error, the error R^2 counts) over frames whose static optimization converged (with ``train.per_muscle_scale: true`` each muscle's error divided by the standard deviation
 of its train-split labels, floored at ``data.min_label_std``, `muscle_loss_weights`) plus
 ``train.com_weight`` times the smooth-L1 (PG-BIG A.8's loss) of the standardised COM velocity and acceleration
 over all real frames, AdamW with linear warm-up then cosine decay over the run (the run's progress is the larger
@@ -247,6 +247,14 @@ def weight_average(model: MuscleSurrogate, decay: float) -> torch.optim.swa_util
     return torch.optim.swa_utils.AveragedModel(model, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(decay))
 
 
+def activation_loss(kind: str):
+    """The per-element penalty of the activation error: ``"l1"`` its absolute value (BIGE), ``"mse"`` its square."""
+    penalties = {"l1": torch.abs, "mse": torch.square}
+    if kind not in penalties:
+        raise ConfigError(f"train.activation_loss must be one of {', '.join(penalties)}, got {kind!r}")
+    return penalties[kind]
+
+
 def muscle_loss_weights(activations: torch.Tensor, per_muscle_scale: bool, min_std: float) -> torch.Tensor:
     """[M] weight of each muscle's L1 error, from the train-split labels ``activations`` [N, M]: ones, or with
     ``per_muscle_scale`` 1 / std of the muscle's labels (floored at ``min_std``), normalised to mean 1 so the
@@ -309,6 +317,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     model.set_bounds(torch.from_numpy(labels.activations[train_rows]))
     model.set_com_scale(com[com_weight > 0])
     com_loss_weight = float(train_cfg.get("com_weight", 1.0))
+    activation_error = activation_loss(str(train_cfg.get("activation_loss", "l1")))
     muscle_weight = muscle_loss_weights(torch.from_numpy(labels.activations[train_rows]).to(target.dtype),
                                         bool(train_cfg.get("per_muscle_scale", False)), min_std)
     optimiser = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=float(train_cfg["weight_decay"]))
@@ -332,7 +341,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         predicted, com_hat = model.predict_members(q[pick], mask[pick], None if heights is None else heights[pick])
         members = predicted.shape[1]
         w, w_com = weight[pick][:, None, :, None], com_weight[pick][:, None, :, None]
-        loss_activation = ((predicted - target[pick][:, None]).abs() * muscle_weight * w).sum() \
+        loss_activation = (activation_error(predicted - target[pick][:, None]) * muscle_weight * w).sum() \
             / (w.sum() * members * model.n_muscles).clamp_min(1)
         com_error = F.smooth_l1_loss((com_hat - com[pick][:, None]) / model.com_std, torch.zeros_like(com_hat),
                                      reduction="none")
@@ -345,14 +354,14 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         if averaged is not None:
             averaged.update_parameters(model)
         if step % 20 == 0:
-            bar.set_postfix(l1=f"{loss_activation.item():.4f}", com=f"{loss_com.item():.4f}")
+            bar.set_postfix(act=f"{loss_activation.item():.4f}", com=f"{loss_com.item():.4f}")
         if (step + 1) % int(train_cfg["eval_every"]) == 0:
             m = evaluate(model if averaged is None else averaged.module, val_clips, min_std)
             history.append({"step": step + 1, "seconds": round(time.monotonic() - started, 1),
-                            "train_l1": loss_activation.item(), "train_com": loss_com.item(),
+                            "train_activation": loss_activation.item(), "train_com": loss_com.item(),
                             "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"],
                             "val_com_vel_r2": m["com_vel_r2"]})
-            bar.set_postfix(l1=f"{loss_activation.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}",
+            bar.set_postfix(act=f"{loss_activation.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}",
                             com_vel_r2=f"{m['com_vel_r2']:.3f}")
     else:
         step = total
