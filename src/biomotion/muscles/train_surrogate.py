@@ -7,7 +7,8 @@ Labels come from `biomotion.muscles.surrogate_labels` (``--labels``, default ``<
 computed and written there when missing or made from another cache). Training uses the train split only:
 windows of ``data.window`` frames, L1 loss on the activations (BIGE's surrogate loss; ``train.activation_loss:
 mse`` the squared error, the error R^2 counts) over frames whose static optimization converged (with
-``train.per_muscle_scale: true`` each muscle's error divided by the standard deviation of its train-split labels, floored at ``data.min_label_std``, `muscle_loss_weights`) plus
+``train.per_muscle_scale: true`` each muscle's error divided by the standard deviation of its train-split labels,
+floored at ``data.min_label_std``, `muscle_loss_weights`) plus
 ``train.com_weight`` times the smooth-L1 (PG-BIG A.8's loss) of the standardised COM velocity and acceleration
 over all real frames, AdamW with linear warm-up then cosine decay over the run (the run's progress is the larger
 of iterations done and time used when ``--minutes`` is given), gradient clipping; with ``train.ema_decay`` > 0
