@@ -70,6 +70,21 @@ def test_speed_error_is_measured_at_the_persons_size():
     assert errors[0] == pytest.approx(0.0, abs=1e-9) and math.isnan(errors[1]) and errors[2] == pytest.approx(0.0)
 
 
+
+def test_a_target_has_a_measured_trunk_only_with_every_lumbar_coordinate_present():
+    from biomotion.evaluation.generation import measured_trunk
+    from biomotion.motion import Motion
+
+    q = _running(period=0.72, knee_amplitude=0.5, bounce=0.04, speed=3.4)
+    times = np.arange(len(q)) / 30.0
+    assert measured_trunk(Motion(times=times, values=q, names=CANONICAL_COORDINATES))
+    mask = np.ones(len(CANONICAL_COORDINATES), dtype=bool)
+    mask[CANONICAL_COORDINATES.index("lumbar_rotation")] = False      # a runner whose model has no trunk
+    assert not measured_trunk(Motion(times=times, values=q, names=CANONICAL_COORDINATES, mask=mask))
+    legs = [i for i, n in enumerate(CANONICAL_COORDINATES) if not n.startswith("lumbar")]
+    assert not measured_trunk(Motion(times=times, values=q[:, legs],
+                                     names=tuple(CANONICAL_COORDINATES[i] for i in legs)))
+
 def test_manipulation_bar_needs_every_field_measured():
     row = lambda ok: {"as_documented": ok}  # noqa: E731
     table = _table()

@@ -22,7 +22,9 @@ label, and generates a clip as long as the target (at most ``max_seconds``). Var
 Every variant is scored with the per-clip metrics of `biomotion eval` on the canonical model (contact, jerk,
 energy, joint range, ZMP in support), the paired fidelity metrics against the target (MJE, DTW fidelity, W2),
 and the share of frames x muscles whose surrogate activation leaves the training 5-95 % band (muscle-limit
-violations, PG-BIG Table 1's activation bounds). Identity probe: a logistic regression on pooled tokenizer
+violations, PG-BIG Table 1's activation bounds). ZMP in support is also given over the targets whose real clip
+carries its trunk's motion (`measured_trunk`), the only ones where the whole-body ZMP of the reference means
+something; the bar stays on all targets. Identity probe: a logistic regression on pooled tokenizer
 latents; for each target, one probe is trained on the real clips of the unseen subjects other than the target's
 own clip (a subject's clips are each other's references, so a probe trained on all references would have seen
 every real target) and tested on the real target and on each variant's generated target (chance = 1 / subjects).
@@ -228,6 +230,17 @@ def speed_errors(motions: list[Motion], speeds: list[float | None], heights: lis
     return out
 
 
+TRUNK_COORDINATES = ("lumbar_extension", "lumbar_bending", "lumbar_rotation")
+
+
+def measured_trunk(motion: Motion) -> bool:
+    """Whether a clip carries its trunk's own motion (every lumbar coordinate present). Without it the canonical
+    trunk rides rigidly on the pelvis (the Fukuchi runners' models lump head, arms and trunk into the pelvis), and the
+    whole-body ZMP of the clip measures that more than the motion (`benchmarks/zmp_real_clips.py`)."""
+    present = dict(zip(motion.names, motion.mask))
+    return all(bool(present.get(name, False)) for name in TRUNK_COORDINATES)
+
+
 def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str],
                    speeds: list[float | None], heights: list[float | None]) -> dict:
     """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits,
@@ -244,6 +257,9 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
                                model, rate, derivatives=True)
     muscle = MetricSpec("muscle_violations", "Muscle-limit violations", "%", 100.0, "↓", None)
     speed = MetricSpec("speed_error", "Speed error vs label", "m/s", 1.0, "↓", None)
+    trunk = MetricSpec("zmp_in_support_measured_trunk", "ZMP in support, targets with a measured trunk", "%", 1.0,
+                       "↑", None)
+    measured = [measured_trunk(m) for m in variants["reference"]]
     table = {}
     for variant, motions in variants.items():
         clips = coordinate_set([CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate,
@@ -251,6 +267,10 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
         records = summarize_set(clips, model, physics=True)
         records[muscle.key] = _record(muscle, torch.tensor(muscle_violation_share(motions, surrogate)))
         records[speed.key] = _record(speed, torch.tensor(speed_errors(motions, speeds, heights)))
+        if "zmp_in_support" in records:   # the whole-body ZMP only means something where the trunk was measured
+            shares = [v if keep and v is not None else math.nan
+                      for v, keep in zip(records["zmp_in_support"]["values"], measured)]
+            records[trunk.key] = _record(trunk, torch.tensor(shares, dtype=torch.float64))
         if variant != "reference":
             records.update(score_pairs(clips, reference)[1])
         table[variant] = records
