@@ -407,10 +407,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "posture is nearest and its speed that action's mean")
     generate.add_argument("--action",
                           help="(required) what to do, free text mapped to the nearest dataset label (\"run at "
-                               "3.5 m/s\", \"squat\", \"drop jump\", \"walk with toes out\"; without a number, the label's median "
-                               "training speed, or its lower/upper quartile for \"slowly\", \"fast\" ...); the Bandai-Namco "
-                               "contents and styles (\"wave both hands\", \"bow\", \"walk, elderly\") go to the "
-                               "full-body bundle, with the profile's biodata masked (docs/generation.md)")
+                               "3.5 m/s\", \"squat\", \"drop jump\", \"walk with toes out\"; without a number, the "
+                               "label's median training speed, or its lower/upper quartile for \"slowly\", \"fast\" "
+                               "...); the Bandai-Namco contents and styles (\"wave both hands\", \"bow\", "
+                               "\"walk, elderly\") go to the full-body bundle, with the profile's biodata masked "
+                               "(docs/generation.md)")
     generate.add_argument("--seconds", type=float, default=3.0, help="clip length (default: %(default)s)")
     generate.add_argument("--samples", type=int, default=1, help="clips to draw (default: %(default)s)")
     generate.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")

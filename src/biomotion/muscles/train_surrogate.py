@@ -36,6 +36,7 @@ import json
 import math
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -248,7 +249,7 @@ def weight_average(model: MuscleSurrogate, decay: float) -> torch.optim.swa_util
     return torch.optim.swa_utils.AveragedModel(model, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(decay))
 
 
-def activation_loss(kind: str):
+def activation_loss(kind: str) -> Callable[[torch.Tensor], torch.Tensor]:
     """The per-element penalty of the activation error: ``"l1"`` its absolute value (BIGE), ``"mse"`` its square."""
     penalties = {"l1": torch.abs, "mse": torch.square}
     if kind not in penalties:
