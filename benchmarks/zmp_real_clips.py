@@ -27,6 +27,7 @@ Fukuchi clips have it); and with the lumbar coordinates counter-rotating the pel
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
@@ -35,6 +36,7 @@ import torch
 
 from biomotion.body.balance import zero_moment_point
 from biomotion.body.kinematics import torch_threads
+from biomotion.errors import BiomotionError
 from biomotion.evaluation.clips import CoordinateClip, body_model, build_temporary_cache, coordinate_set
 from biomotion.io.atomic import atomic_write
 from biomotion.metrics.contact import CONTACT_HEIGHT
@@ -110,8 +112,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=str(REPO / "docs" / "results" / "zmp_real_clips.md"))
     args = parser.parse_args(argv)
     started = time.perf_counter()
-    model = body_model(args.data_root)
-    handle, cache = build_temporary_cache(args.data_root, sources=SOURCES)
+    try:
+        model = body_model(args.data_root)
+        handle, cache = build_temporary_cache(args.data_root, sources=SOURCES)
+    except BiomotionError as error:   # no canonical model or no clip of these sources under the data root
+        print(f"zmp_real_clips: {error}", file=sys.stderr)
+        return 1
     with handle:
         records = cache.records
         clips = [CoordinateClip(r["clip_id"], group_of(r), cache.motion(i)) for i, r in enumerate(records)]
