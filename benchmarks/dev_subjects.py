@@ -52,7 +52,8 @@ from biomotion.models.train_generator import dev_subject
 COLUMNS = (("foot_contact_velocity", "foot contact vel. (m/s)"), ("skate_ratio", "skate (%)"),
            ("floating", "floating (cm)"), ("penetration", "penetration (cm)"), ("jerk", "jerk (m/s³)"),
            ("muscle_violations", "muscle-limit violations (%)"), ("fidelity", "DTW fidelity (cm)"),
-           ("speed_error", "speed error (m/s)"))
+           ("speed_error", "speed error (m/s)"), ("zmp_in_support", "ZMP in support (%)"),
+           ("zmp_in_support_measured_trunk", "ZMP in support, measured trunk (%)"))
 
 
 def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:

@@ -16,3 +16,20 @@ def test_posture_is_the_squared_distance_of_each_clip_mean_to_the_target_where_o
     q.requires_grad_(True)
     losses.posture(q, target).sum().backward()
     assert float(q.grad[0, :, 7].sum()) > 0 and float(q.grad[..., 8].abs().sum()) == 0
+
+
+def test_zmp_support_is_the_mean_distance_outside_the_stance_hull_over_supported_frames():
+    """A 20 x 10 cm sole in contact; the ZMP inside it (frame 0), 5 cm in front of it (frame 1), unloaded
+    (frame 2, ignored) and with no foot in contact (frame 3, ignored): (0 + 0.05) / 2 supported frames."""
+    sole = torch.tensor([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0], [0.2, 0.0, 0.1], [0.0, 0.0, 0.1]])
+    feet = sole.expand(1, 4, 4, 3).clone()
+    contact = torch.ones(1, 4, 4, dtype=torch.bool)
+    contact[0, 3] = False
+    loaded = torch.tensor([[True, True, False, True]])
+    zmp = torch.tensor([[[0.1, 0.0, 0.05], [0.25, 0.0, 0.05], [5.0, 0.0, 5.0], [5.0, 0.0, 5.0]]],
+                       requires_grad=True)
+    penalty = losses.zmp_support(zmp, loaded, feet, contact)
+    assert torch.allclose(penalty, torch.tensor([0.025]))
+    penalty.sum().backward()
+    assert torch.isfinite(zmp.grad).all()
+    assert zmp.grad[0, 1, 0] > 0 and zmp.grad[0, [0, 2, 3]].abs().sum() == 0   # only the outside frame pulls

@@ -3,7 +3,9 @@ zero-moment point, kinetic and potential energy.
 
 All functions take coordinates ``q``, velocities ``qd`` and accelerations ``qdd`` of shape [..., n_q] (SI) and are
 batched and differentiable. Body velocities are exact time derivatives of the forward kinematics, obtained by
-forward-mode autograd (``torch.func.jvp``) along (qd, qdd), never by finite differences of positions.
+forward-mode autograd (``torch.func.jvp``) along (qd, qdd), never by finite differences of positions. The one
+exception is `sampled_body_motion`, for trajectories already posed frame by frame (guidance's decoded clips): central
+differences of the posed bodies, at a fraction of the nested forward-mode cost, for a loss rather than a report.
 """
 
 from __future__ import annotations
@@ -53,6 +55,19 @@ def body_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.
     return BodyMotion(com, velocity, acceleration, rotations, omega, omega_dot)
 
 
+def sampled_body_motion(coms: torch.Tensor, rotations: torch.Tensor, rate: float) -> BodyMotion:
+    """`BodyMotion` of body trajectories sampled at ``rate`` Hz, COMs [..., T, B, 3] and orientations
+    [..., T, B, 3, 3], by second-order central differences along T (one-sided at the ends, ``torch.gradient``):
+    v and a of each COM, and ω = vee(Ṙ Rᵀ) with its own difference for ω̇ (Featherstone 2008, Sec. 2.7)."""
+    step = 1.0 / rate
+    velocity = torch.gradient(coms, spacing=step, dim=-3)[0]
+    acceleration = torch.gradient(velocity, spacing=step, dim=-3)[0]
+    rate_of_rotation = torch.gradient(rotations, spacing=step, dim=-4)[0]
+    omega = _vee(rate_of_rotation @ rotations.transpose(-1, -2))
+    omega_dot = torch.gradient(omega, spacing=step, dim=-3)[0]
+    return BodyMotion(coms, velocity, acceleration, rotations, omega, omega_dot)
+
+
 @dataclass(frozen=True)
 class CenterOfMass:
     """Whole-body COM position, velocity and acceleration [..., 3] in ground (m, m/s, m/s²)."""
@@ -96,24 +111,46 @@ def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: 
     `MIN_VERTICAL_LOAD_BW`).
     """
     bodies = body_motion(model, q, qd, qdd) if bodies is None else bodies
-    masses = model.masses[:, None]
-    gravity = model.gravity.to(q.dtype)
-    force_each = masses * (gravity - bodies.com_acceleration)
-    inertia = _world_inertia(model, bodies.rotations)
-    omega = bodies.angular_velocity
-    spin = (inertia @ bodies.angular_acceleration[..., None]).squeeze(-1) + torch.cross(
-        omega, (inertia @ omega[..., None]).squeeze(-1), dim=-1)
-    plane = bodies.com.new_tensor([0.0, ground_height, 0.0])
-    arm = bodies.com - plane
-    force = force_each.sum(-2)
-    moment = torch.cross(arm, force_each, dim=-1).sum(-2) - spin.sum(-2)
-    contact_force, contact_moment = -force, -moment
+    contact_force, contact_moment = _ground_wrench(model, bodies, ground_height)
     fy = contact_force[..., 1]
-    weight = model.total_mass * torch.linalg.vector_norm(gravity)
+    weight = model.total_mass * torch.linalg.vector_norm(model.gravity.to(fy.dtype))
     fy = torch.where(fy >= max(min_load_bw, 1e-12) * weight, fy, torch.full_like(fy, float("nan")))
     x = contact_moment[..., 2] / fy
     z = -contact_moment[..., 0] / fy
     return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1)
+
+
+def loaded_zero_moment_point(model: BodyModel, bodies: BodyMotion, ground_height: float = 0.0,
+                             min_load_bw: float = MIN_VERTICAL_LOAD_BW) -> tuple[torch.Tensor, torch.Tensor]:
+    """(ZMP [..., 3], loaded [...] bool): `zero_moment_point` of given body motion, for a loss. Where the ground
+    carries less than ``min_load_bw`` body weights the moment is divided by that load instead, so the result and
+    its gradient stay finite everywhere (NaN there would poison the gradients of every frame); ``loaded`` marks the
+    frames whose ZMP is the real one."""
+    contact_force, contact_moment = _ground_wrench(model, bodies, ground_height)
+    fy = contact_force[..., 1]
+    floor = max(min_load_bw, 1e-12) * model.total_mass * torch.linalg.vector_norm(model.gravity.to(fy.dtype))
+    loaded = fy >= floor
+    load = torch.where(loaded, fy, torch.full_like(fy, float(floor)))
+    x = contact_moment[..., 2] / load
+    z = -contact_moment[..., 0] / load
+    return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1), loaded
+
+
+def _ground_wrench(model: BodyModel, bodies: BodyMotion,
+                   ground_height: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(force, moment about (0, ground_height, 0)) [..., 3] the ground must apply for the bodies' motion: minus the
+    gravito-inertial wrench Σ mᵢ(g − aᵢ), Σ rᵢ × mᵢ(g − aᵢ) − Σ Ḣᵢ (see `zero_moment_point`)."""
+    masses = model.masses[:, None].to(bodies.com.dtype)
+    gravity = model.gravity.to(bodies.com.dtype)
+    force_each = masses * (gravity - bodies.com_acceleration)
+    inertia = _world_inertia(model, bodies.rotations).to(bodies.com.dtype)
+    omega = bodies.angular_velocity
+    spin = (inertia @ bodies.angular_acceleration[..., None]).squeeze(-1) + torch.cross(
+        omega, (inertia @ omega[..., None]).squeeze(-1), dim=-1)
+    arm = bodies.com - bodies.com.new_tensor([0.0, ground_height, 0.0])
+    force = force_each.sum(-2)
+    moment = torch.cross(arm, force_each, dim=-1).sum(-2) - spin.sum(-2)
+    return -force, -moment
 
 
 def mechanical_energy(model: BodyModel, q: torch.Tensor, qd: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

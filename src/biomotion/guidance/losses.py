@@ -18,6 +18,8 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
   runs asked for 3.5 m/s came out at 1.7-2.5 m/s).
 - `posture`: not in the paper; sum_j (mean_t q_tj - target_j)^2 over the coordinates with a target, the person's
   posture (`biomotion.generation.posture`), so guidance does not pull the clip back to the population's.
+- `zmp_support`: not in PG-BIG; HUMOS Sec. 3.4's dynamic stability as a hinge: the distance (m) by which the
+  zero-moment point lies outside the support of the stance points, mean over the frames the ground carries.
 - `proximity`: mean squared distance of the latents to the unguided sample's (Sec. 3.3, A.1 schedule).
 """
 
@@ -26,6 +28,7 @@ from __future__ import annotations
 import torch
 
 from biomotion.metrics.bounds import bound_excess
+from biomotion.metrics.stability import signed_distance_to_hull
 from biomotion.models.foot_contact import mean_horizontal_speed
 
 
@@ -82,6 +85,18 @@ def posture(q: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """sum_j (mean_t q_tj - target_j)^2 over the coordinates whose target [39] is finite."""
     known = torch.isfinite(target)
     return ((q[..., known].mean(1) - target[known]) ** 2).sum(-1)
+
+
+def zmp_support(zmp: torch.Tensor, loaded: torch.Tensor, feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:
+    """Mean over supported frames (``loaded`` [B, T] and some point of ``contact`` [B, T, K]) of how far (m) the ZMP
+    [B, T, 3] lies outside the convex hull of the contact points ``feet`` [B, T, K, 3] in the ground plane, 0 inside
+    (HUMOS Sec. 3.4: a stable motion keeps its ZMP in the base of support). The hull is held fixed: the term moves
+    the ZMP, the foot terms place the feet."""
+    active = contact & loaded[..., None]
+    signed = signed_distance_to_hull(feet[..., [0, 2]].detach(), active, zmp[..., [0, 2]])
+    supported = torch.isfinite(signed)
+    outside = torch.relu(-torch.where(supported, signed, torch.zeros_like(signed)))
+    return outside.sum(-1) / supported.sum(-1).clamp_min(1)
 
 
 def proximity(z: torch.Tensor, z0: torch.Tensor) -> torch.Tensor:

@@ -65,6 +65,14 @@ the example-profile figures quoted below predate the tempo, whose "no tempo" row
   are in `stance_mask`. With a tokenizer that decodes foot contact (`configs/tokenizer_foot_contact.yaml`; not the
   shipped one) the mask is read from its channels instead (``decoded_contact``); docs/generation.md has how that
   compared.
+- no ZMP term (``w_zmp`` 0; ours, after HUMOS Sec. 3.4: `losses.zmp_support`, the ZMP of body motion differenced
+  from the poses guidance already computes, `biomotion.body.balance.sampled_body_motion`). On the generator's dev
+  subjects (``python benchmarks/dev_subjects.py --repeats 2 --guidance shipped: --guidance zmp_300:w_zmp=300
+  --guidance zmp_3000:w_zmp=3000 --out docs/results/dev_guidance_zmp.md``, 2026-12-06) weight 300 raised ZMP in
+  support 1.6 -> 6.0 % (targets with a measured trunk 1.2 -> 8.2 %; real clips 21.4 and 44.6 %), but foot contact
+  velocity rose 0.41 -> 0.46 m/s, skate 16.6 -> 17.7 %, muscle-limit violations 42.4 -> 44.5 %, and a guided 3 s
+  clip took 0.25-0.45 s longer against the 1 s budget; 3000 was no better on ZMP (5.3 %) and worse on contact,
+  jerk and muscle-limit violations. So it is off; the API turns it on (``GuidanceConfig(w_zmp=300)``).
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -92,7 +100,7 @@ from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
 TERMS = ("angular_velocity", "foot_contact", "com_velocity", "com_acceleration", "activation", "ground",
-         "angular_jerk", "locomotion_speed", "posture")
+         "angular_jerk", "locomotion_speed", "posture", "zmp")
 
 
 @dataclass(frozen=True)
@@ -114,6 +122,7 @@ class GuidanceConfig:
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 1000.0
     w_posture: float = 3000.0
+    w_zmp: float = 0.0   # ZMP outside the stance support (`losses.zmp_support`, HUMOS Sec. 3.4); 0 skips the term
     contact_height: float = 0.05  # m: a foot point of the unguided sample this low and ... (`stance_mask`)
     stance_speed_ratio: float | None = 1.5  # ... slower than this x the clip's speed is in stance (None: height only)
     stance_speed_floor: float = 0.5  # m/s: ... or slower than this (the metrics' skate speed)
@@ -137,6 +146,8 @@ class Kinematics:
     feet: torch.Tensor
     com: torch.Tensor
     contact: torch.Tensor | None = None
+    zmp: torch.Tensor | None = None       # [B, T, 3], with ``loaded`` [B, T], when the ZMP term is on
+    loaded: torch.Tensor | None = None
 
 
 @dataclass
@@ -185,7 +196,9 @@ class Guide:
     def kinematics(self, z: torch.Tensor) -> Kinematics:
         """Decode latents [B, N, D], play them at the tempo when one is set, add the posture shift and put each
         clip on the floor (differentiable except for the floor offset)."""
+        from biomotion.body.balance import loaded_zero_moment_point, sampled_body_motion
         from biomotion.body.kinematics import (
+            body_coms,
             center_of_mass,
             forward_kinematics,
             points_in_ground,
@@ -207,7 +220,12 @@ class Guide:
         lift[PELVIS_TY] = 1.0
         down = offset[:, None, None]
         up = torch.tensor([0.0, 1.0, 0.0], dtype=q.dtype)
-        return Kinematics(q - down * lift, feet - down[..., None] * up, com - down * up, contact)
+        zmp = loaded = None
+        if self.config.w_zmp > 0:   # body motion by differences of the poses at hand (`sampled_body_motion`)
+            coms = body_coms(self.body, flat, poses).view(*q.shape[:2], -1, 3) - down[..., None] * up
+            bodies = sampled_body_motion(coms, poses.rotations.view(*q.shape[:2], -1, 3, 3), self.rate)
+            zmp, loaded = loaded_zero_moment_point(self.body, bodies)
+        return Kinematics(q - down * lift, feet - down[..., None] * up, com - down * up, contact, zmp, loaded)
 
     def contact(self, k: Kinematics) -> torch.Tensor:
         """[B, T, K] contact mask m_t of the foot points of decoded clips: the points of every contact channel the
@@ -233,6 +251,8 @@ class Guide:
         }
         if self.posture_target is not None:
             out["posture"] = losses.posture(k.q, self.posture_target)
+        if k.zmp is not None:
+            out["zmp"] = losses.zmp_support(k.zmp, k.loaded, k.feet, contact)
         if self.surrogate is not None:
             # a surrogate with contact features reads the foot heights computed above (the same points)
             heights = {"heights": k.feet[..., 1]} if self.surrogate_reads_feet else {}
