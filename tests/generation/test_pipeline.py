@@ -4,6 +4,7 @@ the shipped weights are exercised in test_generate_cli.py."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -70,6 +71,17 @@ def test_generate_shapes_and_guidance_lowers_its_loss(generator):
     for q in (out.q, out.unplanted, out.unguided):
         torch.testing.assert_close(q, apply_couplers(generator.body, q), rtol=0, atol=0)
 
+
+
+def test_the_zmp_term_is_off_by_default_and_when_on_pulls_the_zmp_towards_the_support(generator):
+    request = ActionRequest("squat", "normal", None, "squat")
+    off = generator.generate(request, seconds=1.0, seed=5, guidance_config=GuidanceConfig(iterations=3, ramp=1))
+    assert "zmp" not in off.history[0]
+    config = GuidanceConfig(iterations=12, ramp=1, quantize_at=None, lr=0.05, w_zmp=300.0)
+    out = generator.generate(request, seconds=1.0, seed=5, guidance_config=config)
+    first, last = out.history[0]["zmp"], out.history[-1]["zmp"]
+    assert math.isfinite(first) and math.isfinite(last) and torch.isfinite(out.q).all()
+    assert first > 0 and last < first
 
 def test_requantized_output_decodes_codebook_entries(generator):
     request = ActionRequest("squat", "normal", None, "squat")
