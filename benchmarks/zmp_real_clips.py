@@ -38,6 +38,7 @@ from biomotion.body.balance import zero_moment_point
 from biomotion.body.kinematics import torch_threads
 from biomotion.errors import BiomotionError
 from biomotion.evaluation.clips import CoordinateClip, body_model, build_temporary_cache, coordinate_set
+from biomotion.evaluation.generation import TRUNK_COORDINATES
 from biomotion.io.atomic import atomic_write
 from biomotion.metrics.contact import CONTACT_HEIGHT
 from biomotion.metrics.stability import support_margin
@@ -74,14 +75,13 @@ def clip_figures(model, clips: list[CoordinateClip]) -> list[dict[str, np.ndarra
     return out
 
 
-LUMBAR = ("lumbar_extension", "lumbar_bending", "lumbar_rotation")
 PELVIS = ("pelvis_tilt", "pelvis_list", "pelvis_rotation")
 
 
 def trunk_variants(motion: Motion, defaults: np.ndarray) -> dict[str, Motion]:
     """A measured-trunk clip as captured, with the trunk rigid to the pelvis, and with the trunk held about steady
     in the ground (module docstring); ``defaults`` are the canonical body's default coordinates."""
-    lumbar = [motion.names.index(n) for n in LUMBAR]
+    lumbar = [motion.names.index(n) for n in TRUNK_COORDINATES]
     pelvis = [motion.names.index(n) for n in PELVIS]
     rigid, steady = motion.values.copy(), motion.values.copy()
     rigid[:, lumbar] = defaults[lumbar]
