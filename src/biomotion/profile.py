@@ -6,6 +6,7 @@ an absent field is None and is masked downstream, never invented.
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -51,6 +52,10 @@ class Profile:
     def __post_init__(self) -> None:
         if self.sex is not None and self.sex not in SEXES:
             raise ValueError(f"sex must be one of {SEXES} or None, got {self.sex!r}")
+        for name in ("age", "height", "mass", "experience_years"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+                raise ValueError(f"{name} must be a number (SI units: m, kg, years), got {value!r}")
         for name, low, high in (("height", 0.3, 2.8), ("mass", 2.0, 400.0), ("age", 0.0, 130.0)):
             value = getattr(self, name)
             if value is not None and not low <= value <= high:

@@ -63,6 +63,7 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     (["--threads", "0"], "--threads must be at least 1, got 0"),
     (["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
      "--reference-action given 2 times for 1 --reference clips"),
+    (["--seconds", "0.1"], "--seconds 0.1 is 3 frames at 30 Hz; the physics metrics need 4"),
 ])
 def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, message):
     code = main(["generate", *args, "--action", "run", "--out", str(tmp_path / "o"),
@@ -70,6 +71,17 @@ def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, m
     assert code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # nothing half-written
+
+
+def test_a_profile_field_that_is_not_a_number_is_named(shipped, tmp_path, capsys):
+    profile = tmp_path / "person.yaml"
+    profile.write_text("age: fifty\nmass: 70\n")
+    code = main(["generate", "--profile", str(profile), "--action", "run", "--out", str(tmp_path / "o"),
+                 "--data-root", str(data_path("."))])
+    assert code == 2
+    assert "person.yaml: invalid profile: age must be a number (SI units: m, kg, years), got 'fifty'" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_reference_clip_centres_the_motion_on_the_persons_posture(shipped, tmp_path, capsys):

@@ -54,6 +54,8 @@ CHECKPOINTS = Path(__file__).resolve().parents[3] / "checkpoints"
 TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE = (
     "tokenizer.safetensors", "generator.safetensors", "population.safetensors", "surrogate.safetensors")
 MAX_LATENTS = 128
+#: Fewest frames a clip may have: the physics metrics difference positions twice (`biomotion.metrics.base`).
+MIN_FRAMES = 4
 PRIME_TOKENS = 8  # codes of a reference that prime the prior: 32 frames, about one running stride
 #: Sampling temperature: at 1.0 the example runner's stride frequency wandered (1.19 +- 0.28 Hz over 8 samples of
 #: 4 s), at 0.7 it is a steady 1.42 +- 0.09 Hz (measured on examples/runner_52_acl.yaml only, never on evaluation
@@ -194,6 +196,10 @@ class Generator:
         ``biodata`` False masks the profile's biodata in the prior's condition (`condition`)."""
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
+        if round(seconds * self.rate) < MIN_FRAMES:
+            raise ConfigError(f"--seconds {seconds} is {round(seconds * self.rate)} frames at {self.rate:g} Hz; the "
+                              f"physics metrics need {MIN_FRAMES} (velocities and accelerations by differences): "
+                              f"ask for at least {MIN_FRAMES / self.rate:.2f} s")
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         speed = None
