@@ -65,3 +65,13 @@ def test_analyze_points_marker_input_to_retarget(tmp_path, capsys):
     model = data_path("opencap/Subject4/Models/optimized_scale_and_markers.osim")
     assert main(["analyze", str(trc), "--model", str(model), "--out", str(tmp_path)]) == 2
     assert "biomotion retarget" in capsys.readouterr().err
+
+
+def test_analyze_names_motion_columns_the_model_lacks(tmp_path, capsys):
+    """OpenCap's full-body coordinates on gait2392 (no arms): the ten arm columns are named, the rest analysed."""
+    motion = data_path("opencap/Subject4/IK/walking1_ik.mot")
+    model = data_path("opensim-models/Models/Gait2392_Simbody/gait2392_millard2012muscle.osim")
+    assert main(["analyze", str(motion), "--model", str(model), "--out", str(tmp_path), "--no-figures"]) == 0
+    err = capsys.readouterr().err
+    assert "10 column(s) name no coordinate of 3DGaitModel2392 and are ignored: arm_flex_r, arm_add_r" in err
+    assert (tmp_path / "torques.sto").exists()

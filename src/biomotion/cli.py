@@ -151,6 +151,10 @@ def _analyze(args: argparse.Namespace) -> int:
                           f"first with `biomotion retarget {args.trial} --model {args.model} --out DIR`")
     motion = read_motion(args.trial)
     model = BodyModel.from_osim(args.model)
+    ignored = [name for name in motion.names if name not in model.coordinate_names]
+    if ignored:
+        print(f"biomotion: warning: {args.trial}: {len(ignored)} column(s) name no coordinate of {model.name} and "
+              f"are ignored: {', '.join(ignored)}", file=sys.stderr)
     forces = None
     if args.grf is not None:
         data = read_any(args.grf)
