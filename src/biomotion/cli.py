@@ -274,11 +274,20 @@ def _eval(args: argparse.Namespace) -> int:
             raise ConfigError("eval reference needs --json FILE and --md FILE")
         reference_command(args.data_root, args.md, args.json, physics=not args.no_physics)
     else:
-        if not args.pred or args.json is None or args.md is None:
-            raise ConfigError("eval needs --pred PATH..., --json FILE and --md FILE")
+        from biomotion.evaluation.harness import evaluation_markdown
+
+        if not args.pred:
+            raise ConfigError("eval needs --pred PATH... (and --ref PATH... to compare), or a mode: reference, "
+                              "generation")
         single = lambda paths: paths[0] if paths and len(paths) == 1 else paths  # noqa: E731 - a folder or files
-        eval_command(single(args.pred), single(args.ref), args.data_root, args.json, args.md,
-                     plots_dir=args.plots, physics=args.physics)
+        result = eval_command(single(args.pred), single(args.ref), args.data_root, args.json, args.md,
+                              plots_dir=args.plots, physics=args.physics)
+        if args.md is None:
+            print(evaluation_markdown(result))
+        written = [str(path) for path in (args.json, args.md) if path is not None]
+        if written:
+            print(f"wrote {' and '.join(written)}")
+        return 0
     print(f"wrote {args.json} and {args.md}")
     return 0
 
@@ -534,9 +543,11 @@ def build_parser() -> argparse.ArgumentParser:
                                "profile-manipulation study")
     evaluate.add_argument("--pred", nargs="+", type=Path, help="predicted motion: files or one folder")
     evaluate.add_argument("--ref", nargs="+", type=Path, help="reference motion: files or one folder")
-    evaluate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    evaluate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+                          help="folder laid out like ../shared/data: the canonical model, and the subjects of "
+                               "reference and generation (default: %(default)s)")
     evaluate.add_argument("--json", type=Path, help="JSON report to write")
-    evaluate.add_argument("--md", type=Path, help="Markdown table to write")
+    evaluate.add_argument("--md", type=Path, help="Markdown table to write (--pred: printed when not given)")
     evaluate.add_argument("--plots", type=Path, help="folder for per-clip distribution plots")
     evaluate.add_argument("--physics", action="store_true",
                           help="also full-body energy and ZMP-in-support (slower)")

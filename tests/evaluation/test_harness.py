@@ -129,3 +129,13 @@ def test_unpairable_sets_are_refused(cache_set, model):
     with pytest.raises(BiomotionError, match="cannot pair"):
         evaluate(_take(cache_set, [0, 1]), _take(cache_set, [2]).__class__(
             **{**_take(cache_set, [2]).__dict__, "names": ("other",)}), model)
+
+
+def test_eval_without_report_files_prints_the_table_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    from biomotion.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["eval", "--pred", str(data_path(MOT_FILES[0])), "--data-root", str(data_path(""))]) == 0
+    out = capsys.readouterr().out
+    assert "| Generated | 1 |" in out and "Jerk (m/s³) ↓" in out and "wrote" not in out
+    assert list(tmp_path.iterdir()) == []

@@ -338,7 +338,8 @@ def plot_distributions(result: dict, plots_dir: str | Path) -> list[str]:
 
 def eval_command(pred, ref, data_root, json_path, md_path, plots_dir=None, *, physics: bool = False) -> dict:
     """`biomotion eval`: load ``pred`` and ``ref`` (a folder or files each: dataset cache, .mot/.sto, BVH; ``ref``
-    may be None), evaluate, write JSON and Markdown (and plots to ``plots_dir``); returns the result dict."""
+    may be None), evaluate, write JSON and Markdown where their paths are given (and plots to ``plots_dir``);
+    returns the result dict."""
     model = None
     pred_set = load_clip_set(pred, data_root, derivatives=physics)
     ref_set = None if ref is None else load_clip_set(ref, data_root, derivatives=physics)
@@ -348,8 +349,10 @@ def eval_command(pred, ref, data_root, json_path, md_path, plots_dir=None, *, ph
     result["inputs"] = {"pred": _names(pred), "ref": None if ref is None else _names(ref)}
     if plots_dir is not None:
         result["plots"] = plot_distributions(result, plots_dir)
-    write_json(json_path, result)
-    write_text(md_path, evaluation_markdown(result))
+    if json_path is not None:
+        write_json(json_path, result)
+    if md_path is not None:
+        write_text(md_path, evaluation_markdown(result))
     return result
 
 
