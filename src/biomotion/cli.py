@@ -52,7 +52,8 @@ def _data_augment(args: argparse.Namespace) -> int:
 
         model = body_model(args.data_root)
     manifest = augmented_cache(args.cache, args.out, args.time_warp, posture_copies=args.posture_copies,
-                               model=model, seed=args.seed, split=args.split, progress=not args.quiet)
+                               model=model, seed=args.seed, split=args.split, sources=args.source or (),
+                               progress=not args.quiet)
     counts = manifest["counts"]
     kinds = [f"time-warped x{', x'.join(f'{f:g}' for f in args.time_warp)}"] if args.time_warp else []
     kinds += [f"{args.posture_copies} posture offset(s) each"] if args.posture_copies > 0 else []
@@ -360,6 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
                          help="data root holding the canonical model, for posture copies (default: %(default)s)")
     augment.add_argument("--split", default="train", choices=("train", "val", "test"),
                          help="split whose clips are copied (default: %(default)s)")
+    augment.add_argument("--source", action="append", metavar="NAME",
+                         help="copy only the clips of this source (repeatable; default: every source); the other "
+                              "sources' clips are kept without copies")
     augment.add_argument("--quiet", action="store_true", help="no progress bar")
     augment.set_defaults(run=_data_augment)
     sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")

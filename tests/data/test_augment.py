@@ -27,7 +27,7 @@ def test_copies_replay_each_training_clip_faster_and_slower(tmp_path, hamner):
     assert len(train) == len(hamner) == 6                        # Hamner's three subjects all hash to train
     assert len(warped) == len(hamner) + 2 * len(train)
     assert warped.manifest["augmentation"] == {"time_warp": [0.8, 1.25], "posture_copies": 0, "seed": 0,
-                                               "split": "train", "from": str(hamner.folder),
+                                               "split": "train", "sources": "all", "from": str(hamner.folder),
                                                "copies": 12}
     for i in range(len(hamner)):                                 # the originals unchanged, first
         assert warped.records[i] == hamner.records[i]
@@ -51,6 +51,14 @@ def test_copies_replay_each_training_clip_faster_and_slower(tmp_path, hamner):
                                         rel=0.03)
     counts = json.loads((out / "manifest.json").read_text())["counts"]
     assert counts["clips"] == len(warped) and counts["per_split"] == {"train": 18}
+
+
+def test_copies_of_named_sources_only(tmp_path, hamner):
+    manifest = augmented_cache(hamner.folder, tmp_path / "named", [1.1], sources=["hamner"], progress=False)
+    assert manifest["augmentation"]["sources"] == ["hamner"] and manifest["augmentation"]["copies"] == 6
+    with pytest.raises(ConfigError, match="no clips of source.s. fukuchi"):
+        augmented_cache(hamner.folder, tmp_path / "none", [1.1], sources=["hamner", "fukuchi"], progress=False)
+    assert not (tmp_path / "none").exists()
 
 
 def test_bad_factors_and_same_folder_are_refused(tmp_path, hamner):

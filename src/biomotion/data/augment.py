@@ -52,8 +52,10 @@ MIN_FRAMES = 20
 
 
 def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float] = (), *, posture_copies: int = 0,
-                    model: BodyModel | None = None, seed: int = 0, split: str = "train", progress: bool = True) -> dict:
-    """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips: played ``factors`` times
+                    model: BodyModel | None = None, seed: int = 0, split: str = "train", sources: Sequence[str] = (),
+                    progress: bool = True) -> dict:
+    """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips (of ``sources`` only, when
+    given; the other clips are kept as they are): played ``factors`` times
     faster, and ``posture_copies`` with random marker-placement offsets (`biomotion.data.posture`, needs the
     canonical ``model``; offsets drawn from ``seed``, a draw that would leave a joint range is drawn again, at
     most `POSTURE_DRAWS` times). Returns the new manifest. Files are written atomically, the manifest last."""
@@ -73,7 +75,10 @@ def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float]
     values, masks = [source.values], [source.masks.astype(np.uint8)]
     records = list(source.records)
     offset = int(source.values.shape[0])
-    chosen = source.indices(split=split)
+    unknown = sorted(set(sources) - {r["source"] for r in source.records})
+    if unknown:
+        raise ConfigError(f"the cache {source.folder} has no clips of source(s) {', '.join(unknown)}")
+    chosen = [i for i in source.indices(split=split) if not sources or source.records[i]["source"] in sources]
     if not chosen:
         raise ConfigError(f"the cache {source.folder} has no {split!r} clips to augment")
     rng = np.random.default_rng(seed)
@@ -124,7 +129,7 @@ def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float]
     manifest = {**source.manifest, "clips": records,
                 "counts": _counts([ClipRecord(**{k: r[k] for k in fields}) for r in records]),
                 "augmentation": {"time_warp": list(factors), "posture_copies": posture_copies, "seed": seed,
-                                 "split": split, "from": str(source.folder),
+                                 "split": split, "sources": sorted(sources) or "all", "from": str(source.folder),
                                  "copies": len(records) - len(source.records)},
                 "build_seconds": round(time.perf_counter() - started, 2)}
     with atomic_write(out / MANIFEST) as handle:
