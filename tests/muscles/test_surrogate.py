@@ -19,6 +19,8 @@ from biomotion.muscles.surrogate import (
     MuscleSurrogate,
     SurrogateConfig,
     finite_differences,
+    smooth,
+    smoothing_taps,
 )
 from tests.conftest import DATA_ROOT, REPO, data_path
 
@@ -79,6 +81,55 @@ def test_finite_differences_are_exact_on_a_parabola_with_replicated_edges():
         velocity[0, -2, 0])
     torch.testing.assert_close(acceleration, torch.full_like(q, 6.0))
     assert velocity.shape == q.shape
+
+
+def test_smoothing_is_the_labels_zero_lag_low_pass_as_a_convolution():
+    """The labels' 6 Hz filter (`Motion.smoothed`: half the signal padded by odd reflection, order-3 Butterworth
+    forward and back) and the surrogate's FIR agree to 1e-4 of the signal's spread over a whole clip, ends
+    included; a linear ramp passes unchanged (odd reflection keeps the slope)."""
+    from biomotion.motion import lowpass
+
+    taps = smoothing_taps(6.0, 30.0)
+    assert taps.shape[0] % 2 == 1 and float(taps.sum()) == pytest.approx(1.0)
+    torch.testing.assert_close(taps, taps.flip(0))
+    x = np.cumsum(np.random.default_rng(0).normal(size=(90, 3)), axis=0)
+    pad = len(x) // 2
+    padded = np.concatenate([2 * x[0] - x[pad:0:-1], x, 2 * x[-1] - x[-2:-pad - 2:-1]])
+    reference = lowpass(padded, 30.0, 6.0, 3)[pad:pad + len(x)]
+    ours = smooth(torch.as_tensor(x)[None], taps.double())[0].numpy()
+    assert np.abs(ours - reference).max() < 1e-4 * x.std()
+    ramp = torch.linspace(0, 1, 40, dtype=torch.float64)[None, :, None]
+    torch.testing.assert_close(smooth(ramp, taps.double()), ramp)
+    assert smooth(ramp[:, :5], taps.double()).shape == (1, 5, 1)   # shorter than the filter: edge padding
+
+
+def test_smoothed_features_widen_the_input_and_keep_gradients(tmp_path):
+    with pytest.raises(ConfigError, match="smooth_hz"):
+        SurrogateConfig.from_dict({"smooth_hz": 15.0})
+    model = MuscleSurrogate(NAMES, SurrogateConfig(width=16, depth=1, dropout=0.0, smooth_hz=6.0)).eval()
+    q, mask = _batch()
+    q.requires_grad_(True)
+    assert model.raw_features(q, mask).shape[-1] == 2 * N_FEATURES
+    model(q, mask).sum().backward()
+    assert torch.isfinite(q.grad).all() and q.grad.abs().sum() > 0
+    model.save(tmp_path / "s.safetensors")
+    loaded = MuscleSurrogate.load(tmp_path / "s.safetensors").eval()
+    assert loaded.config.smooth_hz == 6.0
+    torch.testing.assert_close(loaded(q.detach(), mask), model(q.detach(), mask))
+
+
+def test_dilated_blocks_widen_the_receptive_field_to_its_stated_reach():
+    """Block i dilates by ``dilation ** i``: a change of q at one frame reaches the frames within 1 (the features'
+    central differences) + 2 (the stem) + 2 (1 + 3) (two blocks, kernel 5, dilation 3) = 11 of it, and no other."""
+    with pytest.raises(ConfigError, match="dilation"):
+        SurrogateConfig.from_dict({"dilation": 0})
+    torch.manual_seed(0)
+    model = MuscleSurrogate(NAMES, SurrogateConfig(width=16, depth=2, kernel=5, dropout=0.0, dilation=3)).eval()
+    q, mask = _batch(t=80)
+    moved = q.clone()
+    moved[:, 30, 3] += 0.5
+    changed = (model(moved, mask) - model(q, mask)).abs().amax(dim=(0, 2)) > 0
+    assert torch.equal(torch.nonzero(changed).flatten(), torch.arange(19, 42))
 
 
 def test_bounds_are_the_label_percentiles_and_drive_the_guidance_term():

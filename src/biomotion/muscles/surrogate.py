@@ -22,10 +22,26 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
   rest height taken over the whole clip), which a receptive field of 17 frames cannot see from the coordinates
   alone. The heights come from forward kinematics of the body given to the surrogate, or from the caller (guidance
   already has its foot points);
+- with ``config.smooth_hz`` > 0 (ours), the coordinates low-passed the way the labels' inverse dynamics low-passes
+  them (`smoothing_taps`: the zero-lag Butterworth's impulse response, 35 taps at 6 Hz and 30 Hz, wider than the
+  receptive field) and their velocities and accelerations. Measured once and not kept (2026-12-06, seed 0, the
+  shipped cache and settings, 27 minutes: ``python -m biomotion.muscles.train_surrogate --config <configs/
+  surrogate.yaml with model.smooth_hz 6.0> --cache build/dataset_lab_post --out build/surrogate_smooth.safetensors
+  --minutes 27 --iterations 40000 --threads 2``): held-out `surrogate_r2` 0.889 (one pass 0.874, pooled 0.909)
+  against 0.895 (0.879, 0.915), but after 24911 iterations against the shipped run's 37437, the machine slower that
+  day (the shipped recipe itself ran 19 against 25 iterations/s), so the comparison is not at equal work;
+- with ``config.dilation`` > 1 (ours), a wider receptive field at the same cost (WaveNet's dilated convolutions,
+  van den Oord et al. 2016). Measured once and not kept (2026-12-06, seed 0, the shipped cache and settings, the
+  shipped run's 37437 iterations, 31 minutes on that day's slower machine: ``python -m
+  biomotion.muscles.train_surrogate --config <configs/surrogate.yaml with model.dilation 2> --cache
+  build/dataset_lab_post --out build/surrogate_dil.safetensors --minutes 40 --iterations 37437 --threads 2``):
+  dilation 2 (33 frames, 1.1 s at 30 Hz) read held-out `surrogate_r2` 0.893 (one pass 0.881, pooled 0.913, COM
+  velocity 0.996) against 0.895 (0.879, 0.915, 0.997): a second of context does not help;
 
 standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
-replicate padding; receptive field 1 + 4 (1 + depth) frames) shared by two 1x1 heads: the activations (sigmoid)
-and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
+replicate padding; block i dilated by ``config.dilation ** i``, so the receptive field is 1 + (kernel - 1)
+(1 + sum_i dilation^i) frames: 17 with the shipped kernel 5, depth 3 and dilation 1) shared by two 1x1 heads:
+the activations (sigmoid) and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
 A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2), de-standardised with
 the ``com_mean``/``com_std`` buffers of the training labels. With ``config.members`` m > 1 (ours) the network is
 m such networks side by side, each ``width`` wide and started from its own random weights: one stem, then grouped
@@ -55,6 +71,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+import scipy.signal
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -77,13 +95,16 @@ DERIVATIVE_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n no
 N_FEATURES = len(POSITION_COORDS) + 2 * len(DERIVATIVE_COORDS)
 #: Quantile of a foot point's height over a sequence taken as its rest height (the labels' contact gate's rule).
 REST_QUANTILE = ContactSettings().rest_percentile / 100.0
+#: Order of one pass of the labels' coordinate low-pass (`biomotion.motion.Motion.smoothed`'s default).
+LABEL_FILTER_ORDER = 3
 
 
 @dataclass(frozen=True)
 class SurrogateConfig:
     """Network sizes. ``rate``: frame rate (Hz) of the q the surrogate is given; ``contact``: foot-contact
     features from forward kinematics of the canonical body; ``members``: networks of ``width`` channels averaged
-    (a deep ensemble; see the module docstring)."""
+    (a deep ensemble; see the module docstring); ``smooth_hz`` > 0: the coordinates low-passed at this cutoff,
+    and their derivatives, are features too (`smoothing_taps`); 0 leaves them out."""
 
     width: int = 128
     depth: int = 3
@@ -92,6 +113,8 @@ class SurrogateConfig:
     rate: float = DEFAULT_RATE
     contact: bool = False
     members: int = 1
+    smooth_hz: float = 0.0
+    dilation: int = 1
 
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
@@ -100,6 +123,11 @@ class SurrogateConfig:
             raise ConfigError(f"surrogate kernel must be odd, got {config.kernel}")
         if config.members < 1:
             raise ConfigError(f"surrogate members must be at least 1, got {config.members}")
+        if config.dilation < 1:
+            raise ConfigError(f"surrogate dilation must be at least 1, got {config.dilation}")
+        if not 0.0 <= config.smooth_hz < config.rate / 2:
+            raise ConfigError(f"surrogate smooth_hz must be 0 (off) or below the Nyquist frequency {config.rate / 2:g} "
+                              f"Hz, got {config.smooth_hz}")
         return config
 
 
@@ -119,12 +147,45 @@ def finite_differences(q: torch.Tensor, rate: float) -> tuple[torch.Tensor, torc
     return torch.zeros_like(q), torch.zeros_like(q)
 
 
+def smoothing_taps(cutoff_hz: float, rate: float, order: int = LABEL_FILTER_ORDER, tail: float = 1e-4
+                   ) -> torch.Tensor:
+    """The impulse response of the labels' zero-lag Butterworth low-pass (`biomotion.motion.lowpass`: ``order``
+    per pass, run forward and backward) as a symmetric FIR [2K + 1], cut where its taps fall below ``tail`` of the
+    peak. A convolution with it low-passes q the way `biomotion.muscles.surrogate_labels` does before its inverse
+    dynamics, differentiably and in one batched operation."""
+    sos = scipy.signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
+    n = 8 * int(np.ceil(rate / cutoff_hz)) + 1
+    impulse = np.zeros(2 * n + 1)
+    impulse[n] = 1.0
+    response = scipy.signal.sosfiltfilt(sos, impulse, padlen=0)
+    k = int(np.max(np.flatnonzero(np.abs(response) >= tail * np.abs(response).max())) - n)
+    taps = response[n - k:n + k + 1]
+    return torch.as_tensor(taps / taps.sum(), dtype=torch.float32)
+
+
+def smooth(q: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
+    """q [B, T, n] convolved along T with symmetric ``taps`` [2K + 1] (one depthwise convolution); the ends are
+    extended by odd reflection (value and slope kept, as `biomotion.motion.Motion.smoothed` pads) when T > K, else
+    by their edge value."""
+    k = (len(taps) - 1) // 2
+    if q.shape[-2] > k:
+        head = 2 * q[..., :1, :] - q[..., 1:k + 1, :].flip(-2)
+        tail = 2 * q[..., -1:, :] - q[..., -k - 1:-1, :].flip(-2)
+    else:
+        head, tail = q[..., :1, :].expand(*q.shape[:-2], k, -1), q[..., -1:, :].expand(*q.shape[:-2], k, -1)
+    padded = torch.cat([head, q, tail], dim=-2).transpose(-1, -2)
+    channels = q.shape[-1]
+    weight = taps.to(q.dtype).view(1, 1, -1).expand(channels, 1, -1)
+    return F.conv1d(padded, weight, groups=channels).transpose(-1, -2)
+
+
 class _Block(nn.Module):
     """x + Conv1x1(Dropout(GELU(Conv_k(GELU(x)))))."""
 
-    def __init__(self, width: int, kernel: int, dropout: float, groups: int = 1) -> None:
+    def __init__(self, width: int, kernel: int, dropout: float, groups: int = 1, dilation: int = 1) -> None:
         super().__init__()
-        self.conv = nn.Conv1d(width, width, kernel, padding=kernel // 2, padding_mode="replicate", groups=groups)
+        self.conv = nn.Conv1d(width, width, kernel, padding=dilation * (kernel // 2), padding_mode="replicate",
+                              groups=groups, dilation=dilation)
         self.mix = nn.Conv1d(width, width, 1, groups=groups)
         self.dropout = nn.Dropout(dropout)
 
@@ -158,9 +219,13 @@ class MuscleSurrogate(nn.Module):
             self.points = foot_points(self.body)
             self.point_mirror = torch.as_tensor(mirror_permutation(self.points.names))
             n_features += 2 * len(self.points.names)
+        if config.smooth_hz > 0:
+            self.register_buffer("taps", smoothing_taps(config.smooth_hz, config.rate), persistent=False)
+            n_features += N_FEATURES
         w, k, m = config.width * config.members, config.kernel, config.members
         self.stem = nn.Conv1d(n_features, w, k, padding=k // 2, padding_mode="replicate")
-        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout, m) for _ in range(config.depth)])
+        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout, m, config.dilation ** i)
+                                      for i in range(config.depth)])
         self.head = nn.Conv1d(w, m * len(self.names), 1, groups=m)
         self.com_head = nn.Conv1d(w, m * len(COM_OUTPUTS), 1, groups=m)
         self.register_buffer("mean", torch.zeros(n_features))
@@ -207,6 +272,10 @@ class MuscleSurrogate(nn.Module):
         velocity, acceleration = finite_differences(q, self.config.rate)
         d = list(DERIVATIVE_COORDS)
         parts = [q[..., list(POSITION_COORDS)], velocity[..., d], acceleration[..., d]]
+        if self.config.smooth_hz > 0:
+            low = smooth(q, self.taps)
+            low_velocity, low_acceleration = finite_differences(low, self.config.rate)
+            parts += [low[..., list(POSITION_COORDS)], low_velocity[..., d], low_acceleration[..., d]]
         if self.config.contact:
             heights = self.foot_heights(q) if heights is None else heights.to(q.dtype)
             above = heights - torch.quantile(heights, REST_QUANTILE, dim=-2, keepdim=True)
