@@ -1,5 +1,6 @@
 """The `biomotion` command: --help on every verb, one-line errors with exit status 2, convert round trips."""
 
+import json
 import subprocess
 import sys
 
@@ -43,6 +44,21 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
     assert main(["inspect", str(broken)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "broken.mot" in err and "endheader" in err
+
+
+def test_inspect_recognises_a_subject_table(tmp_path, capsys):
+    """participantInfo.csv is a subject table, not a motion CSV: inspect names its schema and counts, per profile
+    field, the runners that have it (the file: 300 rows, one per capture, of 25 runners; 9 answer Injury 'Yes')."""
+    assert main(["inspect", str(data_path("fukuchi-running/participantInfo.csv"))]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["kind"], summary["schema"], summary["subjects"]) == ("SubjectTable", "fukuchi", 25)
+    assert summary["subjects_with_field"]["mass"] == 25 and summary["subjects_with_field"]["injuries"] == 9
+    table = tmp_path / "people.csv"
+    table.write_text("subject_id,sex,age_years,height_m,mass_kg\ns1,F,52,1.68,61\ns2,M,,1.80,\n")
+    assert main(["inspect", str(table)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["subjects"] == 2 and summary["subjects_with_field"]["age"] == 1
+    assert summary["subjects_with_field"]["height"] == 2 and summary["subjects_with_field"]["mass"] == 1
 
 
 def test_convert_mot_to_csv_and_back(tmp_path):

@@ -569,7 +569,8 @@ def build_parser() -> argparse.ArgumentParser:
                                "(default: %(default)s)")
     evaluate.set_defaults(run=_eval)
 
-    inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units)")
+    inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units; for a subject "
+                                                "table its schema, subjects and profile fields)")
     inspect.add_argument("input", type=Path)
     inspect.set_defaults(run=_inspect)
     return parser

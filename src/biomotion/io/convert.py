@@ -97,7 +97,12 @@ def convert(source: str | Path, target: str | Path) -> Path:
 
 
 def describe(path: str | Path) -> dict[str, Any]:
-    """A short JSON-able summary of a file: kind, frames, rate, duration, channel names."""
+    """A short JSON-able summary of a file: kind, frames, rate, duration, channel names; for a subject table
+    (`biomotion.io.tables`: Fukuchi participantInfo, ANSUR II, ...) its schema, subjects and fields."""
+    from biomotion.io.tables import describe_subject_table, table_schema
+
+    if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") and table_schema(path) is not None:
+        return describe_subject_table(path)
     data = read_any(path)
     summary: dict[str, Any] = {"file": str(path), "kind": type(data).__name__}
     series = []

@@ -203,6 +203,28 @@ def detect_mapping(header: list[str]) -> ColumnMapping:
     raise DataFormatError(None, "unknown subject-table schema; columns are: " + ", ".join(header))
 
 
+def table_schema(path: str | Path) -> ColumnMapping | None:
+    """The known subject-table schema of the table at ``path`` (.csv, .tsv, .txt, .xlsx), or None when its header
+    matches none, or it is not a table."""
+    try:
+        header, _ = _read_rows(Path(path))
+        return detect_mapping(header)
+    except DataFormatError:
+        return None
+
+
+def describe_subject_table(path: str | Path) -> dict[str, Any]:
+    """What a subject table holds, for ``biomotion inspect``: its schema, how many subjects, and per profile field
+    how many subjects the table gives it (absent values are masked downstream, not invented)."""
+    profiles = read_subject_table(path)
+    fields = ("age", "sex", "height", "mass", "dominance", "sport", "level", "experience_years")
+    return {"file": str(path), "kind": "SubjectTable", "schema": detect_mapping(_read_rows(Path(path))[0]).name,
+            "subjects": len(profiles), "first_subjects": list(profiles)[:5],
+            "subjects_with_field": {name: sum(getattr(p, name) is not None for p in profiles.values())
+                                    for name in fields}
+            | {"injuries": sum(bool(p.injuries) for p in profiles.values())}}
+
+
 def read_subject_table(path: str | Path, mapping: str | ColumnMapping = "auto") -> dict[str, Profile]:
     """Read a subject table into ``{subject_id: Profile}`` (SI units; absent values None)."""
     path = Path(path)
