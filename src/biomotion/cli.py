@@ -391,8 +391,8 @@ def build_parser() -> argparse.ArgumentParser:
     convert = verbs.add_parser(
         "convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)",
         description="Read INPUT in any supported format and write OUTPUT in the format its suffix names: "
-                    "coordinates .mot/.sto/.csv, markers .trc/.csv (from .trc, .c3d or BVH joint positions), "
-                    "skeletons .bvh/.bvh.gz.")
+                    "coordinates .mot/.sto/.csv, markers .trc/.c3d/.csv (from .trc, .c3d or BVH joint positions; "
+                    ".c3d output holds the markers only, in mm), skeletons .bvh/.bvh.gz.")
     convert.add_argument("input", type=Path)
     convert.add_argument("output", type=Path)
     convert.set_defaults(run=_convert)

@@ -84,6 +84,13 @@ def convert(source: str | Path, target: str | Path) -> Path:
         if markers is None:
             raise ConfigError(f"{source}: holds no markers or joint positions to write as .trc")
         return write_trc(target, markers)
+    if suffix == ".c3d":
+        from biomotion.io.c3d_writer import write_c3d
+
+        markers = _markers_of(data)
+        if markers is None:
+            raise ConfigError(f"{source}: holds no markers or joint positions to write as .c3d")
+        return write_c3d(target, markers)
     if suffix == ".csv":
         from biomotion.io.csvfile import write_markers_csv, write_motion_csv
 
@@ -93,7 +100,7 @@ def convert(source: str | Path, target: str | Path) -> Path:
         if markers is not None:
             return write_markers_csv(target, markers)
         raise ConfigError(f"{source}: nothing to write as CSV")
-    raise ConfigError(f"{target}: unsupported output format {suffix!r} (use .mot .sto .trc .bvh .bvh.gz .csv)")
+    raise ConfigError(f"{target}: unsupported output format {suffix!r} (use .mot .sto .trc .c3d .bvh .bvh.gz .csv)")
 
 
 def describe(path: str | Path) -> dict[str, Any]:
