@@ -61,6 +61,26 @@ def test_inspect_recognises_a_subject_table(tmp_path, capsys):
     assert summary["subjects_with_field"]["height"] == 2 and summary["subjects_with_field"]["mass"] == 1
 
 
+def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
+    """inspect MODEL.osim: bodies, mass, markers, muscles and coordinates as OpenSim 4.6 (the oracle) counts them
+    on Rajagopal 2016 (80 muscles, README of opensim-models), locked coordinates marked."""
+    osim = pytest.importorskip("opensim", reason="OpenSim is the oracle for the counts")
+    path = data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
+    assert main(["inspect", str(path)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    model = osim.Model(str(path))
+    state = model.initSystem()
+    assert summary["kind"] == "OpenSimModel" and summary["muscles"] == model.getMuscles().getSize() == 80
+    assert summary["bodies"] == model.getBodySet().getSize()
+    assert summary["markers"] == model.getMarkerSet().getSize()
+    assert summary["total_mass_kg"] == pytest.approx(model.getTotalMass(state), abs=1e-3)
+    assert len(summary["coordinates"]) == model.getCoordinateSet().getSize()
+    locked = {model.getCoordinateSet().get(i).getName() for i in range(model.getCoordinateSet().getSize())
+              if model.getCoordinateSet().get(i).getDefaultLocked()}
+    assert {name for name, text in summary["coordinates"].items() if "locked" in text} == locked
+    assert summary["coordinates"]["knee_angle_r"] == "0 to 120 deg"
+
+
 def test_convert_mot_to_csv_and_back(tmp_path):
     source = data_path("opencap/Subject4/IK/DJ2_ik.mot")
     assert main(["convert", str(source), str(tmp_path / "dj2.csv")]) == 0

@@ -570,7 +570,8 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.set_defaults(run=_eval)
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units; for a subject "
-                                                "table its schema, subjects and profile fields)")
+                                                "table its schema, subjects and profile fields; for an .osim model "
+                                                "its bodies, mass, coordinates, markers and muscles)")
     inspect.add_argument("input", type=Path)
     inspect.set_defaults(run=_inspect)
     return parser

@@ -48,6 +48,23 @@ def read_any(path: str | Path) -> Any:
     raise ConfigError(f"{path}: unsupported format {suffix!r} (supported: .mot .sto .trc .c3d .bvh .bvh.gz .csv)")
 
 
+def _describe_model(path: Path) -> dict[str, Any]:
+    """`biomotion.io.osim.model_summary` and the model's muscles (count and type), if it has any."""
+    from biomotion.errors import DataFormatError
+    from biomotion.io.osim import model_summary, read_osim
+    from biomotion.muscles.properties import read_muscles
+
+    summary = model_summary(read_osim(path))
+    try:
+        muscles = read_muscles(path)
+    except DataFormatError:   # no enabled muscle of a supported type
+        summary["muscles"] = 0
+    else:
+        summary["muscles"] = len(muscles.names)
+        summary["muscle_types"] = sorted(set(muscles.kinds))
+    return summary
+
+
 def _markers_of(data: Any) -> Markers | None:
     if isinstance(data, Markers):
         return data
@@ -105,11 +122,14 @@ def convert(source: str | Path, target: str | Path) -> Path:
 
 def describe(path: str | Path) -> dict[str, Any]:
     """A short JSON-able summary of a file: kind, frames, rate, duration, channel names; for a subject table
-    (`biomotion.io.tables`: Fukuchi participantInfo, ANSUR II, ...) its schema, subjects and fields."""
+    (`biomotion.io.tables`: Fukuchi participantInfo, ANSUR II, ...) its schema, subjects and fields; for an .osim
+    model its bodies, mass, joints, coordinates with their ranges, markers and muscles."""
     from biomotion.io.tables import describe_subject_table, table_schema
 
     if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") and table_schema(path) is not None:
         return describe_subject_table(path)
+    if suffix_of(Path(path)) == ".osim":
+        return _describe_model(Path(path))
     data = read_any(path)
     summary: dict[str, Any] = {"file": str(path), "kind": type(data).__name__}
     series = []

@@ -14,6 +14,8 @@ Frames are named by their absolute OpenSim component path (``/ground``, ``/bodys
 
 from __future__ import annotations
 
+import math
+
 import posixpath
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -606,6 +608,26 @@ def _check(spec: ModelSpec, doc: _Doc) -> None:
         for c in (*coupler.independent, coupler.dependent):
             if c not in known:
                 raise ModelError(f"{spec.path}: coupler {coupler.name!r} names unknown coordinate {c!r}")
+
+
+def model_summary(spec: ModelSpec) -> dict:
+    """What an .osim model holds, for ``biomotion inspect``: counts, total mass, joint types, and each coordinate's
+    type and range (degrees for rotations, metres for translations), with the locked and coupled ones named."""
+    joint_types: dict[str, int] = {}
+    for joint in spec.joints:
+        joint_types[joint.type] = joint_types.get(joint.type, 0) + 1
+    coupled = {c.dependent for c in spec.couplers}
+
+    def shown(c: CoordinateSpec) -> str:
+        scale, unit = (1.0, "m") if c.motion_type == "translational" else (180.0 / math.pi, "deg")
+        tags = [t for t, on in (("locked", c.locked), ("coupled", c.name in coupled)) if on]
+        return f"{c.range[0] * scale:.4g} to {c.range[1] * scale:.4g} {unit}" + "".join(f", {t}" for t in tags)
+
+    return {"file": spec.path, "kind": "OpenSimModel", "name": spec.name, "version": spec.version,
+            "bodies": len(spec.bodies), "total_mass_kg": round(sum(b.mass for b in spec.bodies), 4),
+            "joints": len(spec.joints), "joint_types": joint_types, "coordinates": {c.name: shown(c)
+                                                                                   for c in spec.coordinates},
+            "markers": len(spec.markers), "contact_geometry": len(spec.contact_geometry)}
 
 
 def read_scale_set(path: str | Path) -> tuple[ScaleSpec, ...]:
