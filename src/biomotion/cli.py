@@ -74,7 +74,7 @@ def _data_sources(args: argparse.Namespace) -> int:
 def _convert(args: argparse.Namespace) -> int:
     from biomotion.io.convert import convert
 
-    written = convert(args.input, args.output)
+    written = convert(args.input, args.output, model=args.model)
     print(f"wrote {written}")
     return 0
 
@@ -392,9 +392,13 @@ def build_parser() -> argparse.ArgumentParser:
         "convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)",
         description="Read INPUT in any supported format and write OUTPUT in the format its suffix names: "
                     "coordinates .mot/.sto/.csv, markers .trc/.c3d/.csv (from .trc, .c3d or BVH joint positions; "
-                    ".c3d output holds the markers only, in mm), skeletons .bvh/.bvh.gz.")
+                    ".c3d output holds the markers only, in mm), skeletons .bvh/.bvh.gz. With --model, INPUT "
+                    "holds coordinates of that model, which become a BVH skeleton of its bodies (.bvh), its "
+                    "markers by forward kinematics (.trc, .c3d) or the coordinates in model order (.mot, .sto, "
+                    ".csv).")
     convert.add_argument("input", type=Path)
     convert.add_argument("output", type=Path)
+    convert.add_argument("--model", type=Path, help="the .osim model whose coordinates INPUT holds")
     convert.set_defaults(run=_convert)
 
     generate = verbs.add_parser(

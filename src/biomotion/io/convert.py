@@ -73,12 +73,47 @@ def _markers_of(data: Any) -> Markers | None:
     return getattr(data, "markers", None)
 
 
-def convert(source: str | Path, target: str | Path) -> Path:
-    """Read ``source`` and write ``target`` in the format its suffix names; raises ConfigError if impossible."""
+def _on_model(motion: Motion, model_path: Path, target: Path, suffix: str) -> Any:
+    """What coordinates on their model become for ``suffix``: a BVH clip of the model's bodies
+    (`biomotion.body.bvh_export`), the model's markers by forward kinematics (.trc, .c3d), or the coordinates in
+    model order with coupled ones filled (.mot, .sto, .csv)."""
+    import torch
+
+    from biomotion.analysis import model_motion
+    from biomotion.body.kinematics import marker_positions
+    from biomotion.body.model import BodyModel
+
+    model = BodyModel.from_osim(model_path)
+    coordinates = model_motion(motion, model)
+    if suffix in (".bvh", ".bvh.gz"):
+        from biomotion.body.bvh_export import motion_to_bvh
+
+        return motion_to_bvh(model, coordinates)
+    if suffix in (".trc", ".c3d"):
+        if not model.marker_names:
+            raise ConfigError(f"{model_path}: the model has no markers to write as {suffix}")
+        with torch.no_grad():
+            positions = marker_positions(model, torch.tensor(coordinates.values, dtype=model.dtype))
+        return Markers(times=coordinates.times, names=model.marker_names, positions=positions.numpy())
+    return coordinates
+
+
+def convert(source: str | Path, target: str | Path, *, model: str | Path | None = None) -> Path:
+    """Read ``source`` and write ``target`` in the format its suffix names; raises ConfigError if impossible.
+
+    ``model`` (an .osim file): ``source`` holds coordinates of that model, which then become what ``target``
+    asks for (`_on_model`: a BVH skeleton, the model's markers, or the coordinates completed)."""
     source, target = Path(source), Path(target)
     data = read_any(source)
     suffix = suffix_of(target)
+    if model is not None:
+        if not isinstance(data, Motion):
+            raise ConfigError(f"{source}: --model is for coordinates (.mot, .sto, .csv); this file holds "
+                              f"{type(data).__name__}")
+        data = _on_model(data, Path(model), target, suffix)
     if suffix in (".bvh", ".bvh.gz"):
+        if isinstance(data, Motion):
+            raise ConfigError(f"{source}: coordinates become a BVH skeleton only on their model: pass --model OSIM")
         if not hasattr(data, "skeleton"):
             raise ConfigError(f"{source}: only BVH input can be written as BVH (retarget other motion first)")
         from biomotion.io.bvh import write_bvh
@@ -99,14 +134,16 @@ def convert(source: str | Path, target: str | Path) -> Path:
 
         markers = _markers_of(data)
         if markers is None:
-            raise ConfigError(f"{source}: holds no markers or joint positions to write as .trc")
+            hint = " (coordinates: pass --model OSIM for the model's markers)" if isinstance(data, Motion) else ""
+            raise ConfigError(f"{source}: holds no markers or joint positions to write as .trc{hint}")
         return write_trc(target, markers)
     if suffix == ".c3d":
         from biomotion.io.c3d_writer import write_c3d
 
         markers = _markers_of(data)
         if markers is None:
-            raise ConfigError(f"{source}: holds no markers or joint positions to write as .c3d")
+            hint = " (coordinates: pass --model OSIM for the model's markers)" if isinstance(data, Motion) else ""
+            raise ConfigError(f"{source}: holds no markers or joint positions to write as .c3d{hint}")
         return write_c3d(target, markers)
     if suffix == ".csv":
         from biomotion.io.csvfile import write_markers_csv, write_motion_csv
