@@ -163,8 +163,9 @@ def describe(path: str | Path) -> dict[str, Any]:
     model its bodies, mass, joints, coordinates with their ranges, markers and muscles."""
     from biomotion.io.tables import describe_subject_table, table_schema
 
-    if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") and table_schema(path) is not None:
-        return describe_subject_table(path)
+    schema = table_schema(path) if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") else None
+    if schema is not None:
+        return describe_subject_table(path, schema)
     if suffix_of(Path(path)) == ".osim":
         return _describe_model(Path(path))
     data = read_any(path)

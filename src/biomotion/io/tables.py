@@ -213,12 +213,13 @@ def table_schema(path: str | Path) -> ColumnMapping | None:
         return None
 
 
-def describe_subject_table(path: str | Path) -> dict[str, Any]:
-    """What a subject table holds, for ``biomotion inspect``: its schema, how many subjects, and per profile field
-    how many subjects the table gives it (absent values are masked downstream, not invented)."""
-    profiles = read_subject_table(path)
+def describe_subject_table(path: str | Path, schema: ColumnMapping) -> dict[str, Any]:
+    """What a subject table of ``schema`` (`table_schema`) holds, for ``biomotion inspect``: how many subjects,
+    and per profile field how many subjects the table gives it (absent values are masked downstream, not
+    invented)."""
+    profiles = read_subject_table(path, schema)
     fields = ("age", "sex", "height", "mass", "dominance", "sport", "level", "experience_years")
-    return {"file": str(path), "kind": "SubjectTable", "schema": detect_mapping(_read_rows(Path(path))[0]).name,
+    return {"file": str(path), "kind": "SubjectTable", "schema": schema.name,
             "subjects": len(profiles), "first_subjects": list(profiles)[:5],
             "subjects_with_field": {name: sum(getattr(p, name) is not None for p in profiles.values())
                                     for name in fields}
