@@ -14,8 +14,8 @@ Frames are named by their absolute OpenSim component path (``/ground``, ``/bodys
 
 from __future__ import annotations
 
+import collections
 import math
-
 import posixpath
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -613,9 +613,7 @@ def _check(spec: ModelSpec, doc: _Doc) -> None:
 def model_summary(spec: ModelSpec) -> dict:
     """What an .osim model holds, for ``biomotion inspect``: counts, total mass, joint types, and each coordinate's
     type and range (degrees for rotations, metres for translations), with the locked and coupled ones named."""
-    joint_types: dict[str, int] = {}
-    for joint in spec.joints:
-        joint_types[joint.type] = joint_types.get(joint.type, 0) + 1
+    joint_types = dict(collections.Counter(joint.type for joint in spec.joints))
     coupled = {c.dependent for c in spec.couplers}
 
     def shown(c: CoordinateSpec) -> str:
