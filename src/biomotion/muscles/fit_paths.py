@@ -63,6 +63,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from biomotion.errors import ConfigError
 from biomotion.muscles.geometry import MusclePaths, PathGroup, basis
@@ -78,6 +79,7 @@ BALL_SAMPLES = 1        # extra samples around each differing pair
 RARE_BELOW = 400        # configurations seen fewer times (train + boundary samples) get extra samples around them
 RARE_BALL = 8           # ... this many per sample, within RARE_RADIUS (normalised coordinates)
 RARE_RADIUS = 0.15
+PROGRESS_FROM = 200     # sampling passes over this many poses show a progress bar
 MIN_PIECE = 20          # configurations seen fewer times get no piece of their own
 GATE_DEGREES = (4, 6, 8)
 OTHER_WEIGHT = 1e-3     # weight of other configurations' samples in a piece's fit (tames its extrapolation)
@@ -125,10 +127,14 @@ class OpenSimPaths:
             c.setValue(self.state, float(value), False)
         self.model.realizePosition(self.state)
 
+    def _poses(self, q: np.ndarray, what: str):
+        """``q``'s poses, with a progress bar on a pass of at least `PROGRESS_FROM` poses (the minutes of a fit)."""
+        return tqdm(q, desc=f"OpenSim {what}", unit="pose", leave=False, disable=len(q) < PROGRESS_FROM)
+
     def lengths(self, q: np.ndarray) -> np.ndarray:
         """[N, M] lengths at poses ``q`` [N, n_q] (dependent coordinates are overwritten by their couplers)."""
         out = np.empty((len(q), len(self.paths)))
-        for n, pose in enumerate(q):
+        for n, pose in enumerate(self._poses(q, "lengths")):
             self._set(pose)
             out[n] = [p.getLength(self.state) for p in self.paths]
         return out
@@ -145,7 +151,7 @@ class OpenSimPaths:
     def moment_arms(self, q: np.ndarray, pairs: list[tuple[int, int]]) -> np.ndarray:
         """[N, len(pairs)] OpenSim's own moment arms (``GeometryPath.computeMomentArm``) for (muscle, coordinate)."""
         out = np.empty((len(q), len(pairs)))
-        for n, pose in enumerate(q):
+        for n, pose in enumerate(self._poses(q, "moment arms")):
             self._set(pose)
             out[n] = [self.paths[m].computeMomentArm(self.state, self.coordinates[c]) for m, c in pairs]
         return out
@@ -178,7 +184,7 @@ class OpenSimPaths:
     def configurations(self, q: np.ndarray) -> list[list[str]]:
         """[N][M] path configurations at poses ``q``."""
         out = []
-        for pose in q:
+        for pose in self._poses(q, "path configurations"):
             self._set(pose)
             out.append([self.configuration(m) for m in range(len(self.paths))])
         return out
@@ -515,7 +521,7 @@ def fit_paths(model_path: str | Path, samples: int = 6000, seed: int = 0,
     by_span = defaultdict(list)   # coordinates -> [(muscle, exponents, coefficients [t, c], gates [t, c] or None)]
     report = {}
     start = 0
-    for m, span in enumerate(spans):
+    for m, span in enumerate(tqdm(spans, desc="fitting muscles", unit="muscle", leave=False)):
         arms = flat[:, start:start + len(span)]
         start += len(span)
         fitted, rep = fit_one_muscle(oracle, m, span, q, lengths[:, m], arms, [c[m] for c in configurations],
@@ -574,7 +580,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--range", action="append", default=[], metavar="COORD=LO:HI",
                         help="sample COORD in [LO, HI] (rad or m) instead of its model range")
     args = parser.parse_args(argv)
-    paths = fit_paths(args.model, args.samples, args.seed, dict(_parse_range(r) for r in args.range))
+    paths = fit_paths(args.model, args.samples, args.seed, dict(_parse_range(r) for r in args.range), log=tqdm.write)
     paths.save(args.out)
     info = paths.info
     print(f"{paths.n_muscles} muscles, {len(paths.groups)} groups; worst held-out moment-arm RMSE "
