@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,6 +32,19 @@ def test_every_verb_has_help(capsys):
         assert exit_info.value.code == 0
         out = capsys.readouterr().out
         assert "usage: biomotion" in out and len(out) > 100, path
+
+
+def test_the_data_root_defaults_to_the_environment_variable(monkeypatch, tmp_path):
+    """Without --data-root, commands read $BIOMOTION_DATA_ROOT (set once for a session run outside the project
+    folder), else ../shared/data; --data-root wins over both."""
+    monkeypatch.delenv("BIOMOTION_DATA_ROOT", raising=False)
+    assert build_parser().parse_args(["validate", "kinematics", "--json", "k.json"]).data_root == Path("../shared/data")
+    monkeypatch.setenv("BIOMOTION_DATA_ROOT", str(tmp_path))
+    parser = build_parser()
+    assert parser.parse_args(["validate", "kinematics", "--json", "k.json"]).data_root == tmp_path
+    assert parser.parse_args(["eval", "reference", "--data-root", "elsewhere"]).data_root == Path("elsewhere")
+    assert main(["validate", "kinematics", "--json", str(tmp_path / "k.json")]) == 0   # an empty root: all skipped
+    assert json.loads((tmp_path / "k.json").read_text())["fk_max_err_m"] is None
 
 
 def test_console_script_runs():

@@ -13,9 +13,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from biomotion import __version__
+from biomotion.data_root import ENVIRONMENT_VARIABLE, default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 
-DEFAULT_DATA_ROOT = Path("../shared/data")
 
 
 def _data_build(args: argparse.Namespace) -> int:
@@ -318,10 +318,13 @@ def _retarget(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    data_root = default_data_root()
     parser = argparse.ArgumentParser(
         prog="biomotion",
         description="Personalized, biomechanically plausible human motion: read captured motion, analyse it on a "
-                    "musculoskeletal model, build training data, generate and evaluate.")
+                    "musculoskeletal model, build training data, generate and evaluate.",
+        epilog=f"Commands that read the datasets take --data-root DIR; without it they read ${ENVIRONMENT_VARIABLE} "
+               f"when set, else ../shared/data from the working directory (now: {data_root}).")
     parser.add_argument("--version", action="version", version=f"biomotion {__version__}")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
@@ -334,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Read every registered source present under --data-root, resample to --rate with an "
                     "anti-alias filter, map coordinates by name onto Rajagopal 2016 (masks for absent ones), and "
                     "write clips.safetensors and manifest.json (counts per source, subject, action; splits).")
-    build.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+    build.add_argument("--data-root", type=Path, default=data_root,
                        help="folder laid out like ../shared/data (default: %(default)s)")
     build.add_argument("--out", type=Path, required=True, help="cache folder to write")
     build.add_argument("--rate", type=float, default=30.0, help="common rate in Hz (default: %(default)s)")
@@ -357,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
     augment.add_argument("--posture-copies", type=int, default=0, metavar="N",
                          help="posture-offset copies per clip (default: %(default)s)")
     augment.add_argument("--seed", type=int, default=0, help="seed of the posture offsets (default: %(default)s)")
-    augment.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+    augment.add_argument("--data-root", type=Path, default=data_root,
                          help="data root holding the canonical model, for posture copies (default: %(default)s)")
     augment.add_argument("--split", default="train", choices=("train", "val", "test"),
                          help="split whose clips are copied (default: %(default)s)")
@@ -367,7 +370,7 @@ def build_parser() -> argparse.ArgumentParser:
     augment.add_argument("--quiet", action="store_true", help="no progress bar")
     augment.set_defaults(run=_data_augment)
     sources = data_verbs.add_parser("sources", help="list registered sources and whether the data root has them")
-    sources.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    sources.add_argument("--data-root", type=Path, default=data_root)
     sources.set_defaults(run=_data_sources)
 
     muscles = verbs.add_parser("muscles", help="muscle activation labels for the cached training set",
@@ -382,7 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "Each finished clip is kept beside the output until all are done, so an interrupted run "
                     "resumes; labels already made from this very cache are reused.")
     label.add_argument("--cache", type=Path, required=True, help="cache folder from biomotion data build")
-    label.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+    label.add_argument("--data-root", type=Path, default=data_root,
                        help="folder holding opensim-models/ (the Rajagopal model; default: %(default)s)")
     label.add_argument("--out", type=Path, help="labels file (default: <cache>/surrogate_labels.safetensors)")
     label.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -441,7 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--no-figures", action="store_true", help="no plots or viewer")
     generate.add_argument("--threads", type=int, help="torch threads for sampling and guidance (default: 2, or "
                                                       "the machine's cores if fewer)")
-    generate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+    generate.add_argument("--data-root", type=Path, default=data_root,
                           help="folder with opensim-models/ (the canonical Rajagopal model; default: %(default)s)")
     generate.add_argument("--checkpoints", type=Path,
                           help="folder of trained weights (default: the shipped lab bundle, or the shipped "
@@ -503,7 +506,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "OpenSim's InverseKinematicsTool and ScaleTool; muscles = moment arms and static "
                     "optimization vs OpenSim.")
     validate.add_argument("what", choices=("kinematics", "dynamics", "ik", "muscles"))
-    validate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT)
+    validate.add_argument("--data-root", type=Path, default=data_root)
     validate.add_argument("--json", type=Path, required=True, help="report file to write")
     validate.add_argument("--md", type=Path, help="also write the tables as Markdown (for docs/results/)")
     validate.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -551,7 +554,7 @@ def build_parser() -> argparse.ArgumentParser:
                                "profile-manipulation study")
     evaluate.add_argument("--pred", nargs="+", type=Path, help="predicted motion: files or one folder")
     evaluate.add_argument("--ref", nargs="+", type=Path, help="reference motion: files or one folder")
-    evaluate.add_argument("--data-root", type=Path, default=DEFAULT_DATA_ROOT,
+    evaluate.add_argument("--data-root", type=Path, default=data_root,
                           help="folder laid out like ../shared/data: the canonical model, and the subjects of "
                                "reference and generation (default: %(default)s)")
     evaluate.add_argument("--json", type=Path, help="JSON report to write")

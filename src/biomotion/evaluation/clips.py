@@ -98,7 +98,7 @@ def body_model(data_root: str | Path):
 
     path = Path(data_root) / MODEL_FILE
     if not path.exists():
-        raise BiomotionError(f"canonical model not found: {path} (pass --data-root with an opensim-models folder)")
+        raise BiomotionError(f"canonical model not found: {path} (pass --data-root, or set BIOMOTION_DATA_ROOT, to a folder with opensim-models/)")
     return BodyModel.from_osim(path)
 
 

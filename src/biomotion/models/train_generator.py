@@ -43,6 +43,7 @@ from tqdm import tqdm
 
 from biomotion.data.mirror import mirror_coordinates
 from biomotion.data.registry import DatasetCache
+from biomotion.data_root import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.generation.actions import ActionRequest, ActionVocabulary
 from biomotion.generation.bundle import GeneratorBundle, action_bounds
@@ -391,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", required=True, type=Path)
     parser.add_argument("--cache", required=True, type=Path)
     parser.add_argument("--tokenizer", required=True, type=Path)
-    parser.add_argument("--data-root", default=Path("../shared/data"), type=Path)
+    parser.add_argument("--data-root", default=default_data_root(), type=Path)
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--population", action="store_true", help="train the action-only baseline prior")
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")

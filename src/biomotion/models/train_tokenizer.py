@@ -30,6 +30,7 @@ import yaml
 from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
+from biomotion.data_root import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.models.cards import environment, write_card
 from biomotion.models.foot_contact import FootKinematics
@@ -201,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", required=True, type=Path)
     parser.add_argument("--cache", required=True, type=Path)
     parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--data-root", default=Path("../shared/data"), type=Path,
+    parser.add_argument("--data-root", default=default_data_root(), type=Path,
                         help="folder with opensim-models/ (the canonical body, for foot contact and penetration)")
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")

@@ -82,6 +82,7 @@ from pathlib import Path
 
 import numpy as np
 
+from biomotion.data_root import default_data_root
 from biomotion.errors import DataFormatError
 from biomotion.ik.validate import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
 
@@ -612,7 +613,7 @@ def main(argv: list[str] | None = None) -> int:
     import json
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data-root", type=Path, default=Path("../shared/data"))
+    parser.add_argument("--data-root", type=Path, default=default_data_root())
     args = parser.parse_args(argv)
     print(json.dumps(emg_check(args.data_root), indent=1))
     return 0

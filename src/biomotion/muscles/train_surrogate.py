@@ -47,6 +47,7 @@ from tqdm import tqdm
 
 from biomotion.data.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 from biomotion.data.registry import DatasetCache
+from biomotion.data_root import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.evaluation.clips import body_model
 from biomotion.guidance.losses import activation
@@ -452,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", required=True, type=Path)
     parser.add_argument("--out", required=True, type=Path)
     parser.add_argument("--labels", type=Path, default=None, help=f"default: <cache>/{DEFAULT_NAME}")
-    parser.add_argument("--data-root", type=Path, default=Path("../shared/data"),
+    parser.add_argument("--data-root", type=Path, default=default_data_root(),
                         help="holds opensim-models (the Rajagopal model, for labels and the timing)")
     parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")

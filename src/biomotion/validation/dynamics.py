@@ -92,7 +92,8 @@ def check_forward_kinematics(data_root: Path, poses_per_model: int = 3, progress
                 error = max(error, float(np.abs(markers[k].numpy() - oracle.markers()).max()))
         per_model[str(path.relative_to(data_root))] = error
         worst = max(worst, error)
-    return {"fk_max_err_m": worst, "fk_models": len(paths), "fk_per_model_max_err_m": per_model}
+    return {"fk_max_err_m": worst if paths else None,   # None, not 0: no model, nothing measured
+            "fk_models": len(paths), "fk_per_model_max_err_m": per_model}
 
 
 def _opensim_external_force(osim, storage, channel: str, body: str, labels: tuple[str, ...]):
