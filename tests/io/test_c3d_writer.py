@@ -79,3 +79,17 @@ def test_times_off_the_frame_grid_are_refused_and_nothing_is_written(tmp_path):
     with pytest.raises(ConfigError, match="not on the 150 Hz grid"):
         write_c3d(tmp_path / "shifted.c3d", shifted)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_trc_with_millisecond_times_keeps_its_whole_rate(tmp_path):
+    """gait2392 subject01_static.trc: 60 Hz, its times written to 3 decimals (0.017, 0.033 ...), so its measured
+    rate is 60.004 Hz; the C3D records 60 Hz and every time within half a millisecond of the TRC's."""
+    from biomotion.io.trc import read_trc
+
+    markers = read_trc(data_path("opensim-models/Pipelines/Gait2392_Simbody/subject01_static.trc"))
+    assert markers.rate == pytest.approx(60.004, abs=1e-3)
+    raw = ezc3d.c3d(str(write_c3d(tmp_path / "walk.c3d", markers)))
+    assert float(raw["parameters"]["POINT"]["RATE"]["value"][0]) == 60.0
+    back = read_c3d_markers(tmp_path / "walk.c3d")
+    assert np.abs(back.times - markers.times).max() <= 5e-4
+    np.testing.assert_allclose(back.positions, markers.positions, atol=1e-6, equal_nan=True)

@@ -32,6 +32,7 @@ INTEL = 84
 MAX_ENTRIES = 255           # a dimension is one byte: longer label lists continue in LABELS2, LABELS3 ...
 MAX_FRAMES = 0xFFFF         # the header's first and last frame numbers are 16-bit
 INVALID = -1.0
+ROUNDING_S = 5e-4           # s: half a millisecond, the rounding of a time column written to 3 decimals
 
 
 def _block_count(size: int) -> int:
@@ -70,11 +71,27 @@ def _record(name: str, group_id: int, body: bytes, *, last: bool = False) -> byt
         + rest
 
 
-def _grid(markers: Markers, rate: float, path: Path) -> int:
-    """The 0-based number of the first frame on the ``rate`` grid from t = 0; ConfigError where a time is off it."""
-    frames = markers.times * rate
+def _off_grid(times: np.ndarray, rate: float) -> tuple[int, np.ndarray]:
+    """The 0-based number of the first frame on the ``rate`` grid from t = 0, and which times lie off that grid
+    by more than the rounding of a time column written to the millisecond (TRC files) or 1 % of a frame."""
+    frames = times * rate
     first = int(np.rint(frames[0]))
-    off_grid = np.abs(frames - (first + np.arange(markers.n_frames))) > 0.01
+    tolerance = max(0.01, ROUNDING_S * rate)
+    return first, np.abs(frames - (first + np.arange(len(times)))) > tolerance
+
+
+def _frame_grid(markers: Markers, rate: float | None, path: Path) -> tuple[float, int]:
+    """The rate and first frame the file records: ``rate`` if given, else the markers' rate rounded to a whole
+    number of Hz where the times fit that grid too (a TRC's 60.00 Hz whose times were rounded to 3 decimals
+    measures 60.004 Hz), else the markers' own; ConfigError where a time is off the grid or t0 < 0."""
+    if rate is None:
+        rate = markers.rate
+        if not np.isfinite(rate) or rate <= 0:
+            raise ConfigError(f"{path}: a single-frame marker set has no rate: pass rate=")
+        whole = float(round(rate))
+        if whole > 0 and not _off_grid(markers.times, whole)[1].any():
+            rate = whole
+    first, off_grid = _off_grid(markers.times, float(rate))
     if first < 0 or off_grid.any():
         frame = int(np.flatnonzero(off_grid)[0]) if off_grid.any() else 0
         raise ConfigError(f"{path}: frame {frame} at t = {markers.times[frame]:g} s is not on the {rate:g} Hz grid "
@@ -82,7 +99,7 @@ def _grid(markers: Markers, rate: float, path: Path) -> int:
     if first + markers.n_frames > MAX_FRAMES:
         raise ConfigError(f"{path}: frames {first + 1}-{first + markers.n_frames} run past C3D's 16-bit frame "
                           f"numbers ({MAX_FRAMES})")
-    return first
+    return float(rate), first
 
 
 def _parameters(markers: Markers, rate: float, first: int, data_start: int) -> bytes:
@@ -113,13 +130,13 @@ def write_c3d(path: str | Path, markers: Markers, *, rate: float | None = None) 
     An occluded sample (NaN) is stored as zeros with the fourth word -1, the standard's invalid point; the first
     time as the first frame number ``round(t0 rate) + 1`` (header and ``TRIAL:ACTUAL_START_FIELD``), so that
     `biomotion.io.c3d.read_c3d_markers` gives the times back. The times must lie on the grid of ``rate`` (default:
-    the markers' own; a single frame has none, so it must then be given) from t0 >= 0.
+    the markers' own, a whole number of Hz where the times fit it; a single frame has none, so it must then be
+    given) from t0 >= 0, within half a millisecond (times written to 3 decimals) or 1 % of a frame.
     """
     path = Path(path)
-    rate = markers.rate if rate is None else float(rate)
-    if not np.isfinite(rate) or rate <= 0:
-        raise ConfigError(f"{path}: a single-frame marker set has no rate: pass rate=")
-    first = _grid(markers, rate, path)
+    if rate is not None and not (np.isfinite(rate) and rate > 0):
+        raise ConfigError(f"{path}: rate must be positive, got {rate}")
+    rate, first = _frame_grid(markers, rate, path)
     parameter_blocks = _block_count(4 + len(_parameters(markers, rate, first, 0)))   # DATA_START's value: same size
     data_start = 2 + parameter_blocks
     section = struct.pack("<BBBB", 1, KEY, parameter_blocks, INTEL) + _parameters(markers, rate, first, data_start)
