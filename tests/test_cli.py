@@ -95,6 +95,28 @@ def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
     assert summary["coordinates"]["knee_angle_r"] == "0 to 120 deg"
 
 
+def test_inspect_summarises_setups_and_marks_missing_files(capsys):
+    """An IK setup: its files (found or marked), its applied marker tasks (counted here from the XML itself); a
+    Scale setup naming a model the data does not ship: marked "(not found)"; an ExternalLoads file: refused by
+    name."""
+    import xml.etree.ElementTree as ET
+
+    setup = data_path("opencap/Subject4/IK/walking1_ik_setup.xml")
+    assert main(["inspect", str(setup)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    applied = [t for t in ET.parse(setup).getroot().iter("IKMarkerTask")
+               if (t.findtext("apply") or "true").strip().lower() == "true"]
+    assert summary["kind"] == "IKSetup" and summary["marker_tasks"] == len(applied) > 20
+    assert summary["marker_file"] == "../MarkerData/walking1.trc"
+    scale = data_path("fukuchi-running/RBDS001/RBDS001_scaleSetup_simple.xml")
+    assert main(["inspect", str(scale)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["kind"] == "ScaleSetup" and summary["mass_kg"] == 62.0
+    assert summary["model_file"].endswith("(not found)") and "r_thigh_length" in summary["measurements"]
+    assert main(["inspect", str(data_path("opensim-models/Pipelines/Rajagopal/ID/grf_walk.xml"))]) == 2
+    assert "<ExternalLoads>" in capsys.readouterr().err
+
+
 def test_convert_mot_to_csv_and_back(tmp_path):
     source = data_path("opencap/Subject4/IK/DJ2_ik.mot")
     assert main(["convert", str(source), str(tmp_path / "dj2.csv")]) == 0

@@ -578,7 +578,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     inspect = verbs.add_parser("inspect", help="print what a file holds (frames, rate, channels, units; for a subject "
                                                 "table its schema, subjects and profile fields; for an .osim model "
-                                                "its bodies, mass, coordinates, markers and muscles)")
+                                                "its bodies, mass, coordinates, markers and muscles; for an IK or "
+                                                "Scale setup .xml the files it names and its tasks)")
     inspect.add_argument("input", type=Path)
     inspect.set_defaults(run=_inspect)
     return parser

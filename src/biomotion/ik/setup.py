@@ -322,3 +322,43 @@ def read_scale_setup(path: str | Path) -> ScaleSetup:
         placer_coordinate_file=doc.text(placer, "coordinate_file"),
         placer_time_range=_time_range(doc, placer),
         max_marker_movement=doc.number(placer, "max_marker_movement", -1.0))
+
+
+TOOLS = ("InverseKinematicsTool", "ScaleTool")
+
+
+def _file_entry(raw: str, setup: Path) -> str | None:
+    """A file a setup names, as written, marked when it cannot be found (`locate`)."""
+    if raw is None or raw.strip().lower() in UNASSIGNED:
+        return None
+    return raw.strip() if locate(raw, setup) is not None else f"{raw.strip()} (not found)"
+
+
+def describe_setup(path: str | Path) -> dict:
+    """What an IK or Scale setup holds, for ``biomotion inspect``: the files it names (marked where absent, as
+    `locate` resolves them), the time range, and its tasks (marker weights, coordinate tasks, measurements)."""
+    path = Path(path)
+    root = _Xml(path).root
+    tags = [root.tag, *(child.tag for child in root)]   # the tool, or <OpenSimDocument> around it
+    tool = next((tag for tag in tags if tag in TOOLS), tags[min(1, len(tags) - 1)])
+    if tool == "InverseKinematicsTool":
+        ik = read_ik_setup(path)
+        return {"file": str(path), "kind": "IKSetup", "name": ik.name,
+                "model_file": _file_entry(ik.model_file, path), "marker_file": _file_entry(ik.marker_file, path),
+                "coordinate_file": _file_entry(ik.coordinate_file, path), "time_range_s": ik.time_range,
+                "accuracy": ik.accuracy, "marker_tasks": len(ik.marker_weights),
+                "marker_weights": ik.marker_weights,
+                "coordinate_tasks": [task.name for task in ik.coordinate_tasks]}
+    if tool == "ScaleTool":
+        scale = read_scale_setup(path)
+        return {"file": str(path), "kind": "ScaleSetup", "name": scale.name, "mass_kg": scale.mass,
+                "height_m": scale.height, "model_file": _file_entry(scale.model_file, path),
+                "marker_set_file": _file_entry(scale.marker_set_file, path),
+                "scale_marker_file": _file_entry(scale.scale_marker_file, path),
+                "scaling_order": list(scale.scaling_order), "measurements": [m.name for m in scale.measurements],
+                "manual_scales": [m.segment for m in scale.manual_scales],
+                "preserve_mass_distribution": scale.preserve_mass_distribution,
+                "placer_marker_tasks": len(scale.placer_tasks.marker_weights),
+                "placer_time_range_s": scale.placer_time_range}
+    raise DataFormatError(path, f"inspect reads InverseKinematicsTool and ScaleTool setups; this file holds "
+                                f"<{tool}>")

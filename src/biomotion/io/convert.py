@@ -160,7 +160,8 @@ def convert(source: str | Path, target: str | Path, *, model: str | Path | None 
 def describe(path: str | Path) -> dict[str, Any]:
     """A short JSON-able summary of a file: kind, frames, rate, duration, channel names; for a subject table
     (`biomotion.io.tables`: Fukuchi participantInfo, ANSUR II, ...) its schema, subjects and fields; for an .osim
-    model its bodies, mass, joints, coordinates with their ranges, markers and muscles."""
+    model its bodies, mass, joints, coordinates with their ranges, markers and muscles; for an IK or Scale setup
+    (.xml) the files it names and its tasks."""
     from biomotion.io.tables import describe_subject_table, table_schema
 
     schema = table_schema(path) if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") else None
@@ -168,6 +169,10 @@ def describe(path: str | Path) -> dict[str, Any]:
         return describe_subject_table(path, schema)
     if suffix_of(Path(path)) == ".osim":
         return _describe_model(Path(path))
+    if suffix_of(Path(path)) == ".xml":
+        from biomotion.ik.setup import describe_setup
+
+        return describe_setup(path)
     data = read_any(path)
     summary: dict[str, Any] = {"file": str(path), "kind": type(data).__name__}
     series = []
