@@ -73,7 +73,7 @@ def _markers_of(data: Any) -> Markers | None:
     return getattr(data, "markers", None)
 
 
-def _on_model(motion: Motion, model_path: Path, target: Path, suffix: str) -> Any:
+def _on_model(motion: Motion, model_path: Path, source: Path, suffix: str) -> Any:
     """What coordinates on their model become for ``suffix``: a BVH clip of the model's bodies
     (`biomotion.body.bvh_export`), the model's markers by forward kinematics (.trc, .c3d), or the coordinates in
     model order with coupled ones filled (.mot, .sto, .csv)."""
@@ -83,8 +83,13 @@ def _on_model(motion: Motion, model_path: Path, target: Path, suffix: str) -> An
     from biomotion.body.kinematics import marker_positions
     from biomotion.body.model import BodyModel
 
+    from biomotion.errors import ModelError
+
     model = BodyModel.from_osim(model_path)
-    coordinates = model_motion(motion, model)
+    try:
+        coordinates = model_motion(motion, model)
+    except ModelError as error:
+        raise ConfigError(f"{source} on {model_path.name}: {error}") from None
     if suffix in (".bvh", ".bvh.gz"):
         from biomotion.body.bvh_export import motion_to_bvh
 
@@ -110,7 +115,7 @@ def convert(source: str | Path, target: str | Path, *, model: str | Path | None 
         if not isinstance(data, Motion):
             raise ConfigError(f"{source}: --model is for coordinates (.mot, .sto, .csv); this file holds "
                               f"{type(data).__name__}")
-        data = _on_model(data, Path(model), target, suffix)
+        data = _on_model(data, Path(model), source, suffix)
     if suffix in (".bvh", ".bvh.gz"):
         if isinstance(data, Motion):
             raise ConfigError(f"{source}: coordinates become a BVH skeleton only on their model: pass --model OSIM")
