@@ -77,7 +77,8 @@ def test_inspect_recognises_a_subject_table(tmp_path, capsys):
 
 def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
     """inspect MODEL.osim: bodies, mass, markers, muscles and coordinates as OpenSim 4.6 (the oracle) counts them
-    on Rajagopal 2016 (80 muscles, README of opensim-models), locked coordinates marked."""
+    on Rajagopal 2016 (80 muscles, README of opensim-models), locked coordinates marked; a Fukuchi model's
+    DeGrooteFregly2016 muscles counted, none of them usable by our static optimization."""
     osim = pytest.importorskip("opensim", reason="OpenSim is the oracle for the counts")
     path = data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
     assert main(["inspect", str(path)]) == 0
@@ -85,6 +86,7 @@ def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
     model = osim.Model(str(path))
     state = model.initSystem()
     assert summary["kind"] == "OpenSimModel" and summary["muscles"] == model.getMuscles().getSize() == 80
+    assert summary["muscles_for_static_optimization"] == 80
     assert summary["bodies"] == model.getBodySet().getSize()
     assert summary["markers"] == model.getMarkerSet().getSize()
     assert summary["total_mass_kg"] == pytest.approx(model.getTotalMass(state), abs=1e-3)
@@ -93,6 +95,11 @@ def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
               if model.getCoordinateSet().get(i).getDefaultLocked()}
     assert {name for name, text in summary["coordinates"].items() if "locked" in text} == locked
     assert summary["coordinates"]["knee_angle_r"] == "0 to 120 deg"
+    fukuchi = data_path("fukuchi-running/RBDS001/RBDS001_simple.osim")   # DeGrooteFregly2016 muscles
+    assert main(["inspect", str(fukuchi)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["muscles"] == osim.Model(str(fukuchi)).getMuscles().getSize() > 0
+    assert summary["muscles_for_static_optimization"] == 0
 
 
 def test_inspect_summarises_setups_and_marks_missing_files(capsys):

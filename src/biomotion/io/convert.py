@@ -49,28 +49,22 @@ def read_any(path: str | Path) -> Any:
 
 
 def _describe_model(path: Path) -> dict[str, Any]:
-    """`biomotion.io.osim.model_summary` and the model's muscles (count and type), if it has any."""
-    from biomotion.errors import DataFormatError
+    """`biomotion.io.osim.model_summary` and the model's muscles: how many of each class its ForceSet holds, and
+    how many of them biomotion's static optimization can use (`biomotion.muscles.properties.MUSCLE_TYPES`)."""
+    import collections
+    import xml.etree.ElementTree as ET
+
     from biomotion.io.osim import model_summary, read_osim
-    from biomotion.muscles.properties import read_muscles
+    from biomotion.muscles.properties import MUSCLE_TYPES
 
     summary = model_summary(read_osim(path))
-    try:
-        muscles = read_muscles(path)
-    except DataFormatError:   # no enabled muscle of a supported type
-        summary["muscles"] = 0
-    else:
-        summary["muscles"] = len(muscles.names)
-        summary["muscle_types"] = sorted(set(muscles.kinds))
+    forces = [force for force_set in ET.parse(path).getroot().iter("ForceSet")
+              for objects in force_set.findall("objects") for force in objects]
+    kinds = collections.Counter(force.tag for force in forces if "Muscle" in force.tag)
+    summary["muscles"] = sum(kinds.values())
+    summary["muscle_types"] = dict(kinds)
+    summary["muscles_for_static_optimization"] = sum(n for kind, n in kinds.items() if kind in MUSCLE_TYPES)
     return summary
-
-
-def _markers_of(data: Any) -> Markers | None:
-    if isinstance(data, Markers):
-        return data
-    if hasattr(data, "to_markers"):
-        return data.to_markers()
-    return getattr(data, "markers", None)
 
 
 def _on_model(motion: Motion, model_path: Path, source: Path, suffix: str) -> Any:
