@@ -67,6 +67,14 @@ def _describe_model(path: Path) -> dict[str, Any]:
     return summary
 
 
+def _markers_of(data: Any) -> Markers | None:
+    if isinstance(data, Markers):
+        return data
+    if hasattr(data, "to_markers"):
+        return data.to_markers()
+    return getattr(data, "markers", None)
+
+
 def _on_model(motion: Motion, model_path: Path, source: Path, suffix: str) -> Any:
     """What coordinates on their model become for ``suffix``: a BVH clip of the model's bodies
     (`biomotion.body.bvh_export`), the model's markers by forward kinematics (.trc, .c3d), or the coordinates in
