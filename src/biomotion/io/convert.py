@@ -136,22 +136,15 @@ def convert(source: str | Path, target: str | Path, *, model: str | Path | None 
         if forces is not None:
             return write_ground_reaction(target, forces)
         raise ConfigError(f"{source}: holds no coordinates or forces to write as {suffix}")
-    if suffix == ".trc":
+    if suffix in (".trc", ".c3d"):
+        from biomotion.io.c3d_writer import write_c3d
         from biomotion.io.trc import write_trc
 
         markers = _markers_of(data)
         if markers is None:
             hint = " (coordinates: pass --model OSIM for the model's markers)" if isinstance(data, Motion) else ""
-            raise ConfigError(f"{source}: holds no markers or joint positions to write as .trc{hint}")
-        return write_trc(target, markers)
-    if suffix == ".c3d":
-        from biomotion.io.c3d_writer import write_c3d
-
-        markers = _markers_of(data)
-        if markers is None:
-            hint = " (coordinates: pass --model OSIM for the model's markers)" if isinstance(data, Motion) else ""
-            raise ConfigError(f"{source}: holds no markers or joint positions to write as .c3d{hint}")
-        return write_c3d(target, markers)
+            raise ConfigError(f"{source}: holds no markers or joint positions to write as {suffix}{hint}")
+        return (write_trc if suffix == ".trc" else write_c3d)(target, markers)
     if suffix == ".csv":
         from biomotion.io.csvfile import write_markers_csv, write_motion_csv
 
