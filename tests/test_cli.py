@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from biomotion.body.model import BodyModel
 from biomotion.cli import build_parser, main
-from biomotion.io.mot import read_motion
+from biomotion.io.mot import read_motion, read_storage
 from biomotion.io.trc import read_trc
 from tests.conftest import data_path
 
@@ -172,11 +173,77 @@ def test_convert_bvh_joints_to_trc(tmp_path):
     assert 0.7 < np.nanmean(markers["Hips"][:, 1]) < 1.0
 
 
-def test_analyze_points_marker_input_to_retarget(tmp_path, capsys):
-    trc = data_path("opencap/Subject4/MarkerData/walking1.trc")
-    model = data_path("opencap/Subject4/Models/optimized_scale_and_markers.osim")
-    assert main(["analyze", str(trc), "--model", str(model), "--out", str(tmp_path)]) == 2
-    assert "biomotion retarget" in capsys.readouterr().err
+def test_analyze_runs_the_whole_chain_from_markers_as_opensim_does(tmp_path, capsys):
+    """`analyze MARKERS.trc --setup IK.xml`: inverse kinematics, then inverse dynamics, in one command, against
+    OpenSim 4.6 doing the same (its InverseKinematicsTool on the same setup, then its InverseDynamicsTool on that
+    IK with the same plates and 6 Hz filter), on every coordinate whose peak exceeds 10 N·m, away from the first
+    and last 0.1 s of the setup's 2 s window, where the two tools' filters treat the ends differently. Bars: the
+    issue 3 end-to-end bar, RMSE <= 2 % of peak, on the joints (measured 1.4 % at most, hip_flexion_l); 4 % on
+    the pelvis residuals, the small forces and moments the filtering differences move most on so short a window
+    (measured 3.0 %, pelvis_tx_force; the whole 3.5 s walk reads 1.4 % in `biomotion validate dynamics`). The IK
+    result is kept in OUT/ik and summarised in summary.json."""
+    pytest.importorskip("opensim")
+    from biomotion.ik.setup import read_ik_setup
+    from biomotion.ik.validate import ORACLE_ACCURACY, opensim_ik
+    from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_ground_reaction, write_motion
+    from biomotion.validation.oracle import run_inverse_dynamics_tool
+
+    folder = data_path("opensim-models/Pipelines/Gait2392_Simbody")
+    model, grf = folder / "OutputReference/subject01_simbody.osim", folder / "subject01_walk1_grf.mot"
+    setup = folder / "subject01_Setup_IK.xml"
+    assert main(["analyze", str(folder / "subject01_walk1.trc"), "--setup", str(setup), "--model", str(model),
+                 "--grf", str(grf), "--out", str(tmp_path / "ours"), "--no-figures"]) == 0
+    assert "inverse kinematics: 121 frames, RMS marker error" in capsys.readouterr().out
+    ik = json.loads((tmp_path / "ours/summary.json").read_text())["inverse_kinematics"]
+    assert ik["frames"] == 121 and ik["coordinates"] == "ik/subject01_walk1.mot"
+    assert read_motion(tmp_path / "ours/ik/subject01_walk1.mot").n_frames == 121
+
+    ik_setup = read_ik_setup(setup)
+    reference_ik = opensim_ik(model, ik_setup.file("marker_file"), weights=ik_setup.marker_weights,
+                              coordinate_tasks=ik_setup.coordinate_tasks, time_range=ik_setup.time_range,
+                              accuracy=ORACLE_ACCURACY).motion
+    coordinates = write_motion(tmp_path / "opensim_ik.mot", reference_ik)
+    feet = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}   # as the pipeline's subject01_walk1_grf.xml
+    forces = read_ground_reaction(grf)
+    forces = forces.assign([feet.get(name) for name in forces.names]).select(list(feet))
+    loads = write_external_loads_xml(tmp_path / "loads.xml", forces,
+                                     str(write_ground_reaction(tmp_path / "grf.mot", forces)))
+    reference = read_storage(run_inverse_dynamics_tool(model, coordinates, loads, tmp_path / "opensim",
+                                                       0.5, 2.5))
+    ours = read_storage(tmp_path / "ours/torques.sto")
+    inside = (reference.times >= 0.6) & (reference.times <= 2.4)
+    errors = {}
+    for label in reference.labels:
+        expected = reference.data[inside, reference.labels.index(label)]
+        if label in ours.labels and np.abs(expected).max() > 10.0:
+            got = np.interp(reference.times[inside], ours.times, ours.data[:, ours.labels.index(label)])
+            errors[label] = np.sqrt(np.mean((got - expected) ** 2)) / np.abs(expected).max()
+    joints = {label: error for label, error in errors.items() if not label.startswith("pelvis_")}
+    assert len(joints) >= 12 and max(joints.values()) <= 0.02, max(joints.items(), key=lambda item: item[1])
+    assert max(errors.values()) <= 0.04, max(errors.items(), key=lambda item: item[1])
+
+
+def test_analyze_retargets_a_skeleton_onto_the_scaled_generic_model(tmp_path, capsys):
+    """A BVH clip through `analyze`: the generic Rajagopal model scaled to the skeleton and fitted to its joint
+    centres (as `retarget` does, mean error under 2 cm on the Bandai-Namco clips), then dynamics on that scaled
+    model, which OUT/ik keeps beside the coordinates."""
+    clip = data_path("bandai-namco/dataset-2/dataset-2_walk_normal_016.bvh.gz")
+    generic = data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
+    assert main(["analyze", str(clip), "--model", str(generic), "--out", str(tmp_path), "--no-figures"]) == 0
+    assert "RMS joint centre error" in capsys.readouterr().out
+    ik = json.loads((tmp_path / "summary.json").read_text())["inverse_kinematics"]
+    assert ik["model"] == "ik/dataset-2_walk_normal_016.osim" and ik["rms_joint_centre_error_m"] < 0.02
+    scaled = BodyModel.from_osim(tmp_path / "ik/dataset-2_walk_normal_016.osim")
+    torques = read_storage(tmp_path / "torques.sto")
+    assert torques.data.shape == (ik["frames"], scaled.n_q) and np.isfinite(torques.data).all()
+
+
+def test_analyze_refuses_ik_options_for_coordinates(tmp_path, capsys):
+    folder = data_path("opensim-models/Pipelines/Gait2392_Simbody")
+    code = main(["analyze", str(folder / "subject01_walk1_ik.mot"), "--setup", str(folder / "subject01_Setup_IK.xml"),
+                 "--model", str(folder / "OutputReference/subject01_simbody.osim"), "--out", str(tmp_path)])
+    assert code == 2 and "--setup and --marker-filter are for captured motion" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
 
 
 def test_analyze_names_motion_columns_the_model_lacks(tmp_path, capsys):

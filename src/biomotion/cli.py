@@ -123,13 +123,13 @@ def _inspect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _analysis_figures(args: argparse.Namespace, result, files: dict) -> dict:
+def _analysis_figures(args: argparse.Namespace, coordinates: Path, model: Path, result, files: dict) -> dict:
     """The viewer and the plots `analyze` writes by default (issue 8: analysis commands write them)."""
     from biomotion.analysis import support_polygons
     from biomotion.viz.plots import plot_balance, plot_ground_reaction, plot_joint_angles
     from biomotion.viz.viewer import view_command
 
-    out = {"viewer": view_command(args.trial, model=args.model, grf=args.grf, com_zmp=files["com_zmp"],
+    out = {"viewer": view_command(coordinates, model=model, grf=args.grf, com_zmp=files["com_zmp"],
                                   out=args.out / "viewer.html", geometry=args.geometry or ())}
     out["plot_joint_angles"] = plot_joint_angles(result.motion, args.out / "joint_angles")[0]
     reaction = result.measured if result.measured is not None else result.inferred
@@ -141,20 +141,66 @@ def _analysis_figures(args: argparse.Namespace, result, files: dict) -> dict:
     return out
 
 
+def _inverse_kinematics(args: argparse.Namespace, folder: Path) -> tuple[Path, Path, dict]:
+    """Captured motion (markers or a skeleton) -> (coordinates file, model file, summary section): `retarget` of
+    the one trial into ``folder``, as `biomotion retarget TRIAL --model MODEL [--setup] [--filter]` would write it."""
+    from biomotion.body.model import BodyModel
+    from biomotion.ik.retarget import is_skeleton, retarget
+    from biomotion.ik.setup import read_ik_setup
+
+    setup = read_ik_setup(args.setup) if args.setup else None
+    if setup is not None and is_skeleton(args.trial):
+        raise ConfigError(f"{args.setup}: an IK setup weighs markers, and {args.trial} is a skeleton")
+    (ik,) = retarget([args.trial], BodyModel.from_osim(args.model), folder,
+                     weights=setup.marker_weights if setup else None, filter_hz=args.marker_filter,
+                     model_path=args.model, setup=setup, progress=False)
+    if ik.error:
+        raise BiomotionError(f"{args.trial}: inverse kinematics failed: {ik.error}")
+    model = folder / f"{ik.trial}.osim" if is_skeleton(args.trial) else args.model
+    kind = "joint centre" if is_skeleton(args.trial) else "marker"
+    print(f"inverse kinematics: {ik.frames} frames, RMS {kind} error {100 * ik.rms_error_m:.2f} cm "
+          f"(max {100 * ik.max_error_m:.2f} cm, {ik.frames_dropped} frames without a tracked point)")
+    point = kind.replace(" ", "_")
+    section = {"source": str(args.trial), "setup": str(args.setup) if args.setup else None,
+               "filter_hz": args.marker_filter, "frames": ik.frames, f"rms_{point}_error_m": ik.rms_error_m,
+               f"max_{point}_error_m": ik.max_error_m, "frames_dropped": ik.frames_dropped,
+               "coordinates": f"ik/{ik.output}",
+               "model": f"ik/{model.name}" if model != args.model else str(args.model)}
+    return folder / ik.output, model, section
+
+
 def _analyze(args: argparse.Namespace) -> int:
+    import tempfile
+
+    from biomotion.ik.retarget import MARKER_SUFFIXES, is_skeleton
+
+    captured = args.trial.suffix.lower() in MARKER_SUFFIXES or is_skeleton(args.trial)
+    if not captured and (args.setup or args.marker_filter):
+        raise ConfigError(f"{args.trial}: --setup and --marker-filter are for captured motion (.trc/.c3d markers, "
+                          f".bvh skeletons); a coordinates file is analysed as it is")
+    if not captured:
+        return _analyze_coordinates(args, args.trial, args.model, {}, None)
+    with tempfile.TemporaryDirectory(prefix="biomotion-ik-") as scratch:
+        coordinates, model_path, section = _inverse_kinematics(args, Path(scratch))
+        return _analyze_coordinates(args, coordinates, model_path, {"inverse_kinematics": section}, Path(scratch))
+
+
+def _analyze_coordinates(args: argparse.Namespace, coordinates: Path, model_path: Path, extra: dict,
+                         ik_folder: Path | None) -> int:
+    """`analyze` of the coordinates file ``coordinates`` on the model file ``model_path``, ``extra`` sections added
+    to summary.json; ``ik_folder``: the inverse kinematics that made the coordinates, copied to OUT/ik at the end."""
+    import shutil
+
     from biomotion.analysis import analyze, summary, write_analysis
     from biomotion.body.model import BodyModel
     from biomotion.io.convert import read_any
     from biomotion.io.mot import read_motion
 
-    if args.trial.suffix.lower() in (".trc", ".c3d", ".bvh", ".gz"):
-        raise ConfigError(f"{args.trial}: analyze takes model coordinates (.mot/.sto); turn markers into coordinates "
-                          f"first with `biomotion retarget {args.trial} --model {args.model} --out DIR`")
-    motion = read_motion(args.trial)
-    model = BodyModel.from_osim(args.model)
+    motion = read_motion(coordinates)
+    model = BodyModel.from_osim(model_path)
     ignored = [name for name in motion.names if name not in model.coordinate_names]
     if ignored:
-        print(f"biomotion: warning: {args.trial}: {len(ignored)} column(s) name no coordinate of {model.name} and "
+        print(f"biomotion: warning: {coordinates}: {len(ignored)} column(s) name no coordinate of {model.name} and "
               f"are ignored: {', '.join(ignored)}", file=sys.stderr)
     forces = None
     if args.grf is not None:
@@ -169,23 +215,25 @@ def _analyze(args: argparse.Namespace) -> int:
         from biomotion.muscles.trial import check_paths, load_paths
 
         paths, label = load_paths(args.muscles)
-        check = check_paths(paths, label, args.model, model.coordinate_names)
+        check = check_paths(paths, label, model_path, model.coordinate_names)
         if check.warning:
             print(f"biomotion: warning: {check.warning}", file=sys.stderr)
     result = analyze(motion, model, forces, cutoff_hz=args.cutoff)
-    extra, solution = {}, None
+    solution = None
     if paths is not None:
         from biomotion.muscles.trial import TrialSettings, activation_summary, trial_activations
 
-        solution = trial_activations(result, args.model, paths)
+        solution = trial_activations(result, model_path, paths)
         extra["muscles"] = activation_summary(solution, check, TrialSettings())
     files = write_analysis(result, args.out, extra_summary=extra)
     if solution is not None:
         from biomotion.muscles.trial import write_activations
 
         files["activations"] = write_activations(args.out / "activations.sto", result, solution)
+    if ik_folder is not None:   # last: the copy names the folder the analysis went to
+        files["inverse_kinematics"] = Path(shutil.copytree(ik_folder, args.out / "ik", dirs_exist_ok=True))
     if not args.no_figures:
-        files.update(_analysis_figures(args, result, files))
+        files.update(_analysis_figures(args, coordinates, model_path, result, files))
         if solution is not None:
             from biomotion.viz.plots import plot_activations
 
@@ -456,17 +504,31 @@ def build_parser() -> argparse.ArgumentParser:
 
     analyze = verbs.add_parser(
         "analyze", help="joint torques, ground forces, COM, ZMP and energy of a trial on a model",
-        description="Inverse dynamics of TRIAL (an OpenSim coordinates file) on MODEL: coordinates low-pass "
-                    "filtered (--cutoff, as OpenSim's ID tool), ground reaction inferred from the kinematics "
-                    "alone (always) and, with --grf, the measured plates assigned to the feet and used for the "
-                    "torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
-                    "coordinates_filtered.mot, summary.json, viewer.html and plots (joint angles, GRF, COM/ZMP) "
-                    "into --out; with --muscles also activations.sto (static optimization of those torques).",
-        epilog="example, with G=../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
+        description="Inverse dynamics of TRIAL on MODEL: coordinates low-pass filtered (--cutoff, as OpenSim's ID "
+                    "tool), ground reaction inferred from the kinematics alone (always) and, with --grf, the measured "
+                    "plates assigned to the feet and used for the torques. Writes torques.sto, grf_inferred.mot "
+                    "(+ ExternalLoads XML), com_zmp.sto, coordinates_filtered.mot, summary.json, viewer.html and "
+                    "plots (joint angles, GRF, COM/ZMP) into --out; with --muscles also activations.sto (static "
+                    "optimization of those torques). TRIAL may be captured motion too: markers (.trc, .c3d) are "
+                    "first solved by inverse kinematics on MODEL (with --setup's weights, tasks and time range), a "
+                    "skeleton (.bvh, .bvh.gz) is retargeted onto MODEL (the generic model, scaled to the skeleton), "
+                    "exactly as `biomotion retarget` does; the IK result is kept in --out/ik and summarised in "
+                    "summary.json, so one command runs the whole chain from the lab's files.",
+        epilog="examples, with G=../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
                "$G/subject01_walk1_ik.mot --model $G/OutputReference/subject01_simbody.osim --grf "
-               "$G/subject01_walk1_grf.mot --muscles gait2392_subject01 --out out/walk")
-    analyze.add_argument("trial", type=Path, help="coordinates (.mot/.sto), e.g. an IK result")
-    analyze.add_argument("--model", type=Path, required=True, help="the subject's scaled .osim model")
+               "$G/subject01_walk1_grf.mot --muscles gait2392_subject01 --out out/walk; from the markers: "
+               "biomotion analyze $G/subject01_walk1.trc --setup $G/subject01_Setup_IK.xml --model "
+               "$G/OutputReference/subject01_simbody.osim --grf $G/subject01_walk1_grf.mot --out out/walk_markers")
+    analyze.add_argument("trial", type=Path,
+                         help="coordinates (.mot/.sto), e.g. an IK result; or markers (.trc/.c3d) or a skeleton "
+                              "(.bvh/.bvh.gz), solved by inverse kinematics first")
+    analyze.add_argument("--model", type=Path, required=True,
+                         help="the subject's scaled .osim model (for a skeleton: the generic model to scale)")
+    analyze.add_argument("--setup", type=Path,
+                         help="markers only: OpenSim IK setup XML (marker weights, coordinate tasks, time range)")
+    analyze.add_argument("--marker-filter", type=float, metavar="HZ",
+                         help="markers: low-pass them before IK; skeletons: the coordinates (default 10 Hz, as "
+                              "`biomotion retarget --filter`)")
     analyze.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
     analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
     analyze.add_argument("--muscles", metavar="PATHS",
