@@ -341,21 +341,52 @@ def _eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _scale(args: argparse.Namespace) -> int:
+    from biomotion.ik.calibrate import calibrate
+
+    done = calibrate(args.setup, args.out, model=args.model, static=args.static, mass=args.mass,
+                     filter_hz=args.marker_filter, name=args.name)
+    _print_calibration(done)
+    return 0
+
+
+def _print_calibration(done) -> None:
+    summary = done.summary
+    scaled = {body: f for body, f in summary["scale_factors"].items() if any(abs(v - 1) > 1e-9 for v in f)}
+    print(f"scaled {Path(summary['generic_model']).name} to {summary['mass_kg']:.2f} kg: {len(scaled)} bodies "
+          f"scaled by {len(summary['measurements'])} measurements"
+          + (f", {summary['markers_placed']} markers placed (static pose marker RMS "
+             f"{100 * summary['placement_marker_rms_m']:.2f} cm)" if summary["markers_placed"] is not None else ""))
+    for path in (done.model, done.scale_set, done.pose, done.summary_file):
+        if path is not None:
+            print(f"  {path}")
+
+
 def _retarget(args: argparse.Namespace) -> int:
     from biomotion.body.model import BodyModel
     from biomotion.ik.retarget import motion_files, retarget
     from biomotion.ik.setup import read_ik_setup
     from biomotion.ik.skeleton import JointMap
 
+    if args.static is not None and args.scale_setup is None:
+        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
+                          "--scale-setup XML too (`biomotion scale --help`)")
+    model_path = args.model
+    if args.scale_setup is not None:
+        from biomotion.ik.calibrate import calibrate
+
+        done = calibrate(args.scale_setup, args.out, model=args.model, static=args.static, filter_hz=args.filter)
+        _print_calibration(done)
+        model_path = done.model
     setup = read_ik_setup(args.setup) if args.setup else None
     if setup is not None and setup.time_range is not None and args.input.is_dir():
         print(f"note: the time range of {args.setup} belongs to one trial; the trials of {args.input} are solved "
               "whole")
         setup = replace(setup, time_range=None)
     joint_map = JointMap.from_file(args.joint_map) if args.joint_map else None
-    summaries = retarget(motion_files(args.input), BodyModel.from_osim(args.model), args.out,
+    summaries = retarget(motion_files(args.input), BodyModel.from_osim(model_path), args.out,
                          weights=setup.marker_weights if setup else None, filter_hz=args.filter,
-                         joint_map=joint_map, model_path=args.model, setup=setup, progress=not args.quiet)
+                         joint_map=joint_map, model_path=model_path, setup=setup, progress=not args.quiet)
     failed = [s for s in summaries if s.error]
     for summary in summaries:
         state = f"FAILED: {summary.error}" if summary.error else \
@@ -574,6 +605,30 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("--quiet", action="store_true", help="no progress bars")
     validate.set_defaults(run=_validate)
 
+    scale = verbs.add_parser(
+        "scale", help="scale a generic model to a subject from a static trial (OpenSim ScaleTool setup) -> .osim",
+        description="OpenSim's ScaleTool from its setup XML: body scale factors from the distances of the setup's "
+                    "marker pairs in the static trial against the generic model (measurements; manual scales as "
+                    "the setup orders them), masses scaled to the subject's mass (distribution kept when the setup "
+                    "says so), then the MarkerPlacer: the static pose by IK and the non-fixed markers moved onto "
+                    "the data (PG-BIG A.2). Writes NAME.osim (opens in OpenSim; use it as `retarget --model`), "
+                    "NAME_scale_set.xml, NAME_static_pose.mot and NAME_scale.json into --out. Setups name their "
+                    "model and static trial by paths relative to where they were written: --model and --static "
+                    "override them.",
+        epilog="example, with F=../shared/data/fukuchi-running: biomotion scale "
+               "$F/RBDS001/RBDS001_scaleSetup_simple.xml --model "
+               "$F/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim --static $F/c3d/RBDS001static.c3d "
+               "--marker-filter 10 --out out/RBDS001")
+    scale.add_argument("setup", type=Path, help="OpenSim ScaleTool setup XML")
+    scale.add_argument("--model", type=Path, help="the generic .osim (default: the setup's model_file)")
+    scale.add_argument("--static", type=Path, help="the static trial, .trc or .c3d (default: the setup's marker_file)")
+    scale.add_argument("--mass", type=float, help="subject mass in kg (default: the setup's mass)")
+    scale.add_argument("--marker-filter", type=float, metavar="HZ",
+                       help="low-pass the static markers first (zero-lag Butterworth; the Fukuchi chain used 10 Hz)")
+    scale.add_argument("--name", help="name of the scaled model and its files (default: the setup's name)")
+    scale.add_argument("--out", type=Path, required=True, help="output folder")
+    scale.set_defaults(run=_scale)
+
     retarget = verbs.add_parser(
         "retarget", help="captured motion (.trc, .c3d markers; .bvh/.bvh.gz skeletons; a file or a folder) -> "
                          "model coordinates (.mot) by batched IK",
@@ -593,6 +648,12 @@ def build_parser() -> argparse.ArgumentParser:
     retarget.add_argument("--setup", type=Path, help="OpenSim IK setup XML: its marker weights, coordinate tasks "
                                                      "and (for a single trial) time range, as OpenSim's IK tool "
                                                      "uses them")
+    retarget.add_argument("--static", type=Path,
+                          help="a static trial (.trc/.c3d): MODEL is then the generic model, scaled to it by "
+                               "--scale-setup first (as `biomotion scale`, the static markers low-passed by --filter "
+                               "too; written into --out), and the trials are solved on the scaled model")
+    retarget.add_argument("--scale-setup", type=Path,
+                          help="OpenSim ScaleTool setup XML for --static (its measurements, mass, marker placer)")
     retarget.add_argument("--joint-map", type=Path,
                           help='JSON {"centres": {model joint: skeleton joint}, "toes": {model toe joint: skeleton '
                                'joint}}: treat the input as joint centres (built in: the Bandai-Namco skeleton)')

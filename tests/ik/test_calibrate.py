@@ -1,0 +1,73 @@
+"""`biomotion scale` and `retarget --static`: OpenSim's ScaleTool run from its setup file, against the scale set
+the Fukuchi dataset ships for the same runner (the library underneath is checked against a fresh ScaleTool run in
+`tests/ik/test_scaling.py`)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from biomotion.body.kinematics import forward_kinematics
+from biomotion.body.model import BodyModel
+from biomotion.cli import main
+from biomotion.io.mot import read_motion
+from biomotion.io.osim import read_scale_set
+from tests.conftest import data_path
+
+FUKUCHI = "fukuchi-running"
+DENTON = f"{FUKUCHI}/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim"
+SETUP = f"{FUKUCHI}/RBDS001/RBDS001_scaleSetup_simple.xml"
+STATIC = f"{FUKUCHI}/c3d/RBDS001static.c3d"
+
+
+def test_scale_reproduces_the_runners_shipped_scale_set(tmp_path, capsys):
+    """RBDS001's setup, generic model and static trial (10 Hz, as the source's chain filtered it): every body's
+    factors against the shipped RBDS001_scaleSet_simple.xml within 1e-4 relative (the file's 6 digits; the issue's
+    bar is 3 %), the subject's 62 kg, and the model opens in OpenSim with that mass."""
+    code = main(["scale", str(data_path(SETUP)), "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--marker-filter", "10", "--name", "RBDS001", "--out", str(tmp_path)])
+    assert code == 0 and "11 bodies scaled by 17 measurements, 28 markers placed" in capsys.readouterr().out
+    ours = {s.segment: s.scales for s in read_scale_set(tmp_path / "RBDS001_scale_set.xml")}
+    shipped = {s.segment: s.scales for s in read_scale_set(data_path(f"{FUKUCHI}/RBDS001/RBDS001_scaleSet_simple.xml"))}
+    bodies = set(ours) & set(shipped)   # the shipped set also lists frames (pelvis_offset ...) and the ground
+    assert len(bodies) == len(ours) >= 11
+    assert max(abs(ours[b][i] / shipped[b][i] - 1) for b in bodies for i in range(3)) < 1e-4
+    summary = json.loads((tmp_path / "RBDS001_scale.json").read_text())
+    assert summary["mass_kg"] == pytest.approx(62.0) and summary["model"] == "RBDS001.osim"
+    assert read_motion(tmp_path / "RBDS001_static_pose.mot").n_frames == 1
+    osim = pytest.importorskip("opensim", reason="the opensim package (validate extra) opens the written model")
+    model = osim.Model(str(tmp_path / "RBDS001.osim"))
+    assert abs(model.getTotalMass(model.initSystem()) - 62.0) < 1e-9
+
+
+def test_scale_names_what_the_setup_points_to_and_is_missing(tmp_path, capsys):
+    """The Fukuchi setups name `..\\model\\Denton2023...`, which the dataset does not ship: the error says which
+    option supplies it, and nothing is written."""
+    assert main(["scale", str(data_path(SETUP)), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "Denton2023_LowerLimb_Fukuchi2017.osim" in err and "give the generic .osim with --model" in err
+    assert not (tmp_path / "out").exists()
+    assert main(["retarget", str(data_path(STATIC)), "--model", str(data_path(DENTON)), "--static",
+                 str(data_path(STATIC)), "--out", str(tmp_path / "out")]) == 2
+    assert "give --scale-setup XML too" in capsys.readouterr().err
+
+
+def test_retarget_scales_on_the_static_trial_then_solves_on_that_model(tmp_path, capsys):
+    """`retarget TRIAL --model GENERIC --static STATIC --scale-setup XML` equals `scale` then `retarget --model
+    SCALED`: the same scaled model (bodies within 1e-12 m) and the same coordinates."""
+    trial = data_path(f"{FUKUCHI}/c3d/RBDS001runT35.c3d")
+    assert main(["retarget", str(trial), "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--scale-setup", str(data_path(SETUP)), "--filter", "10", "--out", str(tmp_path / "one"),
+                 "--quiet"]) == 0
+    assert main(["scale", str(data_path(SETUP)), "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--marker-filter", "10", "--out", str(tmp_path / "scaled")]) == 0
+    scaled = tmp_path / "scaled/RBDS001_scaleSetup_simple.osim"
+    assert main(["retarget", str(trial), "--model", str(scaled), "--filter", "10", "--out", str(tmp_path / "two"),
+                 "--quiet"]) == 0
+    capsys.readouterr()
+    one, two = BodyModel.from_osim(tmp_path / "one/RBDS001_scaleSetup_simple.osim"), BodyModel.from_osim(scaled)
+    q = two.default_q()[None]
+    assert (forward_kinematics(one, q).positions - forward_kinematics(two, q).positions).abs().max() < 1e-12
+    first, second = read_motion(tmp_path / "one/RBDS001runT35.mot"), read_motion(tmp_path / "two/RBDS001runT35.mot")
+    assert first.n_frames == second.n_frames > 1000
+    assert np.abs(first.values - second.values).max() < 1e-9
