@@ -9,12 +9,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 from biomotion import __version__
 from biomotion.data_root import ENVIRONMENT_VARIABLE, default_data_root
-from biomotion.errors import BiomotionError, ConfigError
+from biomotion.errors import BiomotionError, BiomotionWarning, ConfigError
 
 
 
@@ -708,6 +709,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(showwarning):
+    """``warnings.showwarning`` that prints biomotion's own warnings as one line, like its errors (the default
+    adds the file and line of the library code that warned, which names nothing the user gave)."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, BiomotionWarning):
+            print(f"biomotion: warning: {message}", file=sys.stderr if file is None else file)
+        else:
+            showwarning(message, category, filename, lineno, file, line)
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -715,7 +727,8 @@ def main(argv: list[str] | None = None) -> int:
         from biomotion.body.kinematics import torch_threads
 
         # many small batched tensor ops: one intra-op thread per process is fastest (docs/results/dynamics.md)
-        with torch_threads(1):
+        with torch_threads(1), warnings.catch_warnings():
+            warnings.showwarning = _one_line_warnings(warnings.showwarning)
             return int(args.run(args) or 0)
     except BiomotionError as error:
         print(f"biomotion: error: {error}", file=sys.stderr)

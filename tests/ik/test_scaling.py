@@ -195,3 +195,26 @@ def test_static_frames_as_opensim_selects_and_checks_them():
     with pytest.raises(DataFormatError, match="max_marker_movement") as error:
         average_frames(markers, max_movement=0.01)
     assert error.value.field == "B"
+
+
+def test_a_marker_set_names_the_marker_whose_frame_the_model_lacks(tmp_path):
+    """GenericModelMaker marker sets (OpenSim 3 `<body>` or OpenSim 4 socket layout) merge into the generic model;
+    a marker on a body the model does not have is named with its file."""
+    from biomotion.errors import ModelError
+    from biomotion.ik.scaling import with_marker_set
+    from biomotion.io.osim import read_marker_set
+
+    path = tmp_path / "markers.xml"
+    path.write_text('<OpenSimDocument Version="20302"><MarkerSet><objects>'
+                    '<Marker name="Wing"><body>wing</body><location>0 0.1 0</location></Marker>'
+                    '<Marker name="Hip"><socket_parent_frame>/bodyset/pelvis</socket_parent_frame>'
+                    '<location>0.1 0 0</location><fixed>true</fixed></Marker></objects></MarkerSet></OpenSimDocument>')
+    markers = read_marker_set(path)
+    assert [(m.name, m.frame, m.fixed) for m in markers] == [("Wing", "/bodyset/wing", False),
+                                                            ("Hip", "/bodyset/pelvis", True)]
+    model = BodyModel.from_osim(data_path(DENTON))
+    merged = with_marker_set(model, markers[1:], path)
+    assert merged.marker_names == (*model.marker_names, "Hip")
+    assert merged.marker_offsets[-1].tolist() == [0.1, 0.0, 0.0]
+    with pytest.raises(ModelError, match="marker 'Wing' is on '/bodyset/wing', which model .* does not have"):
+        with_marker_set(model, markers, path)

@@ -5,7 +5,9 @@ ModelScaler, Measurement, MarkerPair): for each applied measurement, the factor 
 experimental distance (averaged over the static trial's frames in the time range where both markers are seen)
 divided by the model distance (markers of the generic model in its default pose); the factor is written onto the
 measurement's axes of its bodies, measurements in setup order, then manual scales, as ``scaling_order`` says.
-Time ranges select frames as OpenSim's MarkerData does (`frame_range`: the frames enclosing the range).
+Time ranges select frames as OpenSim's MarkerData does (`frame_range`: the frames enclosing the range). A setup's
+GenericModelMaker ``marker_set_file`` is merged into the generic model first (`with_marker_set`, OpenSim's
+``Model::updateMarkerSet``), and a measurement's body the model lacks is skipped with a warning, as OpenSim skips it.
 
 Marker placement follows OpenSim's MarkerPlacer: marker positions averaged over the time range, one IK solve of
 that average pose with the placer's marker weights and coordinate tasks on the scaled model, then every non-fixed
@@ -114,8 +116,9 @@ def body_scale_factors(model: BodyModel, markers: Markers | None, setup: ScaleSe
                        ) -> tuple[dict[str, tuple[float, float, float]], dict[str, float]]:
     """(factors per body, factor per measurement) from a ScaleTool setup, in its ``scaling_order``.
 
-    Every body of the model gets an entry (1, 1, 1 when nothing scales it). Bodies a setup names that the model
-    lacks raise `ModelError`.
+    Every body of the model gets an entry (1, 1, 1 when nothing scales it). A body a measurement names that the
+    model lacks is skipped with a warning, as OpenSim's ScaleTool skips it (gait2392's subject01 setup scales
+    patellae that the gait2392 models shipped with OpenSim do not have).
     """
     factors = {name: [1.0, 1.0, 1.0] for name in model.body_names}
     per_measurement: dict[str, float] = {}
@@ -129,8 +132,10 @@ def body_scale_factors(model: BodyModel, markers: Markers | None, setup: ScaleSe
                     continue
                 for body, axes in measurement.bodies:
                     if body not in factors:
-                        raise ModelError(f"{setup.path}: measurement {measurement.name!r} scales body {body!r}, "
-                                         f"which model {model.name!r} lacks")
+                        warnings.warn(f"{setup.path}: measurement {measurement.name!r} scales body {body!r}, which "
+                                      f"model {model.name!r} lacks: skipped, as OpenSim does", BiomotionWarning,
+                                      stacklevel=2)
+                        continue
                     for axis in axes:
                         factors[body]["XYZ".index(axis)] = per_measurement[measurement.name]
         elif step == "manualScale":
@@ -259,6 +264,24 @@ class ScaleResult:
     generic: BodyModel
 
 
+def with_marker_set(model: BodyModel, markers: Sequence[osim.MarkerSpec], source: str | Path) -> BodyModel:
+    """The unscaled ``model`` with the markers of a MarkerSet file (``source``) merged in, as OpenSim's
+    GenericModelMaker does with its ``marker_set_file`` (``Model::updateMarkerSet``): a model marker of the same
+    name takes the set's frame, location and ``fixed``; the others are added, after the model's own."""
+    if not bool((model.body_scales == 1).all()):
+        raise ModelError(f"{source}: markers are merged into the generic model, before it is scaled")
+    merged = {m.name: m for m in model.spec.markers}
+    for marker in markers:
+        frame = marker.frame if marker.frame.startswith("/") else f"/bodyset/{marker.frame}"
+        try:
+            model.frame_in_body(frame)
+        except ModelError:
+            raise ModelError(f"{source}: marker {marker.name!r} is on {marker.frame!r}, which model "
+                             f"{model.name!r} does not have") from None
+        merged[marker.name] = dataclasses.replace(marker, frame=frame)
+    return BodyModel.from_spec(dataclasses.replace(model.spec, markers=tuple(merged.values())), model.dtype)
+
+
 def scale_static(generic: BodyModel, static: Markers | None, setup: ScaleSetup, *, mass: float | None = None,
                  method: str = "average") -> ScaleResult:
     """OpenSim's ScaleTool on an in-memory static trial: scale ``generic`` (factors from the setup's
@@ -272,8 +295,11 @@ def scale_static(generic: BodyModel, static: Markers | None, setup: ScaleSetup, 
     if static is None and needs_markers:
         raise ConfigError(f"{setup.path}: this setup measures or places markers, so it needs a static trial")
     if setup.marker_set_file.strip().lower() not in ("", "unassigned"):
-        raise ConfigError(f"{setup.path}: GenericModelMaker replaces the model's markers with "
-                          f"{setup.marker_set_file!r}; that is not supported: give a model that has those markers")
+        marker_set = setup.file("marker_set_file")
+        if marker_set is None or not marker_set.exists():
+            raise ConfigError(f"{setup.path}: its GenericModelMaker's marker set {setup.marker_set_file!r} is not "
+                              "found from here")
+        generic = with_marker_set(generic, osim.read_marker_set(marker_set), marker_set)
     factors, per_measurement = body_scale_factors(generic, static, setup)
     target = mass if mass is not None else (setup.mass if setup.mass > 0 else None)
     scaled = scale_model(generic.to(_F64), factors, mass=target,
@@ -498,6 +524,7 @@ def write_scaled_osim(source: str | Path, destination: str | Path, result: Scale
         _scale_custom_joint(elem, frames, factors_of)
     _scale_wrap_objects(model_elem, factor)
     _scale_path_points(model_elem, factors_of)
+    _marker_elements(model_elem, generic.spec.markers, frames)
     _place_markers(model_elem, scaled, frames)
     lengths_after = _muscle_lengths(model_elem, _PathPoints(scaled, frames))
     for force, before in lengths_before.items():
@@ -610,6 +637,35 @@ def _muscle_lengths(model_elem: ET.Element, points: _PathPoints) -> dict[ET.Elem
             continue
         lengths[force] = _path_length([points.position(p) for p in path])
     return lengths
+
+
+def _marker_elements(model_elem: ET.Element, markers: Sequence[osim.MarkerSpec], frames: _Frames) -> None:
+    """The file's MarkerSet made to hold ``markers`` (the scaled model's, which a GenericModelMaker marker set may
+    have changed or extended): a marker whose frame or ``fixed`` differs from its element is rewritten, a missing
+    one added (OpenSim 4 layout); the locations follow in `_place_markers`."""
+    holder = model_elem.find("MarkerSet")
+    if holder is None:
+        holder = ET.SubElement(model_elem, "MarkerSet", name="markerset")
+    objects = holder.find("objects")
+    if objects is None:
+        objects = ET.SubElement(holder, "objects")
+    existing = {elem.get("name"): elem for elem in objects if elem.tag == "Marker"}
+    for marker in markers:
+        elem = existing.get(marker.name)
+        if elem is not None and frames.path(_socket(elem, "parent_frame") or "/ground") == marker.frame and \
+                (elem.findtext("fixed", "false").strip().lower() == "true") == marker.fixed:
+            continue
+        if elem is None:
+            elem = ET.SubElement(objects, "Marker", name=marker.name)
+            ET.SubElement(elem, "location").text = "0 0 0"
+        socket = elem.find("socket_parent_frame")
+        if socket is None:
+            socket = ET.SubElement(elem, "socket_parent_frame")
+        socket.text = marker.frame
+        fixed = elem.find("fixed")
+        if fixed is None:
+            fixed = ET.SubElement(elem, "fixed")
+        fixed.text = "true" if marker.fixed else "false"
 
 
 def _place_markers(model_elem: ET.Element, scaled: BodyModel, frames: _Frames) -> None:

@@ -644,3 +644,31 @@ def read_scale_set(path: str | Path) -> tuple[ScaleSpec, ...]:
     if not out:
         raise DataFormatError(path, "ScaleSet holds no <Scale>", line=1)
     return tuple(out)
+
+
+def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
+    """Parse an OpenSim ``<MarkerSet>`` file (what a ScaleTool's GenericModelMaker ``marker_set_file`` names).
+
+    Each marker's frame is its ``socket_parent_frame`` (OpenSim 4) or, in the OpenSim 3 layout, ``<body>``, read as
+    ``/bodyset/<body>`` as OpenSim's own reader does; a bare frame name is resolved against the model later
+    (`biomotion.body.model.BodyModel.with_markers`)."""
+    path = Path(path)
+    doc = _Doc(path)
+    _version(doc)
+    marker_set = doc.root if doc.root.tag == "MarkerSet" else doc.root.find("MarkerSet")
+    if marker_set is None:
+        raise DataFormatError(path, "no <MarkerSet> element", line=1)
+    out = []
+    for elem in _objects(marker_set):
+        if elem.tag != "Marker":
+            raise doc.format_error(elem, f"unexpected <{elem.tag}> in MarkerSet", elem.tag)
+        body = elem.find("body")
+        if body is not None and (body.text or "").strip():
+            frame = f"/bodyset/{body.text.strip()}"
+        else:
+            frame = _socket(doc, elem, "parent_frame")
+        out.append(MarkerSpec(elem.get("name") or "", frame, doc.vec3(elem, "location", "0 0 0"),
+                              doc.boolean(elem, "fixed", "false")))
+    if not out:
+        raise DataFormatError(path, "MarkerSet holds no <Marker>", line=1)
+    return tuple(out)
