@@ -116,6 +116,8 @@ def test_scale_runs_the_gait2392_tutorial_setup_as_opensim_does(tmp_path, capsys
     model, reference = BodyModel.from_osim(tmp_path / "ours/subject01.osim"), BodyModel.from_osim(
         tmp_path / "subject01_simbody.osim")
     assert sorted(model.marker_names) == sorted(reference.marker_names) and len(model.marker_names) == 39
+    loaded = osim.Model(str(tmp_path / "ours/subject01.osim"))   # the added markers in OpenSim 4's layout
+    assert loaded.getMarkerSet().getSize() == 39 and abs(loaded.getTotalMass(loaded.initSystem()) - 72.6) < 1e-9
     assert torch.allclose(model.masses, reference.masses, atol=1e-9)
     assert torch.allclose(model.inertias, reference.inertias, atol=1e-9)
     q = model.default_q() + 0.3 * torch.randn(5, model.n_q, dtype=torch.float64,
