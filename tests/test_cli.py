@@ -242,7 +242,7 @@ def test_analyze_refuses_ik_options_for_coordinates(tmp_path, capsys):
     folder = data_path("opensim-models/Pipelines/Gait2392_Simbody")
     code = main(["analyze", str(folder / "subject01_walk1_ik.mot"), "--setup", str(folder / "subject01_Setup_IK.xml"),
                  "--model", str(folder / "OutputReference/subject01_simbody.osim"), "--out", str(tmp_path)])
-    assert code == 2 and "--setup and --marker-filter are for captured motion" in capsys.readouterr().err
+    assert code == 2 and "--static and --scale-setup are for captured motion" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 
 

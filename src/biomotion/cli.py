@@ -150,14 +150,22 @@ def _inverse_kinematics(args: argparse.Namespace, folder: Path) -> tuple[Path, P
     from biomotion.ik.setup import read_ik_setup
 
     setup = read_ik_setup(args.setup) if args.setup else None
-    if setup is not None and is_skeleton(args.trial):
-        raise ConfigError(f"{args.setup}: an IK setup weighs markers, and {args.trial} is a skeleton")
-    (ik,) = retarget([args.trial], BodyModel.from_osim(args.model), folder,
+    if (setup is not None or args.scale_setup is not None) and is_skeleton(args.trial):
+        raise ConfigError(f"{args.trial} is a skeleton: IK and Scale setups weigh and measure markers")
+    model = args.model
+    if args.scale_setup is not None:
+        from biomotion.ik.calibrate import calibrate
+
+        done = calibrate(args.scale_setup, folder, model=args.model, static=args.static,
+                         filter_hz=args.marker_filter)
+        _print_calibration(done, files=False)
+        model = done.model
+    (ik,) = retarget([args.trial], BodyModel.from_osim(model), folder,
                      weights=setup.marker_weights if setup else None, filter_hz=args.marker_filter,
-                     model_path=args.model, setup=setup, progress=False)
+                     model_path=model, setup=setup, progress=False)
     if ik.error:
         raise BiomotionError(f"{args.trial}: inverse kinematics failed: {ik.error}")
-    model = folder / f"{ik.trial}.osim" if is_skeleton(args.trial) else args.model
+    model = folder / f"{ik.trial}.osim" if is_skeleton(args.trial) else model
     kind = "joint centre" if is_skeleton(args.trial) else "marker"
     print(f"inverse kinematics: {ik.frames} frames, RMS {kind} error {100 * ik.rms_error_m:.2f} cm "
           f"(max {100 * ik.max_error_m:.2f} cm, {ik.frames_dropped} frames without a tracked point)")
@@ -167,6 +175,8 @@ def _inverse_kinematics(args: argparse.Namespace, folder: Path) -> tuple[Path, P
                f"max_{point}_error_m": ik.max_error_m, "frames_dropped": ik.frames_dropped,
                "coordinates": f"ik/{ik.output}",
                "model": f"ik/{model.name}" if model != args.model else str(args.model)}
+    if args.scale_setup is not None:
+        section["scaling"] = f"ik/{done.summary_file.name}"
     return folder / ik.output, model, section
 
 
@@ -176,9 +186,12 @@ def _analyze(args: argparse.Namespace) -> int:
     from biomotion.ik.retarget import MARKER_SUFFIXES, is_skeleton
 
     captured = args.trial.suffix.lower() in MARKER_SUFFIXES or is_skeleton(args.trial)
-    if not captured and (args.setup or args.marker_filter):
-        raise ConfigError(f"{args.trial}: --setup and --marker-filter are for captured motion (.trc/.c3d markers, "
-                          f".bvh skeletons); a coordinates file is analysed as it is")
+    if not captured and (args.setup or args.marker_filter or args.static or args.scale_setup):
+        raise ConfigError(f"{args.trial}: --setup, --marker-filter, --static and --scale-setup are for captured "
+                          f"motion (.trc/.c3d markers, .bvh skeletons); a coordinates file is analysed as it is")
+    if args.static is not None and args.scale_setup is None:
+        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
+                          "--scale-setup XML too (`biomotion scale --help`)")
     if not captured:
         return _analyze_coordinates(args, args.trial, args.model, {}, None)
     with tempfile.TemporaryDirectory(prefix="biomotion-ik-") as scratch:
@@ -351,14 +364,15 @@ def _scale(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_calibration(done) -> None:
+def _print_calibration(done, files: bool = True) -> None:
+    """One line on what `biomotion.ik.calibrate.calibrate` did, then (``files``) the files it wrote."""
     summary = done.summary
     scaled = {body: f for body, f in summary["scale_factors"].items() if any(abs(v - 1) > 1e-9 for v in f)}
     print(f"scaled {Path(summary['generic_model']).name} to {summary['mass_kg']:.2f} kg: {len(scaled)} bodies "
           f"scaled by {len(summary['measurements'])} measurements"
           + (f", {summary['markers_placed']} markers placed (static pose marker RMS "
              f"{100 * summary['placement_marker_rms_m']:.2f} cm)" if summary["markers_placed"] is not None else ""))
-    for path in (done.model, done.scale_set, done.pose, done.summary_file):
+    for path in (done.model, done.scale_set, done.pose, done.summary_file) if files else ():
         if path is not None:
             print(f"  {path}")
 
@@ -544,8 +558,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "optimization of those torques). TRIAL may be captured motion too: markers (.trc, .c3d) are "
                     "first solved by inverse kinematics on MODEL (with --setup's weights, tasks and time range), a "
                     "skeleton (.bvh, .bvh.gz) is retargeted onto MODEL (the generic model, scaled to the skeleton), "
-                    "exactly as `biomotion retarget` does; the IK result is kept in --out/ik and summarised in "
-                    "summary.json, so one command runs the whole chain from the lab's files.",
+                    "exactly as `biomotion retarget` does; with --static and --scale-setup a generic MODEL is "
+                    "first scaled to the subject's static trial (as `biomotion scale`). The IK result (and the "
+                    "scaled model) is kept in --out/ik and summarised in summary.json, so one command runs the "
+                    "whole chain from the lab's files.",
         epilog="examples, with G=../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
                "$G/subject01_walk1_ik.mot --model $G/OutputReference/subject01_simbody.osim --grf "
                "$G/subject01_walk1_grf.mot --muscles gait2392_subject01 --out out/walk; from the markers: "
@@ -558,6 +574,10 @@ def build_parser() -> argparse.ArgumentParser:
                          help="the subject's scaled .osim model (for a skeleton: the generic model to scale)")
     analyze.add_argument("--setup", type=Path,
                          help="markers only: OpenSim IK setup XML (marker weights, coordinate tasks, time range)")
+    analyze.add_argument("--static", type=Path,
+                         help="markers only: a static trial; MODEL is then the generic model, scaled to it by "
+                              "--scale-setup first (as `biomotion scale`; kept in --out/ik)")
+    analyze.add_argument("--scale-setup", type=Path, help="OpenSim ScaleTool setup XML for --static")
     analyze.add_argument("--marker-filter", type=float, metavar="HZ",
                          help="markers: low-pass them before IK; skeletons: the coordinates (default 10 Hz, as "
                               "`biomotion retarget --filter`)")

@@ -11,7 +11,7 @@ import torch
 from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
-from biomotion.io.mot import read_motion
+from biomotion.io.mot import read_motion, read_storage
 from biomotion.io.osim import read_scale_set
 from tests.conftest import data_path
 
@@ -139,3 +139,26 @@ def test_scale_runs_the_gait2392_tutorial_setup_as_opensim_does(tmp_path, capsys
                                  coordinate_tasks=setup.placer_tasks.coordinate_tasks).cost[0])
 
     assert objective(our_pose.values[0]) <= objective(opensim_pose)
+
+
+def test_analyze_scales_then_solves_then_analyses_a_runner_from_the_lab_files(tmp_path, capsys):
+    """`analyze RUN.c3d --model GENERIC --static STATIC.c3d --scale-setup XML --grf RUN.c3d`: the whole chain in one
+    command equals its steps run one by one (`scale`, then `analyze` on the scaled model): the same torques, and
+    the scaled model and its summary kept in OUT/ik."""
+    trial = str(data_path(f"{FUKUCHI}/c3d/RBDS001runT35.c3d"))   # markers and plates in one file
+    common = ["--grf", trial, "--marker-filter", "10", "--no-figures"]
+    assert main(["analyze", trial, "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--scale-setup", str(data_path(SETUP)), "--out", str(tmp_path / "one"), *common]) == 0
+    out = capsys.readouterr().out
+    assert "28 markers placed" in out and "torques from measured ground reaction" in out
+    ik = json.loads((tmp_path / "one/summary.json").read_text())["inverse_kinematics"]
+    assert ik["model"] == "ik/RBDS001_scaleSetup_simple.osim"
+    assert ik["scaling"] == "ik/RBDS001_scaleSetup_simple_scale.json"
+    assert (tmp_path / "one/ik/RBDS001_scaleSetup_simple.osim").exists()
+    assert main(["scale", str(data_path(SETUP)), "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--marker-filter", "10", "--out", str(tmp_path / "scaled")]) == 0
+    assert main(["analyze", trial, "--model", str(tmp_path / "scaled/RBDS001_scaleSetup_simple.osim"),
+                 "--out", str(tmp_path / "two"), *common]) == 0
+    one, two = read_storage(tmp_path / "one/torques.sto"), read_storage(tmp_path / "two/torques.sto")
+    assert one.labels == two.labels and one.data.shape == two.data.shape and one.data.shape[0] > 1000
+    assert np.abs(one.data - two.data).max() < 1e-6
