@@ -123,6 +123,13 @@ def test_inspect_summarises_setups_and_marks_missing_files(capsys):
     assert summary["model_file"].endswith("(not found)") and "r_thigh_length" in summary["measurements"]
     assert main(["inspect", str(data_path("opensim-models/Pipelines/Rajagopal/ID/grf_walk.xml"))]) == 2
     assert "<ExternalLoads>" in capsys.readouterr().err
+    marker_set = data_path("opensim-models/Pipelines/Gait2392_Simbody/gait2392_Scale_MarkerSet.xml")
+    assert main(["inspect", str(marker_set)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["kind"] == "MarkerSet" and summary["markers"] == 39 and summary["frames"]["/bodyset/torso"] == 4
+    assert main(["inspect", str(data_path("fukuchi-running/RBDS001/RBDS001_scaleSet_simple.xml"))]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["kind"] == "ScaleSet" and len(summary["scales"]["femur_r"]) == 3
 
 
 def test_convert_mot_to_csv_and_back(tmp_path):

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import warnings
 from dataclasses import replace
@@ -756,6 +757,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("biomotion: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:   # `biomotion inspect X | head`: the reader left; say nothing more
+        sys.stdout = open(os.devnull, "w")
+        return 141
 
 
 if __name__ == "__main__":

@@ -360,5 +360,5 @@ def describe_setup(path: str | Path) -> dict:
                 "preserve_mass_distribution": scale.preserve_mass_distribution,
                 "placer_marker_tasks": len(scale.placer_tasks.marker_weights),
                 "placer_time_range_s": scale.placer_time_range}
-    raise DataFormatError(path, f"inspect reads InverseKinematicsTool and ScaleTool setups; this file holds "
-                                f"<{tool}>")
+    raise DataFormatError(path, f"inspect reads InverseKinematicsTool and ScaleTool setups, MarkerSets and "
+                                f"ScaleSets; this file holds <{tool}>")

@@ -161,7 +161,7 @@ def describe(path: str | Path) -> dict[str, Any]:
     """A short JSON-able summary of a file: kind, frames, rate, duration, channel names; for a subject table
     (`biomotion.io.tables`: Fukuchi participantInfo, ANSUR II, ...) its schema, subjects and fields; for an .osim
     model its bodies, mass, joints, coordinates with their ranges, markers and muscles; for an IK or Scale setup
-    (.xml) the files it names and its tasks."""
+    (.xml) the files it names and its tasks; for a MarkerSet or ScaleSet (.xml) its markers or factors."""
     from biomotion.io.tables import describe_subject_table, table_schema
 
     schema = table_schema(path) if suffix_of(Path(path)) in (".csv", ".tsv", ".txt", ".xlsx", ".xlsm") else None
@@ -171,8 +171,9 @@ def describe(path: str | Path) -> dict[str, Any]:
         return _describe_model(Path(path))
     if suffix_of(Path(path)) == ".xml":
         from biomotion.ik.setup import describe_setup
+        from biomotion.io.osim import describe_document, document_kind
 
-        return describe_setup(path)
+        return describe_document(path) if document_kind(path) else describe_setup(path)
     data = read_any(path)
     summary: dict[str, Any] = {"file": str(path), "kind": type(data).__name__}
     series = []

@@ -672,3 +672,31 @@ def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
     if not out:
         raise DataFormatError(path, "MarkerSet holds no <Marker>", line=1)
     return tuple(out)
+
+
+#: OpenSim documents besides models that `describe_document` summarises.
+DOCUMENTS = ("MarkerSet", "ScaleSet")
+
+
+def document_kind(path: str | Path) -> str | None:
+    """"MarkerSet" or "ScaleSet" for such an OpenSim document (bare or inside <OpenSimDocument>), else None."""
+    root = _Doc(Path(path)).root
+    for elem in (root, *root):
+        if elem.tag in DOCUMENTS:
+            return elem.tag
+    return None
+
+
+def describe_document(path: str | Path) -> dict:
+    """A MarkerSet (markers per frame, how many fixed) or ScaleSet (each segment's factors) file, for
+    ``biomotion inspect``."""
+    kind = document_kind(path)
+    if kind == "MarkerSet":
+        markers = read_marker_set(path)
+        return {"file": str(path), "kind": kind, "markers": len(markers),
+                "fixed": sum(m.fixed for m in markers),
+                "frames": dict(collections.Counter(m.frame for m in markers))}
+    if kind == "ScaleSet":
+        return {"file": str(path), "kind": kind, "scales": {s.segment: list(s.scales) for s in read_scale_set(path)
+                                                           if s.apply}}
+    raise DataFormatError(Path(path), f"not an OpenSim {' or '.join(DOCUMENTS)} document", line=1)
