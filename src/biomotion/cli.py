@@ -359,9 +359,52 @@ def _eval(args: argparse.Namespace) -> int:
 def _scale(args: argparse.Namespace) -> int:
     from biomotion.ik.calibrate import calibrate
 
+    by_profile = args.profile is not None or args.subject_table is not None
+    if by_profile == (args.setup is not None):
+        raise ConfigError("give a ScaleTool SETUP (with a static trial), or a person: --profile FILE or "
+                          "--subject-table CSV --subject-id ID")
+    if by_profile:
+        return _scale_to_person(args)
     done = calibrate(args.setup, args.out, model=args.model, static=args.static, mass=args.mass,
                      filter_hz=args.marker_filter, name=args.name)
     _print_calibration(done)
+    return 0
+
+
+def _scale_to_person(args: argparse.Namespace) -> int:
+    """`scale --profile|--subject-table`: no markers; stature ratio, ANSUR II segment measures where given."""
+    from dataclasses import replace as replaced
+
+    from biomotion.body.profile_scaling import scale_to_person, standing_height
+    from biomotion.generation.command import read_profile, subject_profile
+    from biomotion.io.atomic import atomic_write
+
+    if args.model is None:
+        raise ConfigError("scaling to a person needs the generic model: give --model OSIM (e.g. Rajagopal2016.osim)")
+    if args.static is not None or args.marker_filter is not None:
+        raise ConfigError("--static and --marker-filter belong to a ScaleTool setup; a person is scaled from "
+                          "their profile")
+    if args.profile is not None and args.subject_table is not None:
+        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
+    if (args.subject_table is None) != (args.subject_id is None):
+        raise ConfigError("--subject-table and --subject-id go together")
+    person = read_profile(args.profile) if args.profile else subject_profile(args.subject_table, args.subject_id)
+    if args.mass is not None:
+        person = replaced(person, mass=args.mass)
+    name = args.name or person.subject_id or "subject"
+    model = scale_to_person(args.model, person, args.out / f"{name}.osim", name=name)
+    factors = {body: round(float(model.body_scales[i, 0]), 6) for i, body in enumerate(model.body_names)}
+    from biomotion.body.segment_scaling import measures_of
+
+    summary = {"generic_model": str(args.model), "height_m": person.height, "mass_kg": float(model.total_mass),
+               "ansur_measures_mm": measures_of(person.extra), "scale_factors": factors,
+               "standing_height_m": round(standing_height(model).height, 4), "model": f"{name}.osim"}
+    with atomic_write(args.out / f"{name}_scale.json") as handle:
+        json.dump(summary, handle, indent=1)
+    measured = len(summary["ansur_measures_mm"])
+    print(f"scaled {Path(args.model).name} to {summary['mass_kg']:.2f} kg, standing {summary['standing_height_m']:.3f}"
+          f" m ({'stature ratio' if not measured else f'{measured} ANSUR II measures, stature ratio elsewhere'})")
+    print(f"  {args.out / f'{name}.osim'}\n  {args.out / f'{name}_scale.json'}")
     return 0
 
 
@@ -636,12 +679,20 @@ def build_parser() -> argparse.ArgumentParser:
                     "the data (PG-BIG A.2). Writes NAME.osim (opens in OpenSim; use it as `retarget --model`), "
                     "NAME_scale_set.xml, NAME_static_pose.mot and NAME_scale.json into --out. Setups name their "
                     "model and static trial by paths relative to where they were written: --model and --static "
-                    "override them.",
+                    "override them. Without markers, a person (--profile, or a subject table row) scales --model "
+                    "by stature and, where given, ANSUR II segment measures.",
         epilog="example, with F=../shared/data/fukuchi-running: biomotion scale "
                "$F/RBDS001/RBDS001_scaleSetup_simple.xml --model "
                "$F/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim --static $F/c3d/RBDS001static.c3d "
                "--marker-filter 10 --out out/RBDS001")
-    scale.add_argument("setup", type=Path, help="OpenSim ScaleTool setup XML")
+    scale.add_argument("setup", type=Path, nargs="?", help="OpenSim ScaleTool setup XML")
+    scale.add_argument("--profile", type=Path,
+                       help="instead of a setup: a person (YAML/JSON profile); every body scaled by the stature "
+                            "ratio, except segments whose ANSUR II measures (mm, the survey's names, e.g. "
+                            "footlength) the profile gives, scaled by them (biomotion.body.segment_scaling)")
+    scale.add_argument("--subject-table", type=Path, help="instead of a setup: a subject table (an ANSUR II file "
+                                                          "gives every measure), with --subject-id")
+    scale.add_argument("--subject-id", help="the row of --subject-table")
     scale.add_argument("--model", type=Path, help="the generic .osim (default: the setup's model_file)")
     scale.add_argument("--static", type=Path, help="the static trial, .trc or .c3d (default: the setup's marker_file)")
     scale.add_argument("--mass", type=float, help="subject mass in kg (default: the setup's mass)")

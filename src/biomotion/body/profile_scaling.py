@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,6 +47,7 @@ from biomotion.body.kinematics import (
 )
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling import scale_model
+from biomotion.body.segment_scaling import body_factors, measures_of, segment_factors
 from biomotion.errors import BiomotionWarning, ConfigError, ModelError
 from biomotion.ik.scaling import ScaleResult, write_scaled_osim
 from biomotion.profile import Profile
@@ -98,35 +100,45 @@ def standing_height(model: BodyModel, *, generic_height: float | None = None) ->
 
 
 def scale_to_profile(generic_osim: str | Path, height: float | None, mass: float | None, out_osim: str | Path, *,
-                     generic_height: float | None = None, name: str | None = None) -> BodyModel:
-    """Scale the model in ``generic_osim`` uniformly to ``height`` (m) and ``mass`` (kg); write it to ``out_osim``.
+                     measures: Mapping[str, float] | None = None, generic_height: float | None = None,
+                     name: str | None = None) -> BodyModel:
+    """Scale the model in ``generic_osim`` to ``height`` (m), ``mass`` (kg) and optionally ANSUR II segment
+    ``measures`` (mm); write it to ``out_osim``.
 
-    Every body gets the factor ``height / standing_height(generic)`` on all three axes; then all masses and
-    inertias are multiplied by ``mass / total mass`` (mass distribution preserved). A None ``height`` or ``mass``
-    leaves that aspect as in the generic model. The file is the generic one edited by
+    Every body gets the factor ``height / standing_height(generic)`` on all three axes, except the bodies of a
+    segment whose measures are given, which get that segment's factor (`biomotion.body.segment_scaling`); then all
+    masses and inertias are multiplied by ``mass / total mass`` (mass distribution preserved). A None ``height``
+    or ``mass`` leaves that aspect as in the generic model. The file is the generic one edited by
     `biomotion.ik.scaling.write_scaled_osim` (OpenSim loads it); ``name`` renames the model in it.
 
     Returns:
         The scaled model, as written (masses, inertias, joint frames, markers), in float64; its ``spec`` is the
-        generic file's and ``body_scales`` holds the factor, so `standing_height` of it is ``height``.
+        generic file's and ``body_scales`` holds the factors, so `standing_height` of it is ``height`` when every
+        body has the stature ratio (with segment measures, the sum of the measured segments).
     """
     _check_range("height", height, HEIGHT_RANGE, "m")
     _check_range("mass", mass, MASS_RANGE, "kg")
     generic_osim = Path(generic_osim)
     generic = BodyModel.from_osim(generic_osim).to(_F64)
-    factor = 1.0 if height is None else height / standing_height(generic, generic_height=generic_height).height
-    factors = {body: (factor, factor, factor) for body in generic.body_names}
-    scaled = scale_model(generic, torch.full((generic.n_bodies, 3), factor, dtype=_F64), mass=mass,
+    stature = standing_height(generic, generic_height=generic_height).height
+    factor = 1.0 if height is None else height / stature
+    segments = segment_factors(measures, stature) if measures else {}
+    per_body = body_factors(generic.body_names, segments, factor)
+    factors = {body: (f, f, f) for body, f in per_body.items()}
+    scaled = scale_model(generic, torch.tensor([factors[b] for b in generic.body_names], dtype=_F64), mass=mass,
                          preserve_mass_distribution=True)
-    result = ScaleResult(factors=factors, measurements={} if height is None else {"standing_height": factor},
-                         mass=mass, preserve_mass_distribution=True, model=scaled, placement=None, generic=generic)
+    measured = ({} if height is None else {"standing_height": factor}) | segments
+    result = ScaleResult(factors=factors, measurements=measured, mass=mass, preserve_mass_distribution=True,
+                         model=scaled, placement=None, generic=generic)
     write_scaled_osim(generic_osim, out_osim, result, name=name)
     return scaled
 
 
 def scale_to_person(generic_osim: str | Path, profile: Profile, out_osim: str | Path, **options) -> BodyModel:
-    """`scale_to_profile` with a `Profile`'s height and mass (either may be None)."""
-    return scale_to_profile(generic_osim, profile.height, profile.mass, out_osim, **options)
+    """`scale_to_profile` with a `Profile`'s height and mass (either may be None) and the ANSUR II segment
+    measures (mm) among its extra fields (an ANSUR II table row has them all)."""
+    return scale_to_profile(generic_osim, profile.height, profile.mass, out_osim,
+                            measures=measures_of(profile.extra), **options)
 
 
 # ---- helpers ---------------------------------------------------------------------------------------------------
