@@ -131,8 +131,12 @@ def _analysis_figures(args: argparse.Namespace, coordinates: Path, model: Path, 
     from biomotion.viz.plots import plot_balance, plot_ground_reaction, plot_joint_angles
     from biomotion.viz.viewer import view_command
 
+    from biomotion.viz.scene import geometry_folders
+
+    # a model scaled here lies in a scratch folder: its meshes are where the generic model's are
+    generic = geometry_folders(args.model) if Path(model) != Path(args.model) else []
     out = {"viewer": view_command(coordinates, model=model, grf=args.grf, com_zmp=files["com_zmp"],
-                                  out=args.out / "viewer.html", geometry=args.geometry or ())}
+                                  out=args.out / "viewer.html", geometry=[*(args.geometry or ()), *generic])}
     out["plot_joint_angles"] = plot_joint_angles(result.motion, args.out / "joint_angles")[0]
     reaction = result.measured if result.measured is not None else result.inferred
     out["plot_grf"] = plot_ground_reaction(reaction, args.out / "grf", body_weight=result.body_weight,
