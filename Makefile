@@ -32,7 +32,7 @@ demo: $(STAMP)
 	$(BIN)/biomotion generate --profile examples/runner_52_acl.yaml --action "running at 3.5 m/s" --seconds 3 \
 	    --data-root $(DATA) --out demo-output/generated_run
 	@echo "generated motion written to demo-output/generated_run (open viewer.html in a browser)"
-	$(BIN)/biomotion analyze $(SUBJECT4)/IK/walking1_ik.mot \
+	$(BIN)/biomotion analyze $(SUBJECT4)/MarkerData/walking1.trc --setup $(SUBJECT4)/IK/walking1_ik_setup.xml \
 	    --model $(SUBJECT4)/Models/optimized_scale_and_markers.osim \
 	    --grf $(SUBJECT4)/ID/walking1_grf.mot --out demo-output/walking1 \
 	    --geometry $(DATA)/opensim-models/Geometry --geometry $(DATA)/opensim-models/Models/Rajagopal/Geometry
