@@ -524,6 +524,9 @@ STYLE_MANIPULATIONS = (
      "older adults walk with shorter strides (Winter et al. 1990, Phys Ther 70:340)"),
     ("style (youthful)", "walk, youthful", "walk, elderly", "stride_length", -1,
      "as style: Winter et al. compared fit elderly with young adults, the issue's elderly-vs-youthful pair"),
+    ("style (exhausted)", "walk, youthful", "walk, exhausted", "stride_length", -1,
+     "the issue's third style; documented by the real clips of these two styles, not a study: the Bandai-Namco "
+     "exhausted walks stride 1.11 m against the youthful 1.38 m (docs/results/walking_styles.md)"),
 )
 
 
