@@ -379,9 +379,8 @@ def _scale_to_person(args: argparse.Namespace) -> int:
     """`scale --profile|--subject-table`: no markers; stature ratio, ANSUR II segment measures where given."""
     from dataclasses import replace as replaced
 
-    from biomotion.body.profile_scaling import scale_to_person, standing_height
+    from biomotion.body.profile_scaling import write_person_model
     from biomotion.generation.command import read_profile, subject_profile
-    from biomotion.io.atomic import atomic_write
 
     if args.model is None:
         raise ConfigError("scaling to a person needs the generic model: give --model OSIM (e.g. Rajagopal2016.osim)")
@@ -395,20 +394,12 @@ def _scale_to_person(args: argparse.Namespace) -> int:
     person = read_profile(args.profile) if args.profile else subject_profile(args.subject_table, args.subject_id)
     if args.mass is not None:
         person = replaced(person, mass=args.mass)
-    name = args.name or person.subject_id or "subject"
-    model = scale_to_person(args.model, person, args.out / f"{name}.osim", name=name)
-    factors = {body: round(float(model.body_scales[i, 0]), 6) for i, body in enumerate(model.body_names)}
-    from biomotion.body.segment_scaling import measures_of
-
-    summary = {"generic_model": str(args.model), "height_m": person.height, "mass_kg": float(model.total_mass),
-               "ansur_measures_mm": measures_of(person.extra), "scale_factors": factors,
-               "standing_height_m": round(standing_height(model).height, 4), "model": f"{name}.osim"}
-    with atomic_write(args.out / f"{name}_scale.json") as handle:
-        json.dump(summary, handle, indent=1)
+    model, summary_file, summary = write_person_model(args.model, person, args.out,
+                                                      args.name or person.subject_id or "subject")
     measured = len(summary["ansur_measures_mm"])
     print(f"scaled {Path(args.model).name} to {summary['mass_kg']:.2f} kg, standing {summary['standing_height_m']:.3f}"
           f" m ({'stature ratio' if not measured else f'{measured} ANSUR II measures, stature ratio elsewhere'})")
-    print(f"  {args.out / f'{name}.osim'}\n  {args.out / f'{name}_scale.json'}")
+    print(f"  {model}\n  {summary_file}")
     return 0
 
 

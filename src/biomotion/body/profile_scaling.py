@@ -31,6 +31,7 @@ wrap objects, muscle paths and fibre/tendon lengths), so OpenSim loads it.
 
 from __future__ import annotations
 
+import json
 import re
 import warnings
 from collections.abc import Mapping
@@ -50,6 +51,7 @@ from biomotion.body.scaling import scale_model
 from biomotion.body.segment_scaling import body_factors, measures_of, segment_factors
 from biomotion.errors import BiomotionWarning, ConfigError, ModelError
 from biomotion.ik.scaling import ScaleResult, write_scaled_osim
+from biomotion.io.atomic import atomic_write
 from biomotion.profile import Profile
 
 RAJAGOPAL_2016_HEIGHT = 1.70
@@ -139,6 +141,24 @@ def scale_to_person(generic_osim: str | Path, profile: Profile, out_osim: str | 
     measures (mm) among its extra fields (an ANSUR II table row has them all)."""
     return scale_to_profile(generic_osim, profile.height, profile.mass, out_osim,
                             measures=measures_of(profile.extra), **options)
+
+
+def write_person_model(generic_osim: str | Path, profile: Profile, out: str | Path, name: str
+                       ) -> tuple[Path, Path, dict]:
+    """`scale_to_person` into ``out/<name>.osim``, with ``out/<name>_scale.json``: the factor of every body, the
+    ANSUR II measures used, the mass and the standing height of the result. Returns (model file, summary file,
+    summary)."""
+    out = Path(out)
+    model = scale_to_person(generic_osim, profile, out / f"{name}.osim", name=name)
+    summary = {"generic_model": str(generic_osim), "height_m": profile.height, "mass_kg": float(model.total_mass),
+               "ansur_measures_mm": measures_of(profile.extra),
+               "scale_factors": {body: round(float(model.body_scales[i, 0]), 6)
+                                 for i, body in enumerate(model.body_names)},
+               "standing_height_m": round(standing_height(model).height, 4), "model": f"{name}.osim"}
+    summary_file = out / f"{name}_scale.json"
+    with atomic_write(summary_file) as handle:
+        json.dump(summary, handle, indent=1)
+    return out / f"{name}.osim", summary_file, summary
 
 
 # ---- helpers ---------------------------------------------------------------------------------------------------
