@@ -428,7 +428,11 @@ def _retarget(args: argparse.Namespace) -> int:
     model_path = args.model
     if args.scale_setup is not None:
         from biomotion.ik.calibrate import calibrate
+        from biomotion.ik.retarget import is_skeleton
 
+        if args.joint_map is not None or any(is_skeleton(path) for path in motion_files(args.input)):
+            raise ConfigError("--static/--scale-setup scale a model to markers; skeletons (BVH, --joint-map) are "
+                              "scaled to their own joint centres: retarget them without these options")
         done = calibrate(args.scale_setup, args.out, model=args.model, static=args.static, filter_hz=args.filter)
         _print_calibration(done)
         model_path = done.model

@@ -51,6 +51,11 @@ def test_scale_names_what_the_setup_points_to_and_is_missing(tmp_path, capsys):
     assert main(["retarget", str(data_path(STATIC)), "--model", str(data_path(DENTON)), "--static",
                  str(data_path(STATIC)), "--out", str(tmp_path / "out")]) == 2
     assert "give --scale-setup XML too" in capsys.readouterr().err
+    clip = data_path("bandai-namco/dataset-2/dataset-2_walk_normal_016.bvh.gz")
+    assert main(["retarget", str(clip), "--model", str(data_path(DENTON)), "--static", str(data_path(STATIC)),
+                 "--scale-setup", str(data_path(SETUP)), "--out", str(tmp_path / "out")]) == 2
+    assert "skeletons (BVH, --joint-map) are scaled to their own joint centres" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_retarget_scales_on_the_static_trial_then_solves_on_that_model(tmp_path, capsys):
