@@ -651,7 +651,7 @@ def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
 
     Each marker's frame is its ``socket_parent_frame`` (OpenSim 4) or, in the OpenSim 3 layout, ``<body>``, read as
     ``/bodyset/<body>`` as OpenSim's own reader does; a bare frame name is resolved against the model later
-    (`biomotion.body.model.BodyModel.with_markers`)."""
+    (`biomotion.ik.scaling.with_marker_set`)."""
     path = Path(path)
     doc = _Doc(path)
     _version(doc)
