@@ -147,6 +147,13 @@ def _analysis_figures(args: argparse.Namespace, coordinates: Path, model: Path, 
     return out
 
 
+def _check_static(args: argparse.Namespace) -> None:
+    """`analyze` and `retarget`: --static needs the Scale setup whose measurements scale the model to it."""
+    if args.static is not None and args.scale_setup is None:
+        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
+                          "--scale-setup XML too (`biomotion scale --help`)")
+
+
 def _inverse_kinematics(args: argparse.Namespace, folder: Path) -> tuple[Path, Path, dict]:
     """Captured motion (markers or a skeleton) -> (coordinates file, model file, summary section): `retarget` of
     the one trial into ``folder``, as `biomotion retarget TRIAL --model MODEL [--setup] [--filter]` would write it."""
@@ -194,9 +201,7 @@ def _analyze(args: argparse.Namespace) -> int:
     if not captured and (args.setup or args.marker_filter or args.static or args.scale_setup):
         raise ConfigError(f"{args.trial}: --setup, --marker-filter, --static and --scale-setup are for captured "
                           f"motion (.trc/.c3d markers, .bvh skeletons); a coordinates file is analysed as it is")
-    if args.static is not None and args.scale_setup is None:
-        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
-                          "--scale-setup XML too (`biomotion scale --help`)")
+    _check_static(args)
     if not captured:
         return _analyze_coordinates(args, args.trial, args.model, {}, None)
     with tempfile.TemporaryDirectory(prefix="biomotion-ik-") as scratch:
@@ -380,22 +385,18 @@ def _scale_to_person(args: argparse.Namespace) -> int:
     from dataclasses import replace as replaced
 
     from biomotion.body.profile_scaling import write_person_model
-    from biomotion.generation.command import read_profile, subject_profile
+    from biomotion.generation.command import person
 
     if args.model is None:
         raise ConfigError("scaling to a person needs the generic model: give --model OSIM (e.g. Rajagopal2016.osim)")
     if args.static is not None or args.marker_filter is not None:
         raise ConfigError("--static and --marker-filter belong to a ScaleTool setup; a person is scaled from "
                           "their profile")
-    if args.profile is not None and args.subject_table is not None:
-        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
-    if (args.subject_table is None) != (args.subject_id is None):
-        raise ConfigError("--subject-table and --subject-id go together")
-    person = read_profile(args.profile) if args.profile else subject_profile(args.subject_table, args.subject_id)
+    profile = person(args.profile, args.subject_table, args.subject_id)
     if args.mass is not None:
-        person = replaced(person, mass=args.mass)
-    model, summary_file, summary = write_person_model(args.model, person, args.out,
-                                                      args.name or person.subject_id or "subject")
+        profile = replaced(profile, mass=args.mass)
+    model, summary_file, summary = write_person_model(args.model, profile, args.out,
+                                                      args.name or profile.subject_id or "subject")
     measured = len(summary["ansur_measures_mm"])
     print(f"scaled {Path(args.model).name} to {summary['mass_kg']:.2f} kg, standing {summary['standing_height_m']:.3f}"
           f" m ({'stature ratio' if not measured else f'{measured} ANSUR II measures, stature ratio elsewhere'})")
@@ -422,9 +423,7 @@ def _retarget(args: argparse.Namespace) -> int:
     from biomotion.ik.setup import read_ik_setup
     from biomotion.ik.skeleton import JointMap
 
-    if args.static is not None and args.scale_setup is None:
-        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
-                          "--scale-setup XML too (`biomotion scale --help`)")
+    _check_static(args)
     model_path = args.model
     if args.scale_setup is not None:
         from biomotion.ik.calibrate import calibrate

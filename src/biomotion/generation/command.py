@@ -55,6 +55,17 @@ def subject_profile(table: str | Path, subject_id: str) -> Profile:
     return profiles[subject_id]
 
 
+def person(profile_file: Path | None, subject_table: Path | None, subject_id: str | None) -> Profile | None:
+    """The person the options name: ``--profile FILE``, or ``--subject-table CSV --subject-id ID``, or None."""
+    if profile_file is not None and subject_table is not None:
+        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
+    if (subject_table is None) != (subject_id is None):
+        raise ConfigError("--subject-table and --subject-id go together")
+    if profile_file is not None:
+        return read_profile(profile_file)
+    return subject_profile(subject_table, subject_id) if subject_table is not None else None
+
+
 def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
                      profile_file: Path | None = None, subject_table: Path | None = None,
                      subject_id: str | None = None, references: Sequence[Path] = (),
@@ -80,12 +91,7 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
 
     if threads is not None and threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {threads}")
-    if profile_file is not None and subject_table is not None:
-        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
-    if (subject_table is None) != (subject_id is None):
-        raise ConfigError("--subject-table and --subject-id go together")
-    profile = (read_profile(profile_file) if profile_file is not None
-               else subject_profile(subject_table, subject_id) if subject_table is not None else None)
+    profile = person(profile_file, subject_table, subject_id)
     if reference_actions and len(reference_actions) != len(references):
         raise ConfigError(f"--reference-action given {len(reference_actions)} times for {len(references)} "
                           "--reference clips: give one per clip, in the same order, or none")

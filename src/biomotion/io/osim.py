@@ -628,22 +628,29 @@ def model_summary(spec: ModelSpec) -> dict:
             "markers": len(spec.markers), "contact_geometry": len(spec.contact_geometry)}
 
 
-def read_scale_set(path: str | Path) -> tuple[ScaleSpec, ...]:
-    """Parse an OpenSim ``<ScaleSet>`` file (per-segment x, y, z scale factors), as written by the ScaleTool."""
+def _set_items(path: str | Path, set_tag: str, item_tag: str) -> tuple[_Doc, list[ET.Element]]:
+    """The document and the ``<item_tag>`` elements of the ``<set_tag>`` (bare or inside <OpenSimDocument>) of an
+    OpenSim set file; anything else in the set, or an empty set, is a format error naming the file."""
     path = Path(path)
     doc = _Doc(path)
     _version(doc)
-    scale_set = doc.root if doc.root.tag == "ScaleSet" else doc.root.find("ScaleSet")
-    if scale_set is None:
-        raise DataFormatError(path, "no <ScaleSet> element", line=1)
-    out = []
-    for elem in _objects(scale_set):
-        if elem.tag != "Scale":
-            raise doc.format_error(elem, f"unexpected <{elem.tag}> in ScaleSet", elem.tag)
-        out.append(ScaleSpec(doc.text(elem, "segment"), doc.vec3(elem, "scales"), doc.boolean(elem, "apply", "true")))
-    if not out:
-        raise DataFormatError(path, "ScaleSet holds no <Scale>", line=1)
-    return tuple(out)
+    holder = doc.root if doc.root.tag == set_tag else doc.root.find(set_tag)
+    if holder is None:
+        raise DataFormatError(path, f"no <{set_tag}> element", line=1)
+    items = _objects(holder)
+    for elem in items:
+        if elem.tag != item_tag:
+            raise doc.format_error(elem, f"unexpected <{elem.tag}> in {set_tag}", elem.tag)
+    if not items:
+        raise DataFormatError(path, f"{set_tag} holds no <{item_tag}>", line=1)
+    return doc, items
+
+
+def read_scale_set(path: str | Path) -> tuple[ScaleSpec, ...]:
+    """Parse an OpenSim ``<ScaleSet>`` file (per-segment x, y, z scale factors), as written by the ScaleTool."""
+    doc, items = _set_items(path, "ScaleSet", "Scale")
+    return tuple(ScaleSpec(doc.text(elem, "segment"), doc.vec3(elem, "scales"), doc.boolean(elem, "apply", "true"))
+                 for elem in items)
 
 
 def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
@@ -652,16 +659,9 @@ def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
     Each marker's frame is its ``socket_parent_frame`` (OpenSim 4) or, in the OpenSim 3 layout, ``<body>``, read as
     ``/bodyset/<body>`` as OpenSim's own reader does; a bare frame name is resolved against the model later
     (`biomotion.ik.scaling.with_marker_set`)."""
-    path = Path(path)
-    doc = _Doc(path)
-    _version(doc)
-    marker_set = doc.root if doc.root.tag == "MarkerSet" else doc.root.find("MarkerSet")
-    if marker_set is None:
-        raise DataFormatError(path, "no <MarkerSet> element", line=1)
+    doc, items = _set_items(path, "MarkerSet", "Marker")
     out = []
-    for elem in _objects(marker_set):
-        if elem.tag != "Marker":
-            raise doc.format_error(elem, f"unexpected <{elem.tag}> in MarkerSet", elem.tag)
+    for elem in items:
         body = elem.find("body")
         if body is not None and (body.text or "").strip():
             frame = f"/bodyset/{body.text.strip()}"
@@ -669,8 +669,6 @@ def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
             frame = _socket(doc, elem, "parent_frame")
         out.append(MarkerSpec(elem.get("name") or "", frame, doc.vec3(elem, "location", "0 0 0"),
                               doc.boolean(elem, "fixed", "false")))
-    if not out:
-        raise DataFormatError(path, "MarkerSet holds no <Marker>", line=1)
     return tuple(out)
 
 
