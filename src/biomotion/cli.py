@@ -102,7 +102,8 @@ def _generate(args: argparse.Namespace) -> int:
         references=args.reference or (), reference_actions=args.reference_action or (), seconds=args.seconds,
         seed=args.seed, samples=args.samples,
         guidance=not args.no_guidance, personalised=not args.no_profile, figures=not args.no_figures,
-        command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads)
+        command="biomotion " + " ".join(shlex.quote(a) for a in sys.argv[1:]), threads=args.threads,
+        smooth_hz=args.smooth)
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")
     for note in result["notes"]:
@@ -576,6 +577,11 @@ def build_parser() -> argparse.ArgumentParser:
     generate.add_argument("--samples", type=int, default=1, help="clips to draw (default: %(default)s)")
     generate.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     generate.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
+    generate.add_argument("--smooth", type=float, metavar="HZ",
+                          help="low-pass the guided coordinates at HZ (zero-lag Butterworth, below 15 Hz at the "
+                               "generator's 30 Hz) before the feet are planted: 6 Hz brings jerk to the real clips' "
+                               "level and lowers muscle-limit violations, at a little more foot sliding "
+                               "(docs/results/dev_guidance_skim.md). Default: off")
     generate.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
     generate.add_argument("--no-figures", action="store_true", help="no plots or viewer")
     generate.add_argument("--threads", type=int, help="torch threads for sampling and guidance (default: 2, or "

@@ -64,6 +64,8 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     (["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
      "--reference-action given 2 times for 1 --reference clips"),
     (["--seconds", "0.1"], "--seconds 0.1 is 3 frames at 30 Hz; the physics metrics need 4"),
+    (["--smooth", "20"], "--smooth 20 Hz: the cutoff must lie between 0 and 15 Hz"),
+    (["--smooth", "6", "--no-guidance"], "--smooth filters the guided motion: it has no effect with --no-guidance"),
 ])
 def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, message):
     code = main(["generate", *args, "--action", "run", "--out", str(tmp_path / "o"),

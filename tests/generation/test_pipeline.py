@@ -3,6 +3,7 @@ the shipped weights are exercised in test_generate_cli.py."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -21,6 +22,7 @@ from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.guidance.planting import leg_columns
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.mot import read_motion
+from biomotion.motion import lowpass
 from biomotion.models.prior import PriorConfig, ProfileActionPrior
 from biomotion.models.vqvae import MotionVQVAE, VQVAEConfig
 from biomotion.muscles.surrogate import MuscleSurrogate, SurrogateConfig
@@ -82,6 +84,28 @@ def test_the_zmp_term_is_off_by_default_and_when_on_pulls_the_zmp_towards_the_su
     first, last = out.history[0]["zmp"], out.history[-1]["zmp"]
     assert math.isfinite(first) and math.isfinite(last) and torch.isfinite(out.q).all()
     assert first > 0 and last < first
+
+def test_smoothing_low_passes_the_guided_coordinates_before_planting(generator):
+    request = ActionRequest("squat", "normal", None, "squat")
+    config = GuidanceConfig(iterations=3, ramp=1, planting=None)
+    plain = generator.generate(request, seconds=2.0, seed=7, guidance_config=config)
+    smooth = generator.generate(request, seconds=2.0, seed=7,
+                                guidance_config=dataclasses.replace(config, smooth_hz=4.0))
+    expected = torch.as_tensor(lowpass(plain.q.numpy(), 30.0, 4.0, axis=1).copy(), dtype=plain.q.dtype)
+    ranges = generator.body.ranges.to(plain.q.dtype)
+    inside = (expected >= ranges[:, 0]) & (expected <= ranges[:, 1])
+    inside[..., [i for i, n in enumerate(CANONICAL_COORDINATES) if n.startswith("pelvis_t")]] = True
+    inside[..., [CANONICAL_COORDINATES.index(n) for n in COUPLED_COORDINATES]] = False
+    # where the filter stays in range the output is the zero-lag Butterworth of the guided motion (float32), and
+    # the coupled knee _beta follows the filtered knee angle
+    torch.testing.assert_close(smooth.q, apply_couplers(generator.body, smooth.q), rtol=0, atol=0)
+    torch.testing.assert_close(smooth.q[inside], expected[inside], rtol=0, atol=1e-5)
+    rotations = [i for i, n in enumerate(CANONICAL_COORDINATES) if not n.startswith("pelvis_t")]
+    q = smooth.q[..., rotations]
+    assert (q >= ranges[rotations, 0]).all() and (q <= ranges[rotations, 1]).all()
+    roughness = lambda x: torch.diff(x, 2, dim=1).abs().mean()  # noqa: E731
+    assert roughness(smooth.q) < 0.5 * roughness(plain.q)
+
 
 def test_requantized_output_decodes_codebook_entries(generator):
     request = ActionRequest("squat", "normal", None, "squat")

@@ -33,3 +33,19 @@ def test_zmp_support_is_the_mean_distance_outside_the_stance_hull_over_supported
     penalty.sum().backward()
     assert torch.isfinite(zmp.grad).all()
     assert zmp.grad[0, 1, 0] > 0 and zmp.grad[0, [0, 2, 3]].abs().sum() == 0   # only the outside frame pulls
+
+
+def test_foot_skim_weighs_horizontal_speed_by_nearness_to_the_floor():
+    """Three points at 30 Hz: one 1 cm up moving 2 m/s forward (weight 1 - 0.01 / 0.05 = 0.8, speed^2 4), one
+    moving the same 10 cm up (above the 5 cm height: weight 0) and one still on the floor (speed 0). Over the two
+    steps of three frames: sum over points 3.2 per step, mean over steps 3.2."""
+    t = torch.arange(3, dtype=torch.float32)[:, None] / 30.0
+    feet = torch.zeros(1, 3, 3, 3)
+    feet[0, :, 0, 0], feet[0, :, 0, 1] = 2.0 * t[:, 0], 0.01
+    feet[0, :, 1, 0], feet[0, :, 1, 1] = 2.0 * t[:, 0], 0.10
+    feet.requires_grad_(True)
+    skim = losses.foot_skim(feet, 30.0, 0.05)
+    torch.testing.assert_close(skim, torch.tensor([3.2]))
+    skim.sum().backward()
+    assert feet.grad[0, :, 0, 1].sum() < 0        # lifting the fast low point lowers the term ...
+    assert feet.grad[0, :, 1].abs().sum() == 0 and feet.grad[0, :, 2].abs().sum() == 0  # ... the others are free

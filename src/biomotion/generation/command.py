@@ -71,7 +71,8 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                      subject_id: str | None = None, references: Sequence[Path] = (),
                      reference_actions: Sequence[str] = (), seconds: float = 3.0,
                      seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
-                     figures: bool = True, command: str = "", threads: int | None = None) -> dict:
+                     figures: bool = True, command: str = "", threads: int | None = None,
+                     smooth_hz: float | None = None) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
 
@@ -80,17 +81,22 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
 
     ``threads``: torch intra-op threads for sampling and guidance (default `GENERATION_THREADS`, at most the
     machine's cores); the rest runs as the caller set it. Results differ between thread counts only by float
-    rounding."""
+    rounding.
+
+    ``smooth_hz``: low-pass the guided coordinates at this cutoff before planting (`GuidanceConfig.smooth_hz`)."""
     from biomotion.body.kinematics import torch_threads
     from biomotion.evaluation.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
     from biomotion.generation.bundle import GeneratorBundle
     from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, Generator
     from biomotion.generation.routing import Route, full_body_checkpoints, route
+    from biomotion.guidance.refine import GuidanceConfig
     from biomotion.io.mot import read_motion
 
     if threads is not None and threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {threads}")
+    if smooth_hz is not None and not guidance:
+        raise ConfigError("--smooth filters the guided motion: it has no effect with --no-guidance")
     profile = person(profile_file, subject_table, subject_id)
     if reference_actions and len(reference_actions) != len(references):
         raise ConfigError(f"--reference-action given {len(reference_actions)} times for {len(references)} "
@@ -101,6 +107,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
     chosen = Route(Path(checkpoints), "", 1.0) if checkpoints is not None else route(action, CHECKPOINTS)
     generator = Generator.load(data_root, chosen.checkpoints)
     vocabulary = generator.bundle.vocabulary
+    if smooth_hz is not None and not 0 < smooth_hz < generator.rate / 2:
+        raise ConfigError(f"--smooth {smooth_hz:g} Hz: the cutoff must lie between 0 and {generator.rate / 2:g} Hz "
+                          f"(half the generator's {generator.rate:g} Hz)")
     try:
         request = vocabulary.resolve(action)
     except ConfigError as error:
@@ -119,11 +128,11 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
                                        reference_actions=[r.action for r in shown],
                                        reference_speeds=[r.speed for r in shown], seconds=seconds,
                                        samples=samples, seed=seed, guidance=guidance, personalised=personalised,
-                                       biodata=chosen.biodata)
+                                       biodata=chosen.biodata, guidance_config=GuidanceConfig(smooth_hz=smooth_hz))
     done = time.perf_counter()
     files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
                              request={"command": command, "text": action, "seconds": seconds, "seed": seed,
-                                      "guidance": guidance, "personalised": personalised,
+                                      "guidance": guidance, "smooth_hz": smooth_hz, "personalised": personalised,
                                       "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None
                                       else str(checkpoints), "biodata_used": personalised and chosen.biodata
                                       and profile is not None,

@@ -8,6 +8,10 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
 - `foot_contact`: L_foot = 1/T sum_t ||v_t^foot (.) m_t||^2 with the binary contact mask m_t.
 - `com_velocity`, `com_acceleration`: L_v, L_a = 1/T sum_t max(0, ||c'_t|| - high, low - ||c'_t||) (5-95th).
 - `activation`: L_act = 1/T sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm).
+- `foot_skim`: not in Table 1; L_foot without the binary mask: every foot point's horizontal speed^2, weighted by
+  how near the floor it is (1 at the floor, 0 at the contact height). L_foot holds still the points the stance mask
+  calls planted; a foot that skims the floor fast at touch-down or toe-off is in no stance, yet slides along it
+  (what foot contact velocity and skate count).
 - `ground`: not in Table 1; it carries Table 4's penetration term into guidance: penetration squared for every
   point plus height squared for points in contact, so planted feet neither sink nor hover (the contact metrics).
 - `angular_jerk`: not in Table 1; L_omega's form one derivative up, 1/T sum_t sum_j max(0, |d3q_tj/dt3| - high_j)
@@ -53,6 +57,15 @@ def foot_contact(feet: torch.Tensor, rate: float, contact: torch.Tensor) -> torc
     velocity = _speed(feet, rate)
     both = (contact[:, 1:] & contact[:, :-1]).to(feet.dtype)
     return (velocity.pow(2).sum(-1) * both).sum(-1).mean(-1)
+
+
+def foot_skim(feet: torch.Tensor, rate: float, height: float) -> torch.Tensor:
+    """Horizontal speed^2 of every foot point between frames t and t + 1, weighted by how near the floor it stays
+    (1 - max(y_t, y_t+1) / ``height``, 0 above ``height``), summed over points, mean over time."""
+    velocity = _speed(feet[..., [0, 2]], rate)
+    y = feet[..., 1]
+    near = torch.relu(1.0 - torch.maximum(y[:, 1:], y[:, :-1]) / height)
+    return (velocity.pow(2).sum(-1) * near).sum(-1).mean(-1)
 
 
 def com_velocity(com: torch.Tensor, rate: float, low: float, high: float) -> torch.Tensor:
