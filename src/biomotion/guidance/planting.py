@@ -60,7 +60,6 @@ class PlantingConfig:
     damping: float = 1e-2
     floor_weight: float = 10.0
     max_step: float = 0.05   # rad: largest change of a leg coordinate per iteration (a trust region)
-    own_floor: bool = False  # stance height measured from each foot's own low (5th percentile) over the clip
     coordinates: tuple[str, ...] = LEG_COORDINATES
 
 
@@ -80,8 +79,7 @@ def plant_targets(points: np.ndarray, feet: tuple[str, ...], config: PlantingCon
     for side in sorted(set(feet)):
         own = np.array([f == side for f in feet])
         lowest = height[..., own].min(-1, keepdims=True)
-        level = np.maximum(np.quantile(lowest, 0.05, axis=1, keepdims=True), 0.0) if config.own_floor else 0.0
-        planted[..., own] = (lowest < level + config.stance_height) & (height[..., own] < lowest + config.band)
+        planted[..., own] = (lowest < config.stance_height) & (height[..., own] < lowest + config.band)
     # one label per run of planted frames of one point of one clip: label along time only
     runs = planted.transpose(0, 2, 1).reshape(b * k, t)
     labels, count = ndimage.label(runs, structure=[[0, 0, 0], [1, 1, 1], [0, 0, 0]])
