@@ -85,6 +85,7 @@ def test_the_zmp_term_is_off_by_default_and_when_on_pulls_the_zmp_towards_the_su
     assert math.isfinite(first) and math.isfinite(last) and torch.isfinite(out.q).all()
     assert first > 0 and last < first
 
+
 def test_smoothing_low_passes_the_guided_coordinates_before_planting(generator):
     request = ActionRequest("squat", "normal", None, "squat")
     config = GuidanceConfig(iterations=3, ramp=1, planting=None)
