@@ -29,7 +29,9 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
   surrogate.yaml with model.smooth_hz 6.0> --cache build/dataset_lab_post --out build/surrogate_smooth.safetensors
   --minutes 27 --iterations 40000 --threads 2``): held-out `surrogate_r2` 0.889 (one pass 0.874, pooled 0.909)
   against 0.895 (0.879, 0.915), but after 24911 iterations against the shipped run's 37437, the machine slower that
-  day (the shipped recipe itself ran 19 against 25 iterations/s), so the comparison is not at equal work;
+  day (the shipped recipe itself ran 19 against 25 iterations/s), so the comparison is not at equal work; run
+  again on 2026-12-07 in 29 minutes (29987 iterations), it read 0.892 against the shipped 0.895 scored the same
+  hour, and one pass took 6.3 ms per 3 s clip that day, over the 5 ms bar (checkpoints/surrogate.md);
 - with ``config.dilation`` > 1 (ours), a wider receptive field at the same cost (WaveNet's dilated convolutions,
   van den Oord et al. 2016). Measured once and not kept (2026-12-06, seed 0, the shipped cache and settings, the
   shipped run's 37437 iterations, 31 minutes on that day's slower machine: ``python -m
