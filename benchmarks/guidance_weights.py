@@ -11,7 +11,8 @@ bend the toes, planting whose stance threshold is the metrics' 5 cm contact heig
 planting (to compare latent guidance alone) Table 5's weights (l_omega 10, l_foot 1,
 l_ground 10, lr 0.05) and re-quantisation at iteration 30, the foot and ground terms' contact mask by height alone
 (the default until 2026-12-03, before the stance speed test of `biomotion.guidance.refine.Guide.contact`), and
-lighter speed terms (l_speed 100, the default until 2026-12-03, and 300).
+lighter speed terms (l_speed 100, the default until 2026-12-03, and 300), without the foot-skim term (the default
+until 2026-12-07) and with the optional low-pass at 6 Hz (`GuidanceConfig.smooth_hz`).
 Speed error: |mean horizontal pelvis speed - requested speed| at the person's size, over the clips whose request
 names a speed (the run).
 Muscle-limit violations are the share of frames x muscles whose surrogate activation leaves the training 5-95 %
@@ -47,7 +48,9 @@ SETTINGS = {"unguided": None, "defaults": {}, "no foot planting": {"planting": N
             "contact by height alone (no stance speed test)": {"stance_speed_ratio": None},
             "no tempo (the speed term alone brings the sample to speed)": {"tempo": None},
             "speed weight 100": {"w_locomotion_speed": 100.0},
-            "speed weight 300": {"w_locomotion_speed": 300.0}}
+            "speed weight 300": {"w_locomotion_speed": 300.0},
+            "no foot-skim term": {"w_foot_skim": 0.0},
+            "low-pass at 6 Hz before planting": {"smooth_hz": 6.0}}
 
 
 def score(generator: Generator, profile, settings: dict | None) -> dict[str, float]:

@@ -12,7 +12,9 @@ held still on the floor by inverse kinematics of the legs), which latent guidanc
 
 Defaults, and where they leave Table 5 (measured by ``python benchmarks/guidance_weights.py``,
 docs/results/guidance_weights.md: the example profile running, walking and squatting, never evaluation subjects;
-the example-profile figures quoted below predate the tempo, whose "no tempo" row repeats their defaults exactly):
+the example-profile figures quoted below were measured before the tempo and the foot-skim term; the table was
+re-run with both on 2026-12-07, where "no foot-skim term" reads foot contact velocity 0.29 against the defaults'
+0.21 m/s and jerk 284 against 263 m/s^3):
 - 40 iterations, physics from the first one: Table 5 runs 250 on a GPU with physics from 100, but guidance starts
   from the sample itself, where the proximity gradient is exactly zero, so a proximity-only warm-up would not move
   anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
