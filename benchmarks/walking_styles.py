@@ -5,8 +5,9 @@
 Real: every clip of the cache labelled "walk" with a style (the Bandai-Namco walks; cache built by the command in
 `checkpoints/full-body/README.md`). Generated: `--samples` clips of 4 s per style from the full-body bundle, no
 profile, at the style's median training speed as `biomotion generate` asks (`ActionVocabulary.resolve`), guided
-with the defaults and with the foot and ground terms' contact mask by height alone (the rule until 2026-12-03,
-`biomotion.models.foot_contact.stance_mask`). Stride length and frequency as the manipulation study of `biomotion eval
+with the defaults, with the foot and ground terms' contact mask by height alone (the rule until 2026-12-03,
+`biomotion.models.foot_contact.stance_mask`) and without the foot-skim term (`biomotion.guidance.losses.foot_skim`,
+off until 2026-12-07), whose pull on feet near the floor could shorten slow walks' strides. Stride length and frequency as the manipulation study of `biomotion eval
 generation` measures them (`biomotion.evaluation.generation.kinematic_measures`).
 """
 
@@ -70,14 +71,16 @@ def main(argv: list[str] | None = None) -> None:
              f"{args.samples} clips of 4 s per style, full-body bundle, no profile, seed 0, at the style's median "
              "training speed. Mean (range) over clips.", "",
              "| style | real clips | real stride (m) | generated stride (m) | generated, contact by height alone | "
-             "real stride frequency (Hz) | generated stride frequency (Hz) |",
-             "|---|---|---|---|---|---|---|"]
+             "generated, no foot-skim term | real stride frequency (Hz) | generated stride frequency (Hz) |",
+             "|---|---|---|---|---|---|---|---|"]
     with torch_threads(1):
         for style in sorted(set(real) & known):
             guided = generated_measures(generator, style, args.samples, GuidanceConfig())
             by_height = generated_measures(generator, style, args.samples, GuidanceConfig(stance_speed_ratio=None))
+            no_skim = generated_measures(generator, style, args.samples, GuidanceConfig(w_foot_skim=0.0))
             lines.append(f"| {style} | {len(real[style])} | {summary(real[style], 'stride_length')} | "
                          f"{summary(guided, 'stride_length')} | {summary(by_height, 'stride_length')} | "
+                         f"{summary(no_skim, 'stride_length')} | "
                          f"{summary(real[style], 'stride_frequency')} | {summary(guided, 'stride_frequency')} |")
             print(lines[-1], flush=True)
     with atomic_write(Path(args.out)) as handle:

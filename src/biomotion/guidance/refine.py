@@ -87,9 +87,10 @@ re-run with both on 2026-12-07, where "no foot-skim term" reads foot contact vel
   15.6 % (real clips 0.49 m/s, 37 %), floating 1.01 -> 0.87 cm, jerk 459 -> 444 m/s^3, at muscle-limit
   violations 42.4 -> 43.8 % and identity probe 0.77 -> 0.73 (one binomial standard error of 46 clips); 30 and 100
   went further on contact (0.26, 0.24 m/s) at more muscle-limit violations (44.3, 46.1 %) and identity (0.73,
-  0.68). The walking styles keep their strides (full-body bundle, 8 clips of 4 s, seed 0, without / with the term:
-  elderly 0.86 / 0.77 m, real 0.77; childish 0.78 / 0.92, real 1.02; exhausted 1.11 / 1.08, real 1.11; active
-  1.40 / 1.41, real 1.36).
+  0.68). The walking styles keep their strides (``python benchmarks/walking_styles.py``,
+  docs/results/walking_styles.md: full-body bundle, 8 clips of 4 s, seed 0, without / with the term: elderly
+  0.84 / 0.77 m, real 0.77; exhausted 1.11 / 1.08, real 1.11; active 1.41 / 1.41, real 1.36; youthful 1.47 /
+  1.46, real 1.38).
 - no low-pass (``smooth_hz`` None; ours): the guided coordinates may be low-passed before planting (zero-lag
   Butterworth, `biomotion.motion.lowpass`, the filter the real clips went through at their source), ``biomotion
   generate --smooth HZ``. In the same dev-subject run, 6 Hz lowered jerk and muscle-limit violations, raised foot
