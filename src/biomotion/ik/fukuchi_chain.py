@@ -89,8 +89,9 @@ def runner_files(base: Path, runner: str, speed: str = "T35") -> dict[str, Path]
             "reference": base / "ik" / speed / f"{runner}_{speed}_ik_simple.mot"}
 
 
-def running_markers(path: Path) -> Markers:
-    """A running C3D's markers as the source's TRC had them: spline-filled gaps, 10 Hz low-pass (step 5)."""
+def running_markers(path: Path, cutoff_hz: float = MARKER_FILTER_HZ) -> Markers:
+    """A running C3D's markers as the source's TRC had them: spline-filled gaps, 10 Hz low-pass (step 5);
+    ``cutoff_hz`` sets another low-pass (the chain keeps the source's)."""
     markers = read_c3d_markers(path, zero_is_missing=True)
     flat = markers.positions.reshape(markers.n_frames, -1) * 1000.0      # mm, one column per coordinate
     for column in np.flatnonzero(np.isnan(flat).any(axis=0)):
@@ -99,7 +100,7 @@ def running_markers(path: Path) -> Markers:
             spline = scipy.interpolate.UnivariateSpline(markers.times[seen], flat[seen, column], k=3,
                                                         s=SPLINE_SMOOTHING_MM2)
             flat[~seen, column] = spline(markers.times[~seen])
-    smooth = lowpass(flat, markers.rate, MARKER_FILTER_HZ) / 1000.0
+    smooth = lowpass(flat, markers.rate, cutoff_hz) / 1000.0
     return dataclasses.replace(markers, positions=smooth.reshape(markers.positions.shape))
 
 
@@ -153,12 +154,14 @@ def as_simple(motion: Motion) -> Motion:
     return out.with_values(out.values * np.where(np.isin(kept, KNEES), -1.0, 1.0))
 
 
-def solve_trial(base: Path, runner: str, speed: str = "T35") -> tuple[IKResult, BodyModel]:
-    """Steps 1-6 for one running trial: the IK result on the runner's complex model, and that model."""
+def solve_trial(base: Path, runner: str, speed: str = "T35", marker_cutoff_hz: float = MARKER_FILTER_HZ
+                ) -> tuple[IKResult, BodyModel]:
+    """Steps 1-6 for one running trial: the IK result on the runner's complex model, and that model
+    (``marker_cutoff_hz``: the markers' low-pass, the source's 10 Hz unless given)."""
     files = runner_files(base, runner, speed)
     model = complex_model(base, runner)
     setup = read_ik_setup(files["ik_setup"])
-    markers = running_markers(files["trial"])
+    markers = running_markers(files["trial"], marker_cutoff_hz)
     return solve_ik(model, markers, weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks,
                     time_range=window(markers.times, setup.time_range)), model
 
