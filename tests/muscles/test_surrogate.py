@@ -130,6 +130,34 @@ def test_dilated_blocks_widen_the_receptive_field_to_its_stated_reach():
     moved[:, 30, 3] += 0.5
     changed = (model(moved, mask) - model(q, mask)).abs().amax(dim=(0, 2)) > 0
     assert torch.equal(torch.nonzero(changed).flatten(), torch.arange(19, 42))
+    assert model.config.context == 11                       # what training trims at window cuts
+
+
+def test_training_windows_leave_out_the_frames_a_window_cut_hides_but_keep_the_clips_own_ends():
+    from types import SimpleNamespace
+
+    from biomotion.muscles.surrogate_labels import SurrogateLabels
+    from biomotion.muscles.train_surrogate import COM_LABEL_COLUMNS, make_windows
+
+    records = [{"offset": 0, "n_frames": 50, "split": "train"}, {"offset": 50, "n_frames": 12, "split": "train"}]
+    cache = SimpleNamespace(values=np.zeros((62, 39)), masks=np.ones((2, 39), bool), records=records,
+                            indices=lambda split: [0, 1])
+    labels = SurrogateLabels(np.zeros((62, 2), np.float32), np.ones(62, bool), ("m1", "m2"), {},
+                             np.zeros((62, max(COM_LABEL_COLUMNS) + 1)))
+    plain = make_windows(cache, labels, "train", 20, 10)
+    trimmed = make_windows(cache, labels, "train", 20, 10, cut_margin=3)
+    assert plain[3].shape == trimmed[3].shape == (5, 20)     # starts 0, 10, 20, 30 and the short clip's one window
+    weight, com_weight = trimmed[3].numpy(), trimmed[5].numpy()
+    np.testing.assert_array_equal(weight, com_weight)
+    assert weight[0, :17].all() and not weight[0, 17:].any()                   # the clip's start: kept
+    assert not weight[1, :3].any() and weight[1, 3:17].all() and not weight[1, 17:].any()
+    assert not weight[3, :3].any() and weight[3, 3:].all()                     # flush with the clip's end: kept
+    assert weight[4, :12].all() and not weight[4, 12:].any()                   # short clip: only its padding out
+    covered = np.zeros(50, bool)
+    for start, row in zip((0, 10, 20, 30), weight[:4]):
+        covered[start:start + 20] |= row.astype(bool)
+    assert covered.all()                                                       # every frame still trained on
+    np.testing.assert_array_equal(plain[3].numpy()[4], weight[4])
 
 
 def test_bounds_are_the_label_percentiles_and_drive_the_guidance_term():

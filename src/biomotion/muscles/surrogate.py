@@ -118,6 +118,12 @@ class SurrogateConfig:
     smooth_hz: float = 0.0
     dilation: int = 1
 
+    @property
+    def context(self) -> int:
+        """Frames on each side that one output frame depends on: the convolutions' half receptive field,
+        (kernel - 1) / 2 (1 + sum_i dilation^i), plus the one frame of the central differences of the features."""
+        return (self.kernel - 1) // 2 * (1 + sum(self.dilation ** i for i in range(self.depth))) + 1
+
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
         config = settings_from_dict(cls, values, "surrogate model")

@@ -69,13 +69,21 @@ WITHIN_CLIP_FRAMES = 30  # clips with at least this many converged frames get a 
 COM_LABEL_COLUMNS = [COM_COLUMNS.index(name) for name in COM_OUTPUTS]
 
 
-def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int
-                 ) -> tuple[torch.Tensor, ...]:
+def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int,
+                 cut_margin: int = 0) -> tuple[torch.Tensor, ...]:
     """Training windows of ``split``: q [N, length, 39], masks [N, 39], target activations [N, length, M],
     activation weights [N, length] (1 on converged real frames), COM targets [N, length, 6] (`COM_OUTPUTS`) and
     COM weights [N, length] (1 on real frames). Window starts every ``stride`` frames, the last flush with the
     clip's end; a clip shorter than ``length`` gives one window padded by repeating its last frame (weight 0 on
-    the padding)."""
+    the padding).
+
+    ``cut_margin`` > 0 also gives weight 0 to the frames within that many frames of a window edge that cuts a clip
+    (not the clip's own start or end): the network, run on the window, sees a padded edge there, but the labels
+    come from the whole clip, while at a clip's own ends both the network and the labels (filtered and
+    differentiated over the clip) see an end. Inference runs on whole clips, so every edge it meets is a clip's
+    own; with the surrogate's context (`SurrogateConfig.context`) as the margin, the loss falls only on frames
+    that the network sees as inference would, and a stride no longer than ``length - 2 cut_margin`` still
+    covers every frame."""
     if labels.com is None:
         raise BiomotionError("the surrogate labels hold no COM terms; recompute them with `biomotion muscles label`")
     qs, masks, targets, weights, coms, reals = [], [], [], [], [], []
@@ -86,6 +94,9 @@ def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, lengt
             starts = np.unique(np.append(np.arange(0, n - length + 1, stride), n - length))
             rows = offset + starts[:, None] + np.arange(length)
             real = np.ones(rows.shape, dtype=bool)
+            frame = np.arange(length)[None]
+            real &= ~(((starts > 0)[:, None] & (frame < cut_margin))
+                      | ((starts + length < n)[:, None] & (frame >= length - cut_margin)))
         else:
             rows = offset + np.minimum(np.arange(length), n - 1)[None]
             real = (np.arange(length) < n)[None]
@@ -289,6 +300,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         model_cfg = SurrogateConfig.from_dict(config.get("model", {}))
         data_cfg, train_cfg = config["data"], config["train"]
         window, stride = int(data_cfg["window"]), int(data_cfg["stride"])
+        cut_margin = model_cfg.context if data_cfg.get("trim_window_cuts", False) else 0
         min_std = float(data_cfg.get("min_label_std", 0.02))
         batch, lr, warmup = int(train_cfg["batch_size"]), float(train_cfg["lr"]), int(train_cfg["warmup"])
     except KeyError as missing:
@@ -299,7 +311,10 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     if abs(cache.rate - model_cfg.rate) > 1e-6:
         raise ConfigError(f"surrogate rate {model_cfg.rate} Hz differs from the cache's {cache.rate} Hz")
     labels = labels_for_cache(cache, data_root, labels_path, progress=progress)
-    q, mask, target, weight, com, com_weight = make_windows(cache, labels, "train", window, stride)
+    if window - 2 * cut_margin < stride:
+        raise ConfigError(f"surrogate window {window} less twice the trimmed context {cut_margin} is shorter than the "
+                          f"stride {stride}: some frames would never be trained on")
+    q, mask, target, weight, com, com_weight = make_windows(cache, labels, "train", window, stride, cut_margin)
     if data_cfg.get("mirror", False):  # left-right mirror images with left-right swapped labels
         q_m, mask_m = mirror_coordinates(q.numpy(), mask.numpy())
         as_tensor = (lambda array: torch.from_numpy(np.ascontiguousarray(array)))
