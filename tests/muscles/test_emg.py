@@ -10,11 +10,11 @@ from tests.conftest import data_path
 
 # Measured with the a-priori settings (EMGSettings(): 20-450 Hz band-pass, 6 Hz envelope, on at 20 % of range):
 # pooled share of (muscle, frame) pairs whose on/off agrees, 10 muscles x 238 frames. The issue bar is 0.80; it is
-# NOT reached (static optimization 0.766 with the model's Millard 2012 curves, the shipped surrogate 0.768). The
+# NOT reached (static optimization 0.766 with the model's Millard 2012 curves, the shipped surrogate 0.748). The
 # tolerance covers float and solver differences between machines (0.02 = 48 of the 2380 muscle-frames), not a change
 # of method.
 MEASURED_SO = 0.7664
-MEASURED_SURROGATE = 0.7681   # the surrogate of 2026-12-05 (contact features); its predecessors read 0.7845 and 0.7588
+MEASURED_SURROGATE = 0.7479   # the surrogate of 2026-12-07 (window cuts trimmed); before it 0.7681, 0.7845, 0.7588
 MEASURED_SO_PER_MUSCLE = {"SOL": 0.8403, "GAS": 0.8361, "TA": 0.9538, "MH": 0.9496, "BF": 0.7899, "VL": 0.6387,
                           "VM": 0.7437, "RF": 0.5924, "GMAX": 0.7605, "GMED": 0.5588}
 TOLERANCE = 0.02

@@ -67,8 +67,9 @@ the activation are compared at the same instant (``emg_lead_s`` in the detail re
 envelope leads the activation; it is not used for the figure).
 
 Measured (``python -m biomotion.muscles.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
-optimization and 0.768 with the shipped surrogate (`MuscleSurrogate.predict_symmetric`; the surrogate before the
-contact features 0.785, the one before that 0.759), both below the 0.80 bar; see ``tests/muscles/test_emg.py``.
+optimization and 0.748 with the shipped surrogate (`MuscleSurrogate.predict_symmetric`; the surrogate before it,
+trained without trimming window cuts, 0.768, the one before the contact features 0.785, and before that 0.759),
+both below the 0.80 bar; see ``tests/muscles/test_emg.py``.
 """
 
 from __future__ import annotations

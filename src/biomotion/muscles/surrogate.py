@@ -368,10 +368,11 @@ class MuscleSurrogate(nn.Module):
         The body and its muscles are left-right symmetric, so the activations of a mirrored motion are the mirrored
         activations; one network only approximates that (it was trained on both images of every clip), and
         averaging the two images removes the asymmetric part of its error. On the 24 held-out clips of the lab
-        sources it raises the shipped network's mean R² over muscles from 0.879 to 0.895 against the
-        static-optimization labels (RMSE 0.075 -> 0.070; `biomotion validate muscles`; 0.866 -> 0.880 for the
-        previous network, without contact features). Both images run as one batch; the mirror image's foot
-        heights are the motion's with the feet swapped (the body is symmetric), so forward kinematics runs once.
+        sources it raises the shipped network's mean R² over muscles from 0.886 to 0.901 against the
+        static-optimization labels (RMSE 0.072 -> 0.067; `biomotion validate muscles`; 0.879 -> 0.895 for the
+        network before it, 0.866 -> 0.880 for the one before the contact features). Both images run as one batch;
+        the mirror image's foot heights are the motion's with the feet swapped (the body is symmetric), so forward
+        kinematics runs once.
         Guidance keeps the single pass (`forward`) inside its 40 iterations, where only the activation bounds
         matter."""
         swap = torch.as_tensor(mirror_permutation(CANONICAL_COORDINATES))
