@@ -142,3 +142,23 @@ def test_validate_muscles_names_what_it_skips(tmp_path):
     assert any("gait2392" in s for s in report["skipped"])
     assert any("Rajagopal walk" in s for s in report["skipped"])
     assert any("EMG check" in s for s in report["skipped"])
+
+
+def test_the_oracles_emg_score_uses_the_emg_checks_own_rule():
+    """`_emg_same_inputs` scores OpenSim's activations by the EMG check's rule: activations equal to the EMG
+    envelopes agree on every frame, and the same activations half a stride (0.55 s) late do not."""
+    from biomotion.muscles import emg
+    from biomotion.muscles.validation import OpenSimStaticOptimization, _emg_same_inputs
+
+    path = data_path(emg.EMG_FILE)
+    root = path.parents[len(emg.EMG_FILE.split("/")) - 1]
+    times = np.linspace(0.0, 2.37, 238)
+    envelopes = emg.emg_envelopes(emg.read_anc(path), times)
+    names = tuple(m for muscles in emg.EMG_MUSCLES.values() for m in muscles)
+    activations = np.stack([envelopes[c] for c, muscles in emg.EMG_MUSCLES.items() for _ in muscles], axis=1)
+    reference = OpenSimStaticOptimization(times, names, activations, (), np.zeros((238, 0)), np.zeros((238, 0)),
+                                          np.zeros((238, 0)), 0.0)
+    figures = _emg_same_inputs(root, reference, np.roll(activations, 55, axis=0), names)
+    assert figures["emg_onoff_agreement_opensim_so"] == 1.0
+    assert figures["emg_onoff_agreement_same_inputs_ours"] < 0.8
+    assert set(figures["emg_per_muscle_opensim_so"]) == set(emg.EMG_MUSCLES)

@@ -28,6 +28,9 @@
   ``surrogate_ms_per_clip_one_pass``;
 - ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
   trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
+  ``emg_onoff_agreement_opensim_so``: the same rule on OpenSim's own StaticOptimization of the walk's shared inputs
+  above (generic model, our IK), what the issue's method scores when the oracle runs it, with ours on those inputs
+  beside it (``emg_onoff_agreement_same_inputs_ours``);
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
   (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
   under the data root whose subject the surrogate was not trained on, of the activations it reports
@@ -48,6 +51,7 @@ import os
 import tempfile
 import time
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -515,12 +519,37 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
         "so_rajagopal_reserve_usage": agreement["reserve_usage"],
         "so_rajagopal_r2_per_muscle": {m: float(v) for m, v in zip(reference.muscle_names, r2)},
     }
+    figures.update(_emg_same_inputs(data_root, reference, ours, reference.muscle_names))
     if timing is not None:
         figures.update({"surrogate_ms_per_clip": timing["ms"],
                         "surrogate_ms_per_clip_one_pass": timing["ms_one_pass"],
                         "surrogate_clip_seconds": timing["clip_seconds"],
                         "surrogate_speedup_vs_opensim": 1e3 * reference.seconds / timing["ms"]})
     return figures
+
+
+def _emg_same_inputs(data_root: Path, reference: OpenSimStaticOptimization, ours: np.ndarray,
+                     names: Sequence[str]) -> dict:
+    """EMG on/off agreement (`biomotion.muscles.emg`, its a-priori settings) of OpenSim's StaticOptimization and of
+    ours on the Rajagopal walk's shared inputs: the oracle's own score under the issue's method. Empty without the
+    EMG recording."""
+    from biomotion.muscles import emg
+
+    if not (data_root / emg.EMG_FILE).exists():
+        return {}
+    recording = emg.read_anc(data_root / emg.EMG_FILE)
+    settings = emg.EMGSettings()
+    times = reference.times
+    inside = (times >= recording.times[0] - 1e-9) & (times <= recording.times[-1] + 1e-9)
+    envelopes = emg.emg_envelopes(recording, times[inside], settings)
+    rate = (inside.sum() - 1) / (times[inside][-1] - times[inside][0])
+    scores = {key: emg.compare_on_off(envelopes, emg.channel_activations(a[inside], muscle_names),
+                                      settings.threshold, rate)
+              for key, a, muscle_names in (("opensim", reference.activations, reference.muscle_names),
+                                           ("ours", ours, names))}
+    return {"emg_onoff_agreement_opensim_so": round(scores["opensim"]["pooled"], 4),
+            "emg_per_muscle_opensim_so": scores["opensim"]["per_muscle"],
+            "emg_onoff_agreement_same_inputs_ours": round(scores["ours"]["pooled"], 4)}
 
 
 def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5, end: float = 2.5,
