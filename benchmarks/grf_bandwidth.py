@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from biomotion.analysis import Analysis, analyze, plate_frames
+from biomotion.analysis import Analysis, analyze, plate_frames, vertical_agreement
 from biomotion.body.model import BodyModel
 from biomotion.ik.fukuchi_chain import as_simple, runner_files, solve_trial
 from biomotion.io.atomic import atomic_write
@@ -56,8 +56,9 @@ def vertical(result: Analysis, model: BodyModel) -> dict[str, np.ndarray]:
             "base": float(model.total_mass) * (GRAVITY + result.com_acceleration[keep, 1]) / weight}
 
 
-def rmse(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.sqrt(np.mean((a - b) ** 2)))
+def rmse(predicted: np.ndarray, plates: np.ndarray) -> float:
+    """RMSE in body weights of series already in body weights (`vertical_agreement`)."""
+    return vertical_agreement(predicted, plates, 1.0)["rmse_bw"]
 
 
 def stance_tenths(plates: np.ndarray) -> np.ndarray:
