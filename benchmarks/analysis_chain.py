@@ -18,13 +18,13 @@ Each chain runs from the same markers to activations:
 Cases:
 - gait2392 subject01 walk (``Pipelines/Gait2392_Simbody``, ``subject01_simbody.osim``, 92 muscles,
   ``gait2392_SO_Residual_Actuators.xml``: pelvis residuals only, which ours models as pelvis reserves;
-  `biomotion.muscles.validation.gait_static_optimization`);
+  `biomotion.validation.muscles.gait_static_optimization`);
 - Rajagopal walk (``Pipelines/Rajagopal``: ``motion_capture_walk.trc`` with ``IK/ik_setup_walk.xml`` on the generic
   Rajagopal 2016 model carrying the walk's markers, 80 muscles, the reserves of
-  `biomotion.muscles.validation.write_rajagopal_reserves`; ours leaves out the actuators of coordinates no muscle
+  `biomotion.validation.muscles.write_rajagopal_reserves`; ours leaves out the actuators of coordinates no muscle
   spans, whose rows of the problem do not involve the muscles). OpenSim's IK result is handed to its other tools in
   radians (from degrees, OpenSim 4.6 passes the patella's coupled speeds in deg/s, see
-  `biomotion.muscles.validation`).
+  `biomotion.validation.muscles`).
 
 Accuracy, each chain end to end from the same markers: joint angles (RMSE, deg), joint torques (RMSE / peak on
 coordinates whose peak exceeds 10 N·m) and activations (R² per muscle against OpenSim's, mean and worst).
@@ -42,22 +42,22 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.analysis import loads_on_frames, model_motion, torque_labels, unwrapped
+from biomotion.analysis.chain import loads_on_frames, model_motion, torque_labels, unwrapped
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.model import BodyModel
 from biomotion.ik import solve_ik
-from biomotion.ik.setup import IKSetup, read_ik_setup
+from biomotion.io.setup import IKSetup, read_ik_setup
 from biomotion.ik.markers import evaluate_ik
-from biomotion.ik.validate import opensim_ik
+from biomotion.validation.ik import opensim_ik
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mot import read_ground_reaction, read_storage, write_external_loads_xml, write_motion
 from biomotion.io.trc import read_trc
 from biomotion.motion import GroundReaction, Markers
-from biomotion.muscles import emg
+from biomotion.validation import emg
 from biomotion.muscles.geometry import MusclePaths, shipped_paths
 from biomotion.muscles.properties import MuscleParameters, read_muscles
 from biomotion.muscles.static_optimization import optimize_activations
-from biomotion.muscles.validation import (
+from biomotion.validation.muscles import (
     GAIT,
     GAIT_MODEL,
     RAJAGOPAL_RESERVE,

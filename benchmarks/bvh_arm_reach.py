@@ -32,10 +32,10 @@ from tqdm import tqdm
 
 from biomotion.body.kinematics import forward_kinematics, joint_centers
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_model
+from biomotion.body.scaling.bodies import scale_model
 from biomotion.ik import skeleton
 from biomotion.ik.markers import solve_ik
-from biomotion.ik.setup import CoordinateTask
+from biomotion.io.setup import CoordinateTask
 from biomotion.io.atomic import atomic_write
 from biomotion.io.bvh import read_bvh
 

@@ -5,7 +5,7 @@
         [--out docs/results/dev_subjects.md]
 
 The dev subjects are the training subjects the generator's training sets aside for early stopping
-(`biomotion.models.train_generator.dev_subject`, 15 %): the prior never learns from their clips, and they are never
+(`biomotion.training.train_generator.dev_subject`, 15 %): the prior never learns from their clips, and they are never
 evaluation subjects, so settings can be chosen on them without touching `biomotion eval generation`'s unseen
 subjects. Targets are chosen as the evaluation chooses them (`unseen_targets`: up to 4 clips of at most 6 s per
 subject, the person's other clips as references); each is generated with every bundle and every variant asked for,
@@ -33,7 +33,7 @@ from pathlib import Path
 
 from biomotion.body.kinematics import torch_threads
 from biomotion.data.registry import DatasetCache
-from biomotion.evaluation.clips import body_model
+from biomotion.data.clips import body_model
 from biomotion.evaluation.generation import (
     _motion,
     _request,
@@ -47,7 +47,7 @@ from biomotion.generation.pipeline import Generator
 from biomotion.guidance.planting import PlantingConfig
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.atomic import atomic_write
-from biomotion.models.train_generator import dev_subject
+from biomotion.training.train_generator import dev_subject
 
 COLUMNS = (("foot_contact_velocity", "foot contact vel. (m/s)"), ("skate_ratio", "skate (%)"),
            ("floating", "floating (cm)"), ("penetration", "penetration (cm)"), ("jerk", "jerk (m/s³)"),

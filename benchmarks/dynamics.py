@@ -5,7 +5,7 @@ QP; writes docs/results/dynamics.md.
 
 All on one real trial: OpenCap Subject4 (``Models/optimized_scale_and_markers.osim``, 22 bodies, 35 coordinates)
 and its AddBiomechanics IK ``IK/<trial>_ik.mot``, coupled knee coordinates filled from their couplers, low-pass
-filtered at 6 Hz and differentiated with quintic splines (`biomotion.analysis.model_motion`,
+filtered at 6 Hz and differentiated with quintic splines (`biomotion.analysis.chain.model_motion`,
 `Motion.filtered(6).derivatives()`), so every method gets the same q, q̇, q̈.
 
 - biomotion: `inverse_dynamics` on all frames in one call, float64, without autograd, with autograd on (q
@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.analysis import analyze, model_motion
+from biomotion.analysis.chain import analyze, model_motion
 from biomotion.body.contact import (ContactSettings, _friction_edges, _nonnegative_least_squares,
                                     _point_kinematics, foot_points, infer_ground_reaction, root_coordinates)
 from biomotion.body.dynamics import inverse_dynamics
@@ -254,7 +254,7 @@ def opensim_inverse_dynamics(root: Path, trial: str, coordinates) -> dict[str, f
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         # radians: from degrees OpenSim 4.6 leaves the coupled knee_angle_*_beta speeds in deg/s
-        # (biomotion.muscles.validation.rajagopal_walk_inputs)
+        # (biomotion.validation.muscles.rajagopal_walk_inputs)
         write_motion(folder / "coordinates.mot", coordinates, in_degrees=False)
         forces = "".join(EXTERNAL_FORCE.format(body=body, k=k) for k, body in ((1, "calcn_r"), (2, "calcn_l")))
         (folder / "loads.xml").write_text(EXTERNAL_LOADS.format(
@@ -437,7 +437,7 @@ def report(args, trial: str, model: BodyModel, frames: int, speeds: dict[int, di
         "",
         "## Whole analysis chain",
         "",
-        "`biomotion.analysis.analyze` with the plates (filter, splines, inferred and measured-load torques, COM, "
+        "`biomotion.analysis.chain.analyze` with the plates (filter, splines, inferred and measured-load torques, COM, "
         "ZMP, energy):",
         "",
         "| threads | frames/s |",

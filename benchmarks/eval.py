@@ -24,19 +24,14 @@ from pathlib import Path
 
 import torch
 
-from biomotion.evaluation.clips import (
+from biomotion.data.clips import (
     CoordinateClip,
     body_model,
     build_temporary_cache,
     coordinate_set,
 )
-from biomotion.evaluation.harness import (
-    evaluate,
-    evaluation_markdown,
-    score_set,
-    write_json,
-    write_text,
-)
+from biomotion.evaluation.harness import evaluate, evaluation_markdown, write_json, write_text
+from biomotion.metrics.registry import score_set
 from biomotion.io.atomic import atomic_write
 
 

@@ -58,9 +58,9 @@ def alternating(fns: dict[int, object], repeats: int) -> dict[int, float]:
 
 def static_optimization_seconds(data_root: str, q: torch.Tensor, rate: float) -> float:
     """One static-optimization labelling of the clip (inverse dynamics + SO, the surrogate's teacher)."""
-    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.motion import Motion
-    from biomotion.muscles.surrogate_labels import Labeler
+    from biomotion.analysis.activation_labels import Labeler
 
     labeler = Labeler.from_data_root(data_root)
     motion = Motion(times=torch.arange(len(q)).double().numpy() / rate, values=q.double().numpy(),

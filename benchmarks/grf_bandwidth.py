@@ -8,12 +8,12 @@ measures about 0.2 on the Fukuchi runners, and so does the plain whole-body esti
 This script asks why, on every runner under the data root with a T35 C3D, its ``*_simple.osim`` and shipped
 ``ik/T35`` IK. It changes no setting: the evaluation keeps its 10 Hz, and nothing here feeds back into a default.
 
-1. Phases, at the evaluation's setting (shipped IK, coordinates low-passed at 10 Hz, `biomotion.analysis.analyze`,
-   frames of `biomotion.analysis.plate_frames`): each frame is flight (plates under 0.05 body weights) or a
+1. Phases, at the evaluation's setting (shipped IK, coordinates low-passed at 10 Hz, `biomotion.analysis.chain.analyze`,
+   frames of `biomotion.analysis.chain.plate_frames`): each frame is flight (plates under 0.05 body weights) or a
    tenth of its stance (time from touch-down over stance duration, both from the plates). Per phase group the
    share of the squared error and the mean signed error (ours minus plates) show where the RMSE comes from.
 2. Bandwidth: the same runner's coordinates solved afresh from the C3D markers by the source's own chain
-   (`biomotion.ik.fukuchi_chain.solve_trial`) with the markers low-passed at 10, 20 and 30 Hz instead of the
+   (`biomotion.data.fukuchi_chain.solve_trial`) with the markers low-passed at 10, 20 and 30 Hz instead of the
    source's 10, each analysed at the same cutoff; and the shipped IK analysed at 15 and 20 Hz. If a sharp
    loading or unloading were in the markers and only the filter hid it, a wider band would lower the error.
 """
@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from biomotion.analysis import Analysis, analyze, plate_frames, vertical_agreement
+from biomotion.analysis.chain import Analysis, analyze, plate_frames, vertical_agreement
 from biomotion.body.model import BodyModel
-from biomotion.ik.fukuchi_chain import as_simple, runner_files, solve_trial
+from biomotion.data.fukuchi_chain import as_simple, runner_files, solve_trial
 from biomotion.io.atomic import atomic_write
 from biomotion.io.c3d import read_c3d_forces
 from biomotion.io.mot import read_motion

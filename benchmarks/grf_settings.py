@@ -6,7 +6,7 @@
 inferred forces uses — Hamner 2013 subject01 running at 5 m/s (``Run_5``, its scaled full-body model and
 ``Run_5_grf.mot``) and the gait2392 subject01 walk (``subject01_walk1_ik.mot``, ``subject01_walk1_grf.mot``) —
 and this script is that check, repeatable: vertical GRF RMSE (body weights) against the plates on the frames
-`biomotion.analysis.plate_frames` keeps, for
+`biomotion.analysis.chain.plate_frames` keeps, for
 
 1. the low-pass cutoff of the coordinates (4-20 Hz), with the default contact settings, beside the whole-body
    estimate m(g + a_COM,y) on the same frames and filtering;
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.analysis import analyze, model_motion, plate_frames, unwrapped, vertical_agreement
+from biomotion.analysis.chain import analyze, model_motion, plate_frames, unwrapped, vertical_agreement
 from biomotion.body.contact import ContactSettings, infer_ground_reaction
 from biomotion.body.model import BodyModel
 from biomotion.io.atomic import atomic_write

@@ -5,7 +5,7 @@
 IK: for each trial, OpenSim's ``InverseKinematicsTool`` (fresh, same model, marker weights, coordinate tasks and
 frames; logging off) and `biomotion.ik.solve_ik` read the same TRC file and write a .mot; OpenSim's ``run()`` is
 timed once, ours is the best of ``--repeats`` runs, with ``--threads`` torch threads (1 by default: OpenSim's IK
-is single-threaded). Accuracy as in `biomotion.ik.validate.compare`: per-coordinate RMSE between the two solutions
+is single-threaded). Accuracy as in `biomotion.validation.ik.compare`: per-coordinate RMSE between the two solutions
 over all frames (coordinates no tracked marker moves are listed, not scored), marker RMSE of both with the same
 forward kinematics, and the frames where one objective is lower.
 
@@ -26,9 +26,10 @@ from pathlib import Path
 import torch
 
 from biomotion.body.model import BodyModel
-from biomotion.ik import validate
-from biomotion.ik.scaling import scale_static, write_scaled_osim
-from biomotion.ik.setup import read_scale_setup
+from biomotion.validation import ik as validate
+from biomotion.ik.scaling import scale_static
+from biomotion.body.scaling.osim_file import write_scaled_osim
+from biomotion.io.setup import read_scale_setup
 from biomotion.io.atomic import atomic_write
 from biomotion.io.trc import read_trc, write_trc
 

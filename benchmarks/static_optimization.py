@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from biomotion.io.atomic import atomic_write
-from biomotion.muscles.validation import gait_static_optimization, opensim_gait_static_optimization, r_squared
+from biomotion.validation.muscles import gait_static_optimization, opensim_gait_static_optimization, r_squared
 
 REPO = Path(__file__).resolve().parents[1]
 

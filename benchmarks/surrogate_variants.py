@@ -5,7 +5,7 @@
         [--data-root ../shared/data] [--work build/surrogate_variants] [--out docs/results/surrogate_variants.md]
 
 Each variant is the config with the listed ``SECTION.KEY=VALUE`` settings changed (values parsed as YAML; ``NAME:``
-alone is the config itself), trained with `biomotion.muscles.train_surrogate.train` for ``--iterations`` (the
+alone is the config itself), trained with `biomotion.training.train_surrogate.train` for ``--iterations`` (the
 cosine schedule completed at that count, so a short run ranks settings, it does not reach the shipped figures),
 then scored twice, both mirror-averaged (`MuscleSurrogate.predict_symmetric`): on the cache's val split (the
 clips `train_surrogate` monitors; choose settings by this column) and as `biomotion validate muscles` scores it
@@ -26,10 +26,11 @@ import torch
 import yaml
 
 from biomotion.data.registry import DatasetCache
-from biomotion.evaluation.clips import body_model
+from biomotion.data.clips import body_model
 from biomotion.muscles.surrogate import MuscleSurrogate
-from biomotion.muscles.train_surrogate import clip_arrays, evaluate, labels_for_cache, train
-from biomotion.muscles.validation import surrogate_figures
+from biomotion.training.train_surrogate import clip_arrays, labels_for_cache, train
+from biomotion.muscles.surrogate_scores import evaluate
+from biomotion.validation.muscles import surrogate_figures
 
 CLIP_FRAMES = 90
 

@@ -6,7 +6,7 @@
 Issue 7 asks for generated motion with the ZMP inside the support on >= 90 % of supported frames. This script
 puts the real clips of the sources the generator learns from (Fukuchi, Hamner, OpenCap, Schreiber) through the
 evaluation's own path: the cache's canonical coordinates at 30 Hz on the canonical Rajagopal body
-(`biomotion.evaluation.clips.coordinate_set`, quintic-spline derivatives), the ZMP of
+(`biomotion.data.clips.coordinate_set`, quintic-spline derivatives), the ZMP of
 `biomotion.body.balance.zero_moment_point` and the support of `biomotion.metrics.stability` (the convex hull of the
 foot points within 5 cm of the floor). Per source and action (and speed) it reports:
 
@@ -37,7 +37,7 @@ import torch
 from biomotion.body.balance import zero_moment_point
 from biomotion.body.kinematics import torch_threads
 from biomotion.errors import BiomotionError
-from biomotion.evaluation.clips import CoordinateClip, body_model, build_temporary_cache, coordinate_set
+from biomotion.data.clips import CoordinateClip, body_model, build_temporary_cache, coordinate_set
 from biomotion.evaluation.generation import TRUNK_COORDINATES
 from biomotion.io.atomic import atomic_write
 from biomotion.metrics.contact import CONTACT_HEIGHT

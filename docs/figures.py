@@ -3,7 +3,7 @@
     .venv/bin/python docs/figures.py [--data-root ../shared/data] [--out docs/images]
 
 Joint angles (OpenCap walking1 against walking2/4), inferred vs measured GRF and the COM/ZMP path come from
-`biomotion.analysis.analyze`; the activation heatmap shows OpenSim's stored CMC excitations of gait2392 subject01
+`biomotion.analysis.chain.analyze`; the activation heatmap shows OpenSim's stored CMC excitations of gait2392 subject01
 with the Rajagopal walk's EMG envelopes; the metric panel shows knee range and peak GRF over OpenCap walking trials;
 the viewer screenshot is `biomotion view` of walking1 at frame 60 in headless Chromium; the generated run is
 `biomotion generate` for `examples/runner_52_acl.yaml` (its joint angles).
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biomotion.analysis import analyze, support_polygons, write_analysis
+from biomotion.analysis.chain import analyze, support_polygons, write_analysis
 from biomotion.body.model import BodyModel
 from biomotion.io.mot import read_ground_reaction, read_motion
 from biomotion.motion import lowpass

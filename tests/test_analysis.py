@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.analysis import analyze, model_motion, plate_feet, plate_frames, summary, unwrapped, zmp_to_plate_cop
+from biomotion.analysis.chain import analyze, model_motion, plate_feet, plate_frames, summary, unwrapped, zmp_to_plate_cop
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.errors import ModelError

@@ -144,7 +144,7 @@ def test_convert_coordinates_on_their_model_to_markers_and_bvh(tmp_path, capsys)
     places them (oracle, 1e-6 m on sampled frames), about where the cameras saw them (RMS under 2 cm: the IK's
     own marker error, 1.3 cm over the trials of `biomotion validate ik`), and a BVH of the model's bodies;
     without --model the command says what is missing."""
-    from biomotion.analysis import model_motion
+    from biomotion.analysis.chain import model_motion
     from biomotion.body.model import BodyModel
     from biomotion.io.bvh import read_bvh
     from biomotion.validation.oracle import Oracle
@@ -190,8 +190,8 @@ def test_analyze_runs_the_whole_chain_from_markers_as_opensim_does(tmp_path, cap
     (measured 3.0 %, pelvis_tx_force; the whole 3.5 s walk reads 1.4 % in `biomotion validate dynamics`). The IK
     result is kept in OUT/ik and summarised in summary.json."""
     pytest.importorskip("opensim")
-    from biomotion.ik.setup import read_ik_setup
-    from biomotion.ik.validate import ORACLE_ACCURACY, opensim_ik
+    from biomotion.io.setup import read_ik_setup
+    from biomotion.validation.ik import ORACLE_ACCURACY, opensim_ik
     from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_ground_reaction, write_motion
     from biomotion.validation.oracle import run_inverse_dynamics_tool
 

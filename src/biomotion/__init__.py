@@ -17,7 +17,7 @@ from biomotion.trial import Labels, Trial
 __version__ = "0.1.0"
 
 _LAZY = {
-    "read": ("biomotion.io.convert", "read_any"),
+    "read": ("biomotion.io.formats", "read_any"),
     "BodyModel": ("biomotion.body.model", "BodyModel"),
     "analyze": ("biomotion.analysis", "analyze"),
     "solve_ik": ("biomotion.ik.markers", "solve_ik"),

@@ -15,7 +15,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from biomotion import __version__
-from biomotion.data_root import ENVIRONMENT_VARIABLE, default_data_root
+from biomotion.settings import DATA_ROOT_VARIABLE, default_data_root
 from biomotion.errors import BiomotionError, BiomotionWarning, ConfigError
 
 
@@ -50,7 +50,7 @@ def _data_augment(args: argparse.Namespace) -> int:
 
     model = None
     if args.posture_copies > 0:
-        from biomotion.evaluation.clips import body_model
+        from biomotion.data.clips import body_model
 
         model = body_model(args.data_root)
     manifest = augmented_cache(args.cache, args.out, args.time_warp, posture_copies=args.posture_copies,
@@ -74,7 +74,7 @@ def _data_sources(args: argparse.Namespace) -> int:
 
 
 def _convert(args: argparse.Namespace) -> int:
-    from biomotion.io.convert import convert
+    from biomotion.analysis.convert import convert
 
     written = convert(args.input, args.output, model=args.model)
     print(f"wrote {written}")
@@ -120,7 +120,7 @@ def _generate(args: argparse.Namespace) -> int:
 
 
 def _inspect(args: argparse.Namespace) -> int:
-    from biomotion.io.convert import describe
+    from biomotion.io.formats import describe
 
     print(json.dumps(describe(args.input), indent=1))
     return 0
@@ -128,7 +128,7 @@ def _inspect(args: argparse.Namespace) -> int:
 
 def _analysis_figures(args: argparse.Namespace, coordinates: Path, model: Path, result, files: dict) -> dict:
     """The viewer and the plots `analyze` writes by default (issue 8: analysis commands write them)."""
-    from biomotion.analysis import support_polygons
+    from biomotion.analysis.chain import support_polygons
     from biomotion.viz.plots import plot_balance, plot_ground_reaction, plot_joint_angles
     from biomotion.viz.viewer import view_command
 
@@ -160,7 +160,7 @@ def _inverse_kinematics(args: argparse.Namespace, folder: Path) -> tuple[Path, P
     the one trial into ``folder``, as `biomotion retarget TRIAL --model MODEL [--setup] [--filter]` would write it."""
     from biomotion.body.model import BodyModel
     from biomotion.ik.retarget import is_skeleton, retarget
-    from biomotion.ik.setup import read_ik_setup
+    from biomotion.io.setup import read_ik_setup
 
     setup = read_ik_setup(args.setup) if args.setup else None
     if (setup is not None or args.scale_setup is not None) and is_skeleton(args.trial):
@@ -216,9 +216,9 @@ def _analyze_coordinates(args: argparse.Namespace, coordinates: Path, model_path
     to summary.json; ``ik_folder``: the inverse kinematics that made the coordinates, copied to OUT/ik at the end."""
     import shutil
 
-    from biomotion.analysis import analyze, summary, write_analysis
+    from biomotion.analysis.chain import analyze, summary, write_analysis
     from biomotion.body.model import BodyModel
-    from biomotion.io.convert import read_any
+    from biomotion.io.formats import read_any
     from biomotion.io.mot import read_motion
 
     motion = read_motion(coordinates)
@@ -237,7 +237,7 @@ def _analyze_coordinates(args: argparse.Namespace, coordinates: Path, model_path
             raise DataFormatError(args.grf, "holds no force-plate data")
     paths = check = None
     if args.muscles is not None:   # before the analysis: a wrong path file fails fast and writes nothing
-        from biomotion.muscles.trial import check_paths, load_paths
+        from biomotion.analysis.activations import check_paths, load_paths
 
         paths, label = load_paths(args.muscles)
         check = check_paths(paths, label, model_path, model.coordinate_names)
@@ -246,13 +246,13 @@ def _analyze_coordinates(args: argparse.Namespace, coordinates: Path, model_path
     result = analyze(motion, model, forces, cutoff_hz=args.cutoff)
     solution = None
     if paths is not None:
-        from biomotion.muscles.trial import TrialSettings, activation_summary, trial_activations
+        from biomotion.analysis.activations import TrialSettings, activation_summary, trial_activations
 
         solution = trial_activations(result, model_path, paths)
         extra["muscles"] = activation_summary(solution, check, TrialSettings())
     files = write_analysis(result, args.out, extra_summary=extra)
     if solution is not None:
-        from biomotion.muscles.trial import write_activations
+        from biomotion.analysis.activations import write_activations
 
         files["activations"] = write_activations(args.out / "activations.sto", result, solution)
     if ik_folder is not None:   # last: the copy names the folder the analysis went to
@@ -293,7 +293,7 @@ def _view(args: argparse.Namespace) -> int:
 
 def _muscles_label(args: argparse.Namespace) -> int:
     from biomotion.data.registry import DatasetCache
-    from biomotion.muscles.surrogate_labels import DEFAULT_NAME, labels_for_cache
+    from biomotion.training.surrogate_labels import DEFAULT_NAME, labels_for_cache
 
     cache = DatasetCache(args.cache)
     out = args.out or Path(args.cache) / DEFAULT_NAME
@@ -385,7 +385,7 @@ def _scale_to_person(args: argparse.Namespace) -> int:
     """`scale --profile|--subject-table`: no markers; stature ratio, ANSUR II segment measures where given."""
     from dataclasses import replace as replaced
 
-    from biomotion.body.profile_scaling import write_person_model
+    from biomotion.body.scaling.stature import write_person_model
     from biomotion.generation.command import person
 
     if args.model is None:
@@ -421,7 +421,7 @@ def _print_calibration(done, files: bool = True) -> None:
 def _retarget(args: argparse.Namespace) -> int:
     from biomotion.body.model import BodyModel
     from biomotion.ik.retarget import motion_files, retarget
-    from biomotion.ik.setup import read_ik_setup
+    from biomotion.io.setup import read_ik_setup
     from biomotion.ik.skeleton import JointMap
 
     _check_static(args)
@@ -460,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="biomotion",
         description="Personalized, biomechanically plausible human motion: read captured motion, analyse it on a "
                     "musculoskeletal model, build training data, generate and evaluate.",
-        epilog=f"Commands that read the datasets take --data-root DIR; without it they read ${ENVIRONMENT_VARIABLE} "
+        epilog=f"Commands that read the datasets take --data-root DIR; without it they read ${DATA_ROOT_VARIABLE} "
                f"when set, else ../shared/data from the working directory (now: {data_root}).")
     parser.add_argument("--version", action="version", version=f"biomotion {__version__}")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
@@ -633,7 +633,7 @@ def build_parser() -> argparse.ArgumentParser:
     analyze.add_argument("--cutoff", type=float, default=6.0, help="low-pass cutoff in Hz (default: %(default)s)")
     analyze.add_argument("--muscles", metavar="PATHS",
                          help="also muscle activations by static optimization (activations.sto): muscle path "
-                              "functions fitted on MODEL, a file from `python -m biomotion.muscles.fit_paths --model "
+                              "functions fitted on MODEL, a file from `python -m biomotion.training.fit_paths --model "
                               "MODEL --out PATHS.safetensors` (minutes, once per model; needs opensim, the "
                               "validate extra), or a shipped name: rajagopal2016 (the generic "
                               "Rajagopal 2016 model), gait2392_subject01 (OpenSim's gait2392 subject01_simbody)")
@@ -693,7 +693,7 @@ def build_parser() -> argparse.ArgumentParser:
     scale.add_argument("--profile", type=Path,
                        help="instead of a setup: a person (YAML/JSON profile); every body scaled by the stature "
                             "ratio, except segments whose ANSUR II measures (mm, the survey's names, e.g. "
-                            "footlength) the profile gives, scaled by them (biomotion.body.segment_scaling)")
+                            "footlength) the profile gives, scaled by them (biomotion.body.scaling.segments)")
     scale.add_argument("--subject-table", type=Path, help="instead of a setup: a subject table (an ANSUR II file "
                                                           "gives every measure), with --subject-id")
     scale.add_argument("--subject-id", help="the row of --subject-table")

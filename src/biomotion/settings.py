@@ -1,9 +1,12 @@
-"""Settings dataclasses from dictionaries (YAML configs, safetensors metadata), with unknown keys named."""
+"""Settings: dataclasses from dictionaries (YAML configs, safetensors metadata) with unknown keys named, and where
+the datasets are by default."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from dataclasses import fields
+from pathlib import Path
 from typing import Any, TypeVar
 
 from biomotion.errors import ConfigError
@@ -18,3 +21,14 @@ def settings_from_dict(cls: type[T], values: Mapping[str, Any], what: str) -> T:
     if unknown:
         raise ConfigError(f"unknown {what} settings: {sorted(unknown)}; known: {sorted(known)}")
     return cls(**values)
+
+
+DATA_ROOT_VARIABLE = "BIOMOTION_DATA_ROOT"
+DATA_ROOT_FALLBACK = Path("../shared/data")
+
+
+def default_data_root() -> Path:
+    """Where the datasets are when a command is not told: ``$BIOMOTION_DATA_ROOT`` when set and not empty, else
+    ``../shared/data`` from the working directory (the project's layout, `../shared/data/README.md`). Every command
+    that reads them also takes ``--data-root DIR``, which wins."""
+    return Path(os.environ.get(DATA_ROOT_VARIABLE) or DATA_ROOT_FALLBACK)

@@ -13,7 +13,7 @@ from tests.conftest import data_path
 
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
-from biomotion.body.profile_scaling import (RAJAGOPAL_2016_HEIGHT, scale_to_person, scale_to_profile,
+from biomotion.body.scaling.stature import (RAJAGOPAL_2016_HEIGHT, scale_to_person, scale_to_profile,
                                             standing_height)
 from biomotion.errors import ConfigError
 from biomotion.profile import Profile

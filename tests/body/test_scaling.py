@@ -12,7 +12,7 @@ from tests.conftest import DATA_ROOT, data_path
 
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_factors, scale_model, scale_model_from_file
+from biomotion.body.scaling.bodies import scale_factors, scale_model, scale_model_from_file
 from biomotion.io.osim import read_scale_set
 
 DENTON = "fukuchi-running/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim"

@@ -1,4 +1,4 @@
-"""Segment-by-segment scaling from ANSUR II measures (`biomotion.body.segment_scaling`): the shipped lines against
+"""Segment-by-segment scaling from ANSUR II measures (`biomotion.body.scaling.segments`): the shipped lines against
 a fresh fit of the survey, and ANSUR II's own people scaled from their measures: the model's hip-centre height
 follows the person's measured trochanterion height (real data, both sexes), its stature stays near theirs, and
 the model written opens in OpenSim."""
@@ -15,8 +15,8 @@ import torch
 from tests.conftest import data_path
 
 from biomotion.body.kinematics import forward_kinematics
-from biomotion.body.profile_scaling import scale_to_person, standing_height
-from biomotion.body.segment_scaling import (ANSUR_MEN, SEGMENTS, body_factors, fit_lines, segment_factors,
+from biomotion.body.scaling.stature import scale_to_person, standing_height
+from biomotion.body.scaling.segments import (ANSUR_MEN, SEGMENTS, body_factors, fit_lines, segment_factors,
                                             shipped_lines)
 from biomotion.errors import ConfigError
 from biomotion.io.tables import read_subject_table

@@ -7,8 +7,8 @@ import torch
 
 from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.model import BodyModel
-from biomotion.data.canonical import CANONICAL_COORDINATES
-from biomotion.data.mirror import mirror_coordinates, mirror_labels, other_side
+from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.body.mirror import mirror_coordinates, mirror_labels, other_side
 from tests.conftest import data_path
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from biomotion.body.model import BodyModel
-from biomotion.data.placement import GENERIC_HEIGHT, lowest_foot_heights, place_clip
+from biomotion.data.placement import GENERIC_HEIGHT, place_clip
+from biomotion.body.contact import lowest_foot_heights
 from biomotion.data.sources import FUKUCHI, HAMNER, discover_all
 from tests.conftest import DATA_ROOT, data_path
 

@@ -8,7 +8,7 @@ import torch
 from biomotion.body.kinematics import forward_kinematics
 from biomotion.data.posture import keeps_ranges, posture_offset, random_offsets
 from biomotion.errors import ModelError
-from biomotion.evaluation.clips import body_model
+from biomotion.data.clips import body_model
 from biomotion.motion import Motion
 
 KEPT = ("femur_r", "femur_l", "tibia_r", "tibia_l", "calcn_r", "toes_l")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from biomotion.cli import main
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.data.registry import DatasetCache, build_cache, subject_split
 from biomotion.data.sources import to_canonical
@@ -170,7 +170,7 @@ def test_bandai_clips_are_retargeted_into_the_cache(tmp_path, data_root):
 
 
 def test_a_runner_with_only_raw_c3d_is_solved_into_the_cache(tmp_path, data_root):
-    """A new runner's capture without shipped IK goes through the source's own chain (biomotion.ik.fukuchi_chain)
+    """A new runner's capture without shipped IK goes through the source's own chain (biomotion.data.fukuchi_chain)
     and lands where the shipped IK of the same trial is."""
     base = data_root / "fukuchi-running"
     root = tmp_path / "root" / "fukuchi-running"

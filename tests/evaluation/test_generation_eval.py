@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.evaluation.generation import done_when, kinematic_measures, stride_period
 
 

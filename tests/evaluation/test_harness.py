@@ -16,7 +16,7 @@ MOT_FILES = ("opencap/Subject4/IK/walking1_ik.mot", "opencap/Subject4/IK/squats1
 
 @pytest.fixture(scope="module")
 def model():
-    from biomotion.evaluation.clips import body_model
+    from biomotion.data.clips import body_model
 
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
     return body_model(data_path(""))
@@ -26,7 +26,7 @@ def model():
 def cache_set(tmp_path_factory, model):
     """Four Schreiber walking clips from a dataset cache, through the body model."""
     from biomotion.data.registry import DatasetCache, build_cache
-    from biomotion.evaluation.clips import cache_clips, coordinate_set
+    from biomotion.data.clips import cache_clips, coordinate_set
 
     data_path("SchreiberMoissenet2019")
     out = tmp_path_factory.mktemp("cache")
@@ -48,7 +48,7 @@ def _finite(record: dict) -> bool:
 
 
 def test_cache_clips_score_in_sanity_ranges(cache_set, model):
-    from biomotion.evaluation.harness import summarize_set
+    from biomotion.metrics.registry import summarize_set
 
     records = summarize_set(cache_set, model, physics=True)
     assert {"penetration", "floating", "skate_ratio", "jerk", "energy_com", "energy_body", "zmp_in_support",
@@ -81,7 +81,7 @@ def test_identical_pred_and_ref_have_zero_error(cache_set, model):
 
 
 def test_different_clips_have_positive_error(cache_set, model):
-    from biomotion.evaluation.clips import ClipSet
+    from biomotion.metrics.clip_set import ClipSet
     from biomotion.evaluation.harness import evaluate
 
     shifted = ClipSet(**{**cache_set.__dict__, "names": ("a", "b", "c", "d")})
@@ -124,7 +124,8 @@ def test_eval_command_on_mot_files(tmp_path):
 
 def test_unpairable_sets_are_refused(cache_set, model):
     from biomotion.errors import BiomotionError
-    from biomotion.evaluation.harness import _take, evaluate
+    from biomotion.evaluation.harness import evaluate
+    from biomotion.metrics.registry import _take
 
     with pytest.raises(BiomotionError, match="cannot pair"):
         evaluate(_take(cache_set, [0, 1]), _take(cache_set, [2]).__class__(

@@ -11,7 +11,7 @@ import pytest
 from biomotion.evaluation.generation import MANIPULATIONS, _real_data_table, kinematic_measures
 from biomotion.evaluation.manipulation_data import (action_clips, field_value, real_data_directions,
                                                        sources_with_action)
-from biomotion.generation.actions import ActionRequest
+from biomotion.models.actions import ActionRequest
 from tests.conftest import data_path
 
 ACL = {"injuries": ({"location": "Left knee", "diagnosis": "ACL reconstruction"},)}
@@ -73,7 +73,7 @@ def test_a_field_that_moves_the_measure_gets_its_direction_and_a_constant_one_no
 
 def test_the_fukuchi_runners_levels_are_read_as_the_participant_table_gives_them(data_root):
     """Real data: the subjects per level of the 3.5 m/s runs against a count straight from participantInfo.csv."""
-    from biomotion.evaluation.clips import build_temporary_cache
+    from biomotion.data.clips import build_temporary_cache
 
     table = data_path("fukuchi-running/participantInfo.csv")
     present = {int(path.name.split("_")[0].removeprefix("RBDS"))          # the runners whose 3.5 m/s IK ships

@@ -8,8 +8,8 @@ import numpy as np
 import torch
 
 from biomotion.body.kinematics import forward_kinematics
-from biomotion.data.canonical import CANONICAL_COORDINATES
-from biomotion.evaluation.clips import body_model
+from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.data.clips import body_model
 from biomotion.motion import Motion
 from tests.conftest import REPO, data_path
 

@@ -23,8 +23,8 @@ import pytest
 import torch
 
 from biomotion.errors import ConfigError
-from biomotion.generation import actions
-from biomotion.generation.actions import ActionRequest, ActionVocabulary, find_speed
+from biomotion.models import actions
+from biomotion.models.actions import ActionRequest, ActionVocabulary, find_speed
 from tests.conftest import REPO
 
 CACHE = REPO / "build" / "dataset"

@@ -13,12 +13,12 @@ import torch
 
 from biomotion.body.kinematics import apply_couplers
 from biomotion.body.model import BodyModel
-from biomotion.generation.actions import ActionRequest, ActionVocabulary
-from biomotion.generation.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds
-from biomotion.generation.conditioning import action_size
+from biomotion.models.actions import ActionRequest, ActionVocabulary
+from biomotion.models.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds
+from biomotion.models.conditioning import action_size
 from biomotion.generation.outputs import write_generation
 from biomotion.generation.pipeline import Generator
-from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.guidance.planting import leg_columns
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.mot import read_motion
@@ -135,7 +135,7 @@ def test_write_generation_files_open_and_agree(generator, tmp_path):
 
 
 def test_reference_clips_of_flexion_negative_models_are_flipped(generator):
-    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.errors import BiomotionWarning
     from biomotion.generation.pipeline import reference_motion
     from biomotion.motion import Motion

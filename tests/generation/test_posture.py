@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
-from biomotion.generation.actions import ActionVocabulary
-from biomotion.generation.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds, population_posture
+from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.models.actions import ActionVocabulary
+from biomotion.models.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds, population_posture
 from biomotion.generation.posture import POSTURE_COORDINATES, centring_shift, nearest_action, posture_offset
 
 N = len(CANONICAL_COORDINATES)

@@ -17,7 +17,7 @@ import pytest
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.evaluation.generation import _style_checkpoints
-from biomotion.generation.bundle import GeneratorBundle
+from biomotion.models.bundle import GeneratorBundle
 from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE
 from biomotion.generation.routing import FULL_BODY, route
 from biomotion.io.mot import read_motion

@@ -90,7 +90,7 @@ def test_scale_runs_the_gait2392_tutorial_setup_as_opensim_does(tmp_path, capsys
     osim = pytest.importorskip("opensim", reason="the opensim package (validate extra) is the oracle here")
     from biomotion.ik.markers import evaluate_ik
     from biomotion.ik.scaling import average_frames
-    from biomotion.ik.setup import read_scale_setup
+    from biomotion.io.setup import read_scale_setup
     from biomotion.io.mot import read_storage
     from biomotion.io.trc import read_trc
     from biomotion.motion import Motion

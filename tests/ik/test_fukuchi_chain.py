@@ -1,11 +1,11 @@
-"""The Fukuchi 2017 processing chain (`biomotion.ik.fukuchi_chain`): one runner end to end against its shipped
+"""The Fukuchi 2017 processing chain (`biomotion.data.fukuchi_chain`): one runner end to end against its shipped
 ``_ik_simple.mot``, and the chain's small steps on synthetic input."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from biomotion.ik.fukuchi_chain import FUKUCHI, as_simple, validate_fukuchi_chain, window
+from biomotion.data.fukuchi_chain import FUKUCHI, as_simple, validate_fukuchi_chain, window
 from biomotion.motion import Motion
 from tests.conftest import data_path
 

@@ -12,7 +12,7 @@ from biomotion.body.kinematics import apply_couplers, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.errors import DataFormatError
 from biomotion.ik.markers import _setup, evaluate_ik, free_coordinates, solve_ik
-from biomotion.ik.setup import CoordinateTask, read_ik_setup
+from biomotion.io.setup import CoordinateTask, read_ik_setup
 from biomotion.io.trc import read_trc
 from biomotion.motion import Markers, Motion
 from tests.conftest import data_path
@@ -143,7 +143,7 @@ def test_clamped_coordinate_stops_at_its_bound():
 
 def test_gait2392_window_matches_fresh_opensim_ik():
     """0.5 s of the subject01 walk with the shipped setup's weights and coordinate tasks (1000 on subtalar/mtp)."""
-    validate = pytest.importorskip("biomotion.ik.validate")
+    validate = pytest.importorskip("biomotion.validation.ik")
     pytest.importorskip("opensim", reason="the opensim package (validate extra) is the oracle here")
     setup = read_ik_setup(data_path(f"{GAIT}/subject01_Setup_IK.xml"))
     model_path = data_path(GAIT_MODEL)
@@ -165,7 +165,7 @@ def test_opencap_window_matches_fresh_opensim_ik_where_determined():
     """0.3 s of OpenCap walking1 (35 coordinates, patella couplers). OpenSim stops short on the weakly seen arm
     coordinates, pro_sup above all (flat objective near its clamp): our objective is no higher on any frame. It
     also moves mtp although no marker depends on it."""
-    validate = pytest.importorskip("biomotion.ik.validate")
+    validate = pytest.importorskip("biomotion.validation.ik")
     pytest.importorskip("opensim", reason="the opensim package (validate extra) is the oracle here")
     setup = read_ik_setup(data_path(f"{OPENCAP}/IK/walking1_ik_setup.xml"))
     model_path = setup.file("model_file")
@@ -200,7 +200,7 @@ def test_drop_jump_arms_stay_on_one_euler_branch_and_whole_turn_limits_are_cross
     wrapped back) and frames solved apart no longer land on the shoulder's other, equivalent set of angles
     (before: arm_flex_l 127 deg RMSE against OpenSim, objective twice OpenSim's on 37 frames). Checked by
     continuity here; `biomotion validate ik` compares with OpenSim."""
-    from biomotion.ik.setup import read_ik_setup
+    from biomotion.io.setup import read_ik_setup
 
     base = data_path("opencap/Subject4")
     setup = read_ik_setup(base / "IK" / "DJ3_ik_setup.xml")
@@ -223,7 +223,7 @@ def test_shoulder_over_its_whole_turn_cut_ends_on_opensims_set_of_angles():
     right-shoulder angles differed from OpenSim's by over 1 deg on 85 of the 242 frames where both objectives
     agree within 1 % (the rest of the trial); measured now: 2 (the crossing frame and one at gimbal lock)."""
     pytest.importorskip("opensim", reason="the opensim package (validate extra) is the oracle here")
-    from biomotion.ik import validate
+    from biomotion.validation import ik as validate
 
     base = data_path(OPENCAP)
     setup = read_ik_setup(base / "IK" / "DJAsym3_ik_setup.xml")

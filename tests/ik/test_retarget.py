@@ -60,8 +60,8 @@ def test_an_ik_setup_brings_its_coordinate_tasks_and_time_range(tmp_path, capsys
     differ by up to 18 deg) and the time range (0.5-2.5 s). Against OpenSim 4.6 run to convergence on the same
     setup: measured 0.0004 deg; bar 0.01 deg on every coordinate."""
     pytest.importorskip("opensim")
-    from biomotion.ik.setup import read_ik_setup
-    from biomotion.ik.validate import ORACLE_ACCURACY, opensim_ik
+    from biomotion.io.setup import read_ik_setup
+    from biomotion.validation.ik import ORACLE_ACCURACY, opensim_ik
 
     folder = data_path(GAIT)
     model = folder / "OutputReference/subject01_simbody.osim"

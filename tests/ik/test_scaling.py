@@ -13,12 +13,13 @@ import torch
 
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_model
+from biomotion.body.scaling.bodies import scale_model
 from biomotion.errors import DataFormatError
 from biomotion.ik.markers import evaluate_ik
 from biomotion.ik.scaling import (average_frames, body_scale_factors, frame_range, place_markers, register_markers,
-                                  scale_static, write_scale_set, write_scaled_osim)
-from biomotion.ik.setup import read_scale_setup
+                                  scale_static)
+from biomotion.body.scaling.osim_file import write_scale_set, write_scaled_osim
+from biomotion.io.setup import read_scale_setup
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_storage
 from biomotion.io.osim import read_scale_set

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from biomotion.errors import DataFormatError
-from biomotion.ik.setup import CoordinateTask, locate, read_ik_setup, read_scale_setup
+from biomotion.io.setup import CoordinateTask, locate, read_ik_setup, read_scale_setup
 from tests.conftest import data_path
 
 GAIT_SETUP = "opensim-models/Pipelines/Gait2392_Simbody/subject01_Setup_IK.xml"

@@ -12,7 +12,7 @@ pytest.importorskip("opensim", reason="validation needs the opensim package (val
 
 
 def test_another_opencap_subject_is_validated(tmp_path):
-    from biomotion.ik.validate import opencap_subjects, validate_ik
+    from biomotion.validation.ik import opencap_subjects, validate_ik
 
     subject4 = data_path("opencap/Subject4")
     folder = tmp_path / "root" / "opencap" / "Subject9"     # Subject4's walking1 (0.3 s of it) under a new name

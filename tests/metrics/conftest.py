@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.evaluation.clips import TRUNK_FRACTION, WINTER_SEGMENTS
+from biomotion.data.clips import TRUNK_FRACTION, WINTER_SEGMENTS
 from tests.conftest import data_path
 
 WALKS = "bandai-namco/dataset-2"

@@ -132,7 +132,7 @@ def test_guidance_reads_its_contact_mask_from_the_decoder_when_it_has_channels(f
     """Guide.contact: with contact channels (and ``decoded_contact``), m_t is the points of the channels decoded
     above 0.5, whatever the kinematics say; without channels, or with ``decoded_contact`` off, it is
     `stance_mask` of the decoded feet."""
-    from biomotion.generation.bundle import GuidanceBounds
+    from biomotion.models.bundle import GuidanceBounds
     from biomotion.guidance.refine import GuidanceConfig, Guide, Kinematics
 
     bounds = GuidanceBounds((1.0,) * N_COORDS, (0.0, 5.0), (0.0, 50.0), 100)

@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.data.registry import DatasetCache, build_cache
 from biomotion.errors import ConfigError
-from biomotion.evaluation.clips import body_model
-from biomotion.generation.actions import ActionVocabulary
-from biomotion.generation.bundle import GeneratorBundle, action_bounds
-from biomotion.generation.conditioning import action_size
+from biomotion.data.clips import body_model
+from biomotion.models.actions import ActionVocabulary
+from biomotion.models.bundle import GeneratorBundle, action_bounds
+from biomotion.models.conditioning import action_size
 from biomotion.models.prior import PriorConfig, ProfileActionPrior
-from biomotion.models.train_generator import refresh_statistics
+from biomotion.training.train_generator import refresh_statistics
 
 KNEE = CANONICAL_COORDINATES.index("knee_angle_r")
 

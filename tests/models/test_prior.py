@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from biomotion.generation.conditioning import BIODATA_FIELDS, METADATA_FIELDS
+from biomotion.models.conditioning import BIODATA_FIELDS, METADATA_FIELDS
 from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
 
 

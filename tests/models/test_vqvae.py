@@ -85,7 +85,7 @@ def test_ema_update_and_dead_code_reset():
 
 def test_training_steps_reduce_loss_on_real_clips(tmp_path, data_root):
     from biomotion.data.registry import DatasetCache, build_cache
-    from biomotion.models.train_tokenizer import make_windows
+    from biomotion.training.train_tokenizer import make_windows
 
     build_cache(data_root, tmp_path, sources=["hamner"], progress=False)
     x, mask = make_windows(DatasetCache(tmp_path), split=None, length=32, stride=16)

@@ -1,11 +1,11 @@
-"""EMG check (`biomotion.muscles.emg`): the strict .anc reader, envelopes, the on/off rule, and the on/off
+"""EMG check (`biomotion.validation.emg`): the strict .anc reader, envelopes, the on/off rule, and the on/off
 agreement of the Rajagopal walk's EMG with static optimization and the surrogate."""
 
 import numpy as np
 import pytest
 
 from biomotion.errors import DataFormatError
-from biomotion.muscles import emg
+from biomotion.validation import emg
 from tests.conftest import data_path
 
 # Measured with the a-priori settings (EMGSettings(): 20-450 Hz band-pass, 6 Hz envelope, on at 20 % of range):

@@ -64,7 +64,7 @@ def test_save_load_round_trip_and_bad_files(tmp_path):
 ])
 def test_moment_arms_match_opensim(name, model, muscles):
     pytest.importorskip("opensim")
-    from biomotion.muscles.validation import moment_arm_errors
+    from biomotion.validation.muscles import moment_arm_errors
 
     errors = moment_arm_errors(shipped_paths(name), data_path(model), poses=80, seed=7, muscles=muscles)
     assert {m for m, _ in errors} == set(muscles)         # every muscle has at least one non-zero moment arm

@@ -75,7 +75,7 @@ def test_bad_shapes_and_unactuated_coordinates_are_refused():
 
 def test_matches_opensim_static_optimization_on_a_gait_window():
     pytest.importorskip("opensim")
-    from biomotion.muscles.validation import (
+    from biomotion.validation.muscles import (
         gait_static_optimization,
         opensim_gait_static_optimization,
         r_squared,
@@ -100,7 +100,7 @@ def test_matches_opensim_static_optimization_on_a_rajagopal_walk_window(tmp_path
     InverseDynamicsTool agrees with our torques; our SO balances them and matches OpenSim's activations. Whole
     walk: `biomotion validate muscles` (docs/results/validate_muscles.md)."""
     pytest.importorskip("opensim")
-    from biomotion.muscles.validation import (
+    from biomotion.validation.muscles import (
         opensim_static_optimization,
         r_squared,
         rajagopal_static_optimization,
@@ -135,7 +135,7 @@ def test_matches_opensim_static_optimization_on_a_rajagopal_walk_window(tmp_path
 
 
 def test_validate_muscles_names_what_it_skips(tmp_path):
-    from biomotion.muscles.validation import validate_muscles
+    from biomotion.validation.muscles import validate_muscles
 
     report = validate_muscles(tmp_path, surrogate=None)
     assert "so_r2_vs_opensim" not in report and "moment_arm_rmse_m" not in report
@@ -147,8 +147,8 @@ def test_validate_muscles_names_what_it_skips(tmp_path):
 def test_the_oracles_emg_score_uses_the_emg_checks_own_rule():
     """`_emg_same_inputs` scores OpenSim's activations by the EMG check's rule: activations equal to the EMG
     envelopes agree on every frame, and the same activations half a stride (0.55 s) late do not."""
-    from biomotion.muscles import emg
-    from biomotion.muscles.validation import OpenSimStaticOptimization, _emg_same_inputs
+    from biomotion.validation import emg
+    from biomotion.validation.muscles import OpenSimStaticOptimization, _emg_same_inputs
 
     path = data_path(emg.EMG_FILE)
     root = path.parents[len(emg.EMG_FILE.split("/")) - 1]

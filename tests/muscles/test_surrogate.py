@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.errors import ConfigError, ModelError
 from biomotion.guidance.losses import activation
 from biomotion.muscles.surrogate import (
@@ -136,8 +136,9 @@ def test_dilated_blocks_widen_the_receptive_field_to_its_stated_reach():
 def test_training_windows_leave_out_the_frames_a_window_cut_hides_but_keep_the_clips_own_ends():
     from types import SimpleNamespace
 
-    from biomotion.muscles.surrogate_labels import SurrogateLabels
-    from biomotion.muscles.train_surrogate import COM_LABEL_COLUMNS, make_windows
+    from biomotion.training.surrogate_labels import SurrogateLabels
+    from biomotion.training.train_surrogate import make_windows
+    from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS
 
     records = [{"offset": 0, "n_frames": 50, "split": "train"}, {"offset": 50, "n_frames": 12, "split": "train"}]
     cache = SimpleNamespace(values=np.zeros((62, 39)), masks=np.ones((2, 39), bool), records=records,
@@ -175,7 +176,7 @@ def test_bounds_are_the_label_percentiles_and_drive_the_guidance_term():
 def test_com_head_shares_the_trunk_and_is_rescaled_to_the_labels():
     """The COM head (PG-BIG A.8 "80 activations plus COM terms") predicts standardised COM velocity and
     acceleration; `set_com_scale` takes their mean/std from training labels, so a zero head outputs the mean."""
-    from biomotion.data.mirror import mirror_ground_vectors
+    from biomotion.body.mirror import mirror_ground_vectors
 
     torch.manual_seed(0)
     model = MuscleSurrogate(NAMES, TINY).eval()
@@ -276,8 +277,8 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
         pytest.skip(f"shipped surrogate checkpoint not available: {CHECKPOINT}")
     data_path("fukuchi-running/ik/T35/RBDS012_T35_ik_simple.mot")
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
-    from biomotion.muscles.surrogate_labels import Labeler
-    from biomotion.muscles.train_surrogate import agreement
+    from biomotion.analysis.activation_labels import Labeler
+    from biomotion.muscles.surrogate_scores import agreement
 
     labeler = Labeler.from_data_root(DATA_ROOT)
     model = MuscleSurrogate.load(CHECKPOINT, body=labeler.model)  # the canonical body, for the contact features
@@ -302,7 +303,7 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
     assert scores["rmse"] < 0.12, scores
     # COM head against the labels' COM velocity: measured RMSE 0.037 m/s over the three axes (val split
     # 0.041 m/s); within one treadmill clip the forward speed barely varies, so RMSE, not R^2, is the check here
-    from biomotion.muscles.train_surrogate import COM_LABEL_COLUMNS
+    from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS
 
     velocity_error = com_predicted[0, :, :3].numpy() - com[:, COM_LABEL_COLUMNS[:3]]
     assert float(np.sqrt((velocity_error ** 2).mean())) < 0.15
@@ -311,7 +312,7 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
 def test_activation_bounds_use_converged_training_frames_only():
     from types import SimpleNamespace
 
-    from biomotion.muscles.surrogate_labels import SurrogateLabels, activation_bounds
+    from biomotion.training.surrogate_labels import SurrogateLabels, activation_bounds
 
     rng = np.random.default_rng(0)
     activations = rng.random((30, 2)).astype(np.float32)
@@ -333,7 +334,8 @@ def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_ro
     COM terms per frame; a run that lost some clips' results recomputes only those."""
     from biomotion.cli import main
     from biomotion.data.registry import DatasetCache, build_cache
-    from biomotion.muscles.surrogate_labels import COM_COLUMNS, SurrogateLabels, compute_labels
+    from biomotion.training.surrogate_labels import SurrogateLabels, compute_labels
+    from biomotion.muscles.surrogate import COM_COLUMNS
 
     data_path("Hamner2013")
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
@@ -385,7 +387,7 @@ def test_the_shipped_surrogate_names_its_training_subjects_and_no_held_out_one()
 def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
     """Mirroring the motion mirrors the activations (muscles change sides) and the COM (z changes sign): exactly
     for `predict_symmetric`, not for one pass of an untrained network."""
-    from biomotion.data.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
+    from biomotion.body.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 
     torch.manual_seed(0)
     names = ("soleus_r", "soleus_l", "vaslat_r", "vaslat_l", "glmax1_r")   # glmax1_l absent: maps to itself
@@ -408,7 +410,7 @@ def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
 
 def test_per_muscle_loss_weights_follow_the_label_spread():
     """Off: ones. On: inversely proportional to each muscle's label std, floored, mean 1."""
-    from biomotion.muscles.train_surrogate import muscle_loss_weights
+    from biomotion.training.train_surrogate import muscle_loss_weights
 
     generator = torch.Generator().manual_seed(0)
     labels = torch.rand(500, 3, generator=generator, dtype=torch.float64) * torch.tensor([0.5, 0.1, 0.001])
@@ -422,7 +424,7 @@ def test_per_muscle_loss_weights_follow_the_label_spread():
 
 def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only():
     """Off at decay 0, refused outside [0, 1); after updates w1, w2 it holds d w1 + (1 - d) w2; buffers are copied."""
-    from biomotion.muscles.train_surrogate import weight_average
+    from biomotion.training.train_surrogate import weight_average
 
     torch.manual_seed(0)
     model = MuscleSurrogate(NAMES, TINY)
@@ -444,7 +446,7 @@ def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only(
 
 
 def test_activation_loss_is_the_absolute_or_squared_error_and_refuses_others():
-    from biomotion.muscles.train_surrogate import activation_loss
+    from biomotion.training.train_surrogate import activation_loss
 
     error = torch.tensor([-0.5, 0.0, 2.0])
     assert torch.equal(activation_loss("l1")(error), torch.tensor([0.5, 0.0, 2.0]))
@@ -453,8 +455,8 @@ def test_activation_loss_is_the_absolute_or_squared_error_and_refuses_others():
         activation_loss("huber")
 
 def test_contact_features_need_the_body_and_keep_the_prediction_left_right_equivariant(data_root):
-    from biomotion.data.mirror import mirror_coordinates, mirror_labels
-    from biomotion.evaluation.clips import body_model
+    from biomotion.body.mirror import mirror_coordinates, mirror_labels
+    from biomotion.data.clips import body_model
 
     config = SurrogateConfig(width=16, depth=1, contact=True)
     with pytest.raises(ModelError, match="canonical body"):

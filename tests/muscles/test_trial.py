@@ -7,7 +7,7 @@ from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.errors import ModelError
 from biomotion.io.mot import read_storage
-from biomotion.muscles.trial import check_paths, load_paths
+from biomotion.analysis.activations import check_paths, load_paths
 from tests.conftest import data_path
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
@@ -19,7 +19,7 @@ def test_analyze_with_muscles_matches_opensim_static_optimization(tmp_path, caps
     the 27 muscles whose activation varies (std > 0.02), max |difference| 0.011; bars 0.99 and 0.03. The rest of
     the walk: `python benchmarks/analysis_chain.py`."""
     pytest.importorskip("opensim")
-    from biomotion.muscles.validation import opensim_gait_static_optimization, r_squared
+    from biomotion.validation.muscles import opensim_gait_static_optimization, r_squared
 
     folder = data_path(GAIT)
     root = folder.parents[2]

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from biomotion.muscles.validation import SURROGATE, surrogate_figures
+from biomotion.validation.muscles import SURROGATE, surrogate_figures
 
 
 def test_a_data_root_without_the_model_or_sources_is_skipped_by_name(tmp_path):

@@ -8,7 +8,7 @@ from biomotion.body.kinematics import (BodyPoses, apply_couplers, body_coms, cen
                                        joint_centers, marker_jacobians, marker_positions, point_jacobians,
                                        points_in_ground)
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_factors, scale_model, scale_model_from_file
+from biomotion.body.scaling.bodies import scale_factors, scale_model, scale_model_from_file
 
 __all__ = [
     "BodyModel", "BodyPoses", "ExternalLoad",

@@ -95,7 +95,7 @@ MIN_VERTICAL_LOAD_BW = 0.2
 point. Below it the body is close to free fall (running's flight, a jump, the instants of touch-down and
 lift-off): the ZMP, a horizontal moment over that small vertical force, then lies metres from the body (-15 to
 47 m on a generated 3 s run before this rule) and says nothing about balance. The ZMP-to-plate comparison asks the
-same load of the plates (`biomotion.analysis.zmp_to_plate_cop`)."""
+same load of the plates (`biomotion.analysis.chain.zmp_to_plate_cop`)."""
 
 
 def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,

@@ -37,7 +37,7 @@ import torch
 
 from biomotion.body.kinematics import apply_couplers, forward_kinematics
 from biomotion.body.model import BodyModel
-from biomotion.data.canonical import DEFAULT_RATE
+from biomotion.body.canonical import DEFAULT_RATE
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.bvh import BVHMotion, Skeleton
 from biomotion.motion import Motion

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, point_jacobians, points_in_ground
@@ -258,3 +259,16 @@ def _per_foot(point_forces: torch.Tensor, positions: torch.Tensor, points: FootP
         cops.append(cop)
         moments.append(moment)
     return torch.stack(forces, 1), torch.stack(cops, 1), torch.stack(moments, 1)
+
+
+#: Percentile over frames of the lowest foot contact point taken as the floor of a clip (robust to a few frames
+#: of foot-skimming or noise below the floor).
+GROUND_PERCENTILE = 5.0
+
+
+def lowest_foot_heights(model: BodyModel, q: np.ndarray) -> np.ndarray:
+    """[T] height of the lowest foot contact point per frame for canonical coordinates q [T, n] (all present)."""
+    feet = foot_points(model)
+    with torch.no_grad():
+        poses = forward_kinematics(model, torch.from_numpy(q).to(model.dtype))
+        return points_in_ground(poses, feet.bodies, feet.offsets)[..., 1].amin(-1).numpy()

@@ -1,7 +1,7 @@
 """Time-warped and posture-offset copies of a cache's training clips, for training the muscle-activation surrogate
 on more motions.
 
-The surrogate's labels are a deterministic function of the kinematics (`biomotion.muscles.surrogate_labels`:
+The surrogate's labels are a deterministic function of the kinematics (`biomotion.training.surrogate_labels`:
 inverse dynamics with the ground reaction inferred from the motion, then static optimization), so any plausible
 motion with its own labels is a valid training pair. Playing a clip ``f`` times faster (its pelvis travels the
 same path in 1/f of the time) gives new velocities and accelerations — and so new torques and activations — from

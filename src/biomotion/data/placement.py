@@ -22,23 +22,11 @@ untouched) are therefore:
 from __future__ import annotations
 
 import numpy as np
-import torch
 
+from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
 from biomotion.motion import Motion
 
 GENERIC_HEIGHT = 1.70  # m, the adult the Rajagopal 2016 model represents
-GROUND_PERCENTILE = 5.0
-
-
-def lowest_foot_heights(model, q: np.ndarray) -> np.ndarray:
-    """[T] height of the lowest foot contact point per frame for canonical coordinates q [T, n] (all present)."""
-    from biomotion.body.contact import foot_points
-    from biomotion.body.kinematics import forward_kinematics, points_in_ground
-
-    feet = foot_points(model)
-    with torch.no_grad():
-        poses = forward_kinematics(model, torch.from_numpy(q).to(model.dtype))
-        return points_in_ground(poses, feet.bodies, feet.offsets)[..., 1].amin(-1).numpy()
 
 
 def place_clip(motion: Motion, model, *, height: float | None, treadmill_speed: float | None) -> Motion:

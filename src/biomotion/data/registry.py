@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.body.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
 from biomotion.data.placement import place_clip
 from biomotion.data.sources import SOURCES, discover_all, forward_speed
 from biomotion.errors import BiomotionError, DataFormatError
@@ -199,7 +199,7 @@ def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], 
     (PG-BIG Sec. 3.3, Table 1: the guidance and plausibility metrics share them), and with the canonical
     ``model`` those of COM speed and acceleration magnitude (forward differences, as
     `biomotion.metrics.plausibility`); written beside the cache. Muscle-activation bounds need static
-    optimization and are written with its labels (`biomotion.muscles.surrogate_labels`)."""
+    optimization and are written with its labels (`biomotion.training.surrogate_labels`)."""
     from biomotion.metrics.bounds import PercentileBounds
 
     train = [i for i, r in enumerate(records) if r.split == "train"] or list(range(len(records)))

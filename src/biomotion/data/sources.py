@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
 from biomotion.errors import DataFormatError
 from biomotion.io.mot import read_motion
 from biomotion.io.tables import read_subject_table
@@ -109,7 +109,7 @@ def _fukuchi_discover(root: Path) -> list[ClipSpec]:
         if match:
             specs.append(_fukuchi_clip(*match.groups(), path, profiles, retargeted=False))
             solved.add(match.groups())
-    from biomotion.ik.fukuchi_chain import runner_files
+    from biomotion.data.fukuchi_chain import runner_files
 
     for path in sorted(base.glob("c3d/*runT*.c3d")):
         match = re.fullmatch(r"(RBDS\d+)runT(\d)(\d)", path.stem)
@@ -124,13 +124,13 @@ def _fukuchi_discover(root: Path) -> list[ClipSpec]:
 
 
 def _fukuchi_load(spec: ClipSpec) -> Motion:
-    """The shipped IK motion; or the C3D put through the source's own chain (`biomotion.ik.fukuchi_chain`: it
+    """The shipped IK motion; or the C3D put through the source's own chain (`biomotion.data.fukuchi_chain`: it
     reproduces the shipped files within about 1 deg), kept to the shipped files' columns (the runner's simple
     model) and their knee sign, which is then made canonical like theirs."""
     if spec.path.suffix.lower() != ".c3d":
         return to_canonical(read_motion(spec.path), knee_flipped=True)
     from biomotion.body.model import BodyModel
-    from biomotion.ik.fukuchi_chain import as_simple, solve_trial
+    from biomotion.data.fukuchi_chain import as_simple, solve_trial
 
     base, runner, speed = spec.path.parents[1], spec.subject, spec.clip_id.rsplit("/", 1)[1]
     result, _ = solve_trial(base, runner, speed)
@@ -163,7 +163,7 @@ def _opencap_profile(subject_dir: Path) -> Profile:
     """A subject's mass and height from the ScaleTool setup AddBiomechanics writes beside the models
     (``Models/rescaling_setup.xml``; Subject4: 62.6 kg, 1.68 m, as ``opencap/SOURCE.md`` says); the height is read
     as metres, or as millimetres (OpenSim's unit for it) when above 3. Absent or unset (-1) values stay unknown."""
-    from biomotion.ik.setup import read_scale_setup
+    from biomotion.io.setup import read_scale_setup
 
     setup_file = subject_dir / "Models" / "rescaling_setup.xml"
     if not setup_file.is_file():

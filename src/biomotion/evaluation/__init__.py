@@ -1,7 +1,8 @@
 """Evaluation harness: every applicable metric on generated and real clips, tables, plots and reference values
 (GitHub issue 6; the metrics themselves live in `biomotion.metrics`)."""
 
-from biomotion.evaluation.clips import ClipSet, load_clip_set
+from biomotion.data.clips import load_clip_set
+from biomotion.metrics.clip_set import ClipSet
 from biomotion.evaluation.harness import (
     eval_command,
     evaluate,

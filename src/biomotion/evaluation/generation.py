@@ -56,10 +56,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.errors import BiomotionError
-from biomotion.generation.actions import ActionRequest
+from biomotion.models.actions import ActionRequest
 from biomotion.motion import Motion
 
 VARIANTS = ("reference", "full", "no_planting", "no_guidance", "no_priming", "no_posture", "no_personalization",
@@ -245,13 +245,9 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
                    speeds: list[float | None], heights: list[float | None]) -> dict:
     """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits,
     and the error of the requested locomotion speed."""
-    from biomotion.evaluation.clips import CoordinateClip, coordinate_set
-    from biomotion.evaluation.harness import (
-        MetricSpec,
-        _record,
-        score_pairs,
-        summarize_set,
-    )
+    from biomotion.data.clips import CoordinateClip, coordinate_set
+    from biomotion.metrics.registry import record as _record
+    from biomotion.metrics.registry import MetricSpec, score_pairs, summarize_set
 
     reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
                                model, rate, derivatives=True)
@@ -614,7 +610,7 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
     JSON (and Markdown) report."""
     if repeats < 1:
         raise BiomotionError(f"--repeats must be at least 1, got {repeats}")
-    from biomotion.evaluation.clips import body_model, build_temporary_cache
+    from biomotion.data.clips import body_model, build_temporary_cache
     from biomotion.evaluation.harness import write_json, write_text
     from biomotion.evaluation.manipulation_data import real_data_directions, sources_with_action
     from biomotion.generation.pipeline import CHECKPOINTS, Generator

@@ -9,9 +9,9 @@ two-sided p-value and the subject count). A field the data holds at one value, o
 `MIN_SUBJECTS` subjects, gets no direction.
 
 Field values: numbers as the profile gives them (age, experience_years); ``level`` on the generator's ordinal
-scale (`biomotion.generation.conditioning.LEVELS`: recreational 0, competitive 0.5, elite 1); ``injuries`` 1 for a
+scale (`biomotion.models.conditioning.LEVELS`: recreational 0, competitive 0.5, elite 1); ``injuries`` 1 for a
 subject with an injury at a location of the manipulated injury (e.g. "Left knee", case-insensitive), 0 for a
-subject whose profile answers that it has none (`biomotion.generation.conditioning.injury_known`, as the generator
+subject whose profile answers that it has none (`biomotion.models.conditioning.injury_known`, as the generator
 reads it), and left out otherwise (an injury elsewhere, or no answer). Clips of the action: the
 same action label and, when the request has a speed, a labelled speed within `SPEED_TOLERANCE` of it.
 """
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from biomotion.generation.actions import ActionRequest
-from biomotion.generation.conditioning import LEVELS, injury_known
+from biomotion.models.actions import ActionRequest
+from biomotion.models.conditioning import LEVELS, injury_known
 from biomotion.profile import Profile
 
 MIN_SUBJECTS = 3

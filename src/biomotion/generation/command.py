@@ -85,9 +85,9 @@ def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Pa
 
     ``smooth_hz``: low-pass the guided coordinates at this cutoff before planting (`GuidanceConfig.smooth_hz`)."""
     from biomotion.body.kinematics import torch_threads
-    from biomotion.evaluation.clips import MODEL_FILE
+    from biomotion.data.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
-    from biomotion.generation.bundle import GeneratorBundle
+    from biomotion.models.bundle import GeneratorBundle
     from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, Generator
     from biomotion.generation.routing import Route, full_body_checkpoints, route
     from biomotion.guidance.refine import GuidanceConfig

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.generation.pipeline import Generated
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
@@ -28,8 +28,8 @@ from biomotion.motion import Motion
 
 def physics_metrics(motion: Motion, model) -> dict[str, dict]:
     """The per-clip metrics of `biomotion eval` (contact, smoothness, energy, joint range, ZMP) of one motion."""
-    from biomotion.evaluation.clips import CoordinateClip, coordinate_set
-    from biomotion.evaluation.harness import summarize_set
+    from biomotion.data.clips import CoordinateClip, coordinate_set
+    from biomotion.metrics.registry import summarize_set
 
     clips = coordinate_set([CoordinateClip("generated", "generated", motion)], model, motion.rate, derivatives=True)
     records = summarize_set(clips, model, physics=True)
@@ -41,7 +41,7 @@ def planting_changes(generated) -> list[dict]:
     """Per sample, how much foot planting (`biomotion.guidance.planting`) changed the legs: the largest and the
     mean absolute change of a leg coordinate (deg) and the share of frames it changed by more than 1 deg; empty
     when planting did not run."""
-    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.guidance.planting import leg_columns
 
     change = (generated.q - generated.unplanted)[..., leg_columns(CANONICAL_COORDINATES)].abs().rad2deg()
@@ -55,7 +55,7 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
                muscle_names: tuple[str, ...], extra_metrics: dict, *, figures: bool = True,
                geometry: tuple[Path, ...] = ()) -> dict[str, Path]:
     """Write one generated clip's files into ``out`` (see the module docstring); returns them by role."""
-    from biomotion.analysis import (
+    from biomotion.analysis.chain import (
         analyze,
         model_motion,
         support_polygons,
@@ -114,7 +114,7 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
     """Scale the model to ``profile``, write ``model.osim`` and each sample's files (``out`` itself for one
     sample, ``out/sample_01`` ... for several); returns the files per sample. The viewer takes its meshes from
     the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present."""
-    from biomotion.body.profile_scaling import scale_to_profile
+    from biomotion.body.scaling.stature import scale_to_profile
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -29,13 +29,13 @@ import numpy as np
 import torch
 
 from biomotion.body.kinematics import apply_couplers
-from biomotion.data.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
 from biomotion.errors import BiomotionWarning, ConfigError
-from biomotion.generation.actions import ActionRequest
-from biomotion.generation.bundle import GeneratorBundle
-from biomotion.generation.conditioning import (
+from biomotion.models.actions import ActionRequest
+from biomotion.models.bundle import GeneratorBundle
+from biomotion.models.conditioning import (
     METADATA_FIELDS,
     action_features,
     biodata_features,
@@ -96,7 +96,7 @@ class Generated:
 
 def knee_flexion_negative(motion: Motion) -> bool:
     """True when the clip's knee angles are mostly negative: flexion-negative models (Fukuchi ``_simple``, Hamner
-    2010; `biomotion.data.canonical`) rather than the canonical flexion-positive convention."""
+    2010; `biomotion.body.canonical`) rather than the canonical flexion-positive convention."""
     knees = [motion[n] for n in KNEE_COORDINATES if n in motion.names and motion.mask[motion.index(n)]]
     return bool(knees) and float(np.median(np.concatenate(knees))) < 0.0
 
@@ -135,7 +135,7 @@ class Generator:
         """Shipped weights from ``checkpoints`` and the canonical Rajagopal model from ``data_root``."""
         import torch._dynamo  # noqa: F401  (torch.optim's first optimizer imports it: ~1 s, a cost of loading)
 
-        from biomotion.evaluation.clips import body_model
+        from biomotion.data.clips import body_model
 
         checkpoints = Path(checkpoints)
         tokenizer = MotionVQVAE.load(checkpoints / TOKENIZER_FILE)

@@ -10,7 +10,7 @@ measured from the references directly, without learning:
 
     offset_j = mean over references r of ( mean_t q_rj(t) - P_j(action of r, speed of r) ),
 
-with P(action, speed) the population posture (`biomotion.generation.bundle.GuidanceBounds`: per coordinate, the
+with P(action, speed) the population posture (`biomotion.models.bundle.GuidanceBounds`: per coordinate, the
 training clips' mean values as a line in the labelled speed), so the task and the speed of a reference do not leak
 into the person's deviation. The generated clip is then centred on the person's posture for the request,
 
@@ -35,8 +35,8 @@ from collections.abc import Sequence
 
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
-from biomotion.generation.bundle import GeneratorBundle
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
+from biomotion.models.bundle import GeneratorBundle
 
 NOT_POSTURE = ("pelvis_rotation", "pelvis_tx", "pelvis_ty", "pelvis_tz", *COUPLED_COORDINATES)
 POSTURE_COORDINATES = torch.tensor([n not in NOT_POSTURE for n in CANONICAL_COORDINATES])

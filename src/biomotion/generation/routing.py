@@ -15,7 +15,7 @@ the lab bundle, while "elderly walking" (0.93 against the lab's 0.56 for "walk")
 
 For a label only the full-body bundle knows, the person's biodata does not condition the prior: the prior never
 saw biodata with those labels (a runner's biodata with "wave both hands" was sampled as walking in a trial on the
-example profile), so it is masked, as the prior's training masks it (`biomotion.generation.conditioning`); the
+example profile), so it is masked, as the prior's training masks it (`biomotion.models.conditioning`); the
 person's reference clips still condition it and the body model is still scaled to the person.
 """
 
@@ -24,7 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from biomotion.generation.bundle import GeneratorBundle
+from biomotion.models.bundle import GeneratorBundle
 from biomotion.generation.pipeline import GENERATOR_FILE
 
 FULL_BODY = "full-body"

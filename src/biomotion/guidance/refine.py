@@ -117,7 +117,7 @@ import numpy as np
 import torch
 
 from biomotion.errors import ModelError
-from biomotion.generation.bundle import GuidanceBounds
+from biomotion.models.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.guidance.tempo import WARP_RANGE, warp

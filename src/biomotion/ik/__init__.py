@@ -6,29 +6,19 @@
   percentile-trimmed registration) and `write_scaled_osim` for a scaled model OpenSim loads;
 - `read_ik_setup` / `read_scale_setup`: the OpenSim setup files that configure both.
 
-Nothing here needs OpenSim at run time; `validate_ik` (``biomotion.ik.validate``) uses it as the oracle.
+Nothing here needs OpenSim; `biomotion.validation.ik` checks it against OpenSim as the oracle.
 """
 
-from pathlib import Path
-
 from biomotion.ik.markers import IKResult, evaluate_ik, free_coordinates, solve_ik, tracked_markers
-from biomotion.ik.scaling import (Placement, ScaleResult, average_frames, body_scale_factors, frame_range,
-                                  measurement_factors, place_markers, register_markers, scale_static,
-                                  write_scale_set, write_scaled_osim)
-from biomotion.ik.setup import (CoordinateTask, IKSetup, Measurement, ScaleSetup, TaskSet, read_ik_setup,
+from biomotion.ik.scaling import (Placement, average_frames, body_scale_factors, frame_range, measurement_factors,
+                                  place_markers, register_markers, scale_static)
+from biomotion.body.scaling.osim_file import ScaleResult, write_scale_set, write_scaled_osim
+from biomotion.io.setup import (CoordinateTask, IKSetup, Measurement, ScaleSetup, TaskSet, read_ik_setup,
                                 read_scale_setup)
 
-
-def validate_ik(data_root: str | Path, **options) -> dict:
-    """IK and scaling figures against OpenSim 4.6 on whatever is under ``data_root`` (see
-    `biomotion.ik.validate.validate_ik` for the options and the figures)."""
-    from biomotion.ik.validate import validate_ik as run
-
-    return run(data_root, **options)
 
 
 __all__ = ["IKResult", "solve_ik", "evaluate_ik", "free_coordinates", "tracked_markers",
            "Placement", "ScaleResult", "scale_static", "body_scale_factors", "measurement_factors", "frame_range",
            "place_markers", "register_markers", "average_frames", "write_scaled_osim", "write_scale_set",
-           "CoordinateTask", "IKSetup", "Measurement", "ScaleSetup", "TaskSet", "read_ik_setup", "read_scale_setup",
-           "validate_ik"]
+           "CoordinateTask", "IKSetup", "Measurement", "ScaleSetup", "TaskSet", "read_ik_setup", "read_scale_setup"]

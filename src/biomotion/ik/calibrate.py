@@ -1,6 +1,6 @@
 """``biomotion scale``: an OpenSim ScaleTool setup run end to end from files.
 
-The setup (`biomotion.ik.setup.read_scale_setup`) says how: its measurements (marker pairs whose distances in
+The setup (`biomotion.io.setup.read_scale_setup`) says how: its measurements (marker pairs whose distances in
 the static trial against the generic model give each body's scale factors), manual scales, subject mass and
 MarkerPlacer (the static pose solved by IK, then the non-fixed markers moved onto the data: PG-BIG A.2 Eq. 1).
 `biomotion.ik.scaling.scale_static` does the work; this module finds the files, reads the static trial and writes
@@ -20,8 +20,9 @@ from pathlib import Path
 from biomotion.body.model import BodyModel
 from biomotion.errors import ConfigError
 from biomotion.ik.retarget import MARKER_SUFFIXES, read_markers
-from biomotion.ik.scaling import ScaleResult, scale_static, write_scale_set, write_scaled_osim
-from biomotion.ik.setup import ScaleSetup, read_scale_setup
+from biomotion.ik.scaling import scale_static
+from biomotion.body.scaling.osim_file import ScaleResult, write_scale_set, write_scaled_osim
+from biomotion.io.setup import ScaleSetup, read_scale_setup
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mot import write_motion
 

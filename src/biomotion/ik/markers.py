@@ -42,7 +42,7 @@ import torch
 from biomotion.body.functions import Constant, Linear, Multiplier, PiecewiseCubic
 from biomotion.body.model import BodyModel
 from biomotion.errors import DataFormatError, ModelError
-from biomotion.ik.setup import CoordinateTask
+from biomotion.io.setup import CoordinateTask
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from biomotion.body.model import BodyModel
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.ik.markers import solve_ik
-from biomotion.ik.setup import IKSetup
+from biomotion.io.setup import IKSetup
 from biomotion.ik.skeleton import FILTER_HZ, JointMap, joint_positions, retarget_skeleton, write_scaled_model
 from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d_markers

@@ -30,12 +30,11 @@ its joint centres. Steps, each a documented rule rather than a fitted constant:
    sharpness of foot strikes, so planted feet slide more than in the capture (`biomotion validate ik` reports
    the filtered figures beside the default ones).
 6. **Floor**: pelvis_ty is lowered so the 5th percentile over frames of the lowest foot contact point is at
-   y = 0 (the rule of `biomotion.data.placement`), so the feet rest on the floor.
+   y = 0 (the rule of `biomotion.body.contact.lowest_foot_heights`), so the feet rest on the floor.
 
 Figures per clip (`SkeletonRetarget`): joint-centre errors of the final, filtered motion against the source (the
-floor shift applied to both), and foot skating in the source and in the result (`skate_ratio` on the ankle and
-toe points, each point's contact height 5 cm above its own 5th-percentile height, so the comparison is not moved
-by the floor shift or by a joint centre's height above the sole).
+floor shift applied to both), and the ankle and toe points of both, from which `biomotion.validation.bvh` scores
+foot skating.
 """
 
 from __future__ import annotations
@@ -52,13 +51,12 @@ import torch
 
 from biomotion.body.kinematics import forward_kinematics, joint_centers, points_in_ground
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_model
-from biomotion.data.placement import GROUND_PERCENTILE, lowest_foot_heights
+from biomotion.body.scaling.bodies import scale_model
+from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
 from biomotion.errors import ConfigError, DataFormatError
 from biomotion.ik.markers import solve_ik
-from biomotion.ik.scaling import ScaleResult, write_scaled_osim
+from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.io.bvh import BVHMotion
-from biomotion.metrics.contact import CONTACT_HEIGHT, skate_ratio
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64
@@ -138,7 +136,8 @@ class SkeletonRetarget:
         joint_names: model joints tracked (centres, then toes).
         errors: [T, J] distance between the model's points and the source joints (m), NaN where the source lacks
             the joint.
-        skate_source, skate_result: skate ratio of the source's and the model's ankle and toe points.
+        feet_source, feet_result: [T, K, 3] the source's and the model's ankle and toe points (m), for the
+            skate ratio (`biomotion.metrics.contact.skate_ratio`) of the retargeting's check.
         floor_shift: m the result was lowered to put the feet on y = 0 (the source was shifted the same way for
             the errors).
         ik_motion: the IK solution before filtering and the floor shift.
@@ -149,8 +148,8 @@ class SkeletonRetarget:
     factors: dict[str, tuple[float, float, float]]
     joint_names: tuple[str, ...]
     errors: np.ndarray
-    skate_source: float
-    skate_result: float
+    feet_source: np.ndarray
+    feet_result: np.ndarray
     floor_shift: float
     ik_motion: Motion
     tracked: Markers
@@ -167,7 +166,7 @@ class SkeletonRetarget:
 def write_scaled_model(generic_path: str | Path, out: str | Path, generic: BodyModel,
                        factors: Mapping[str, tuple[float, float, float]], name: str | None = None) -> Path:
     """Write ``generic`` (read from ``generic_path``) scaled by ``factors`` as an .osim OpenSim loads
-    (`biomotion.ik.scaling.write_scaled_osim`; mass distribution preserved, markers moved with their bodies)."""
+    (`biomotion.body.scaling.osim_file.write_scaled_osim`; mass distribution preserved, markers moved with their bodies)."""
     generic = generic.to(_F64)
     result = ScaleResult(factors=dict(factors), measurements={}, mass=None, preserve_mass_distribution=True,
                          model=scale_model(generic, factors), placement=None, generic=generic)
@@ -395,11 +394,6 @@ def _points(model: BodyModel, q: np.ndarray) -> np.ndarray:
         return points_in_ground(poses, model.marker_bodies, model.marker_offsets).numpy()
 
 
-def _skate(points: np.ndarray, rate: float) -> float:
-    height = np.nanpercentile(points[..., 1], GROUND_PERCENTILE, axis=0) + CONTACT_HEIGHT
-    return float(skate_ratio(torch.as_tensor(points), rate, height=torch.as_tensor(height)))
-
-
 def retarget_skeleton(source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *,
                       cutoff_hz: float = FILTER_HZ) -> SkeletonRetarget:
     """Fit ``generic`` (scaled to the skeleton) to the joint positions ``source`` (metres, y up); see the module
@@ -414,14 +408,14 @@ def retarget_skeleton(source: Markers, generic: BodyModel, joint_map: JointMap |
     tracked = dataclasses.replace(tracked, names=model.marker_names)
     ik_motion = _solve(model, tracked)
     motion = filtered_in_range(ik_motion, model, cutoff_hz)
-    errors, skate = score(model, motion, tracked, joint_map)
+    errors, feet = score(model, motion, tracked, joint_map)
     shift = float(np.percentile(lowest_foot_heights(model, motion.values), GROUND_PERCENTILE))
     values = motion.values.copy()
     values[:, motion.index("pelvis_ty")] -= shift
     return SkeletonRetarget(motion=motion.with_values(values), model=model, factors=factors,
                             joint_names=model.marker_names, errors=errors,
-                            skate_source=_skate(tracked.positions[:, _feet(model, joint_map)], source.rate),
-                            skate_result=skate, floor_shift=shift, ik_motion=ik_motion, tracked=tracked)
+                            feet_source=tracked.positions[:, _feet(model, joint_map)], feet_result=feet,
+                            floor_shift=shift, ik_motion=ik_motion, tracked=tracked)
 
 
 def _feet(model: BodyModel, joint_map: JointMap) -> list[int]:
@@ -430,9 +424,8 @@ def _feet(model: BodyModel, joint_map: JointMap) -> list[int]:
     return [i for i, name in enumerate(model.marker_names) if name in foot_joints]
 
 
-def score(model: BodyModel, motion: Motion, tracked: Markers, joint_map: JointMap) -> tuple[np.ndarray, float]:
-    """Joint-centre errors [T, J] (m) of ``motion`` against the ``tracked`` source points, and the skate ratio
-    of its ankle and toe points (module docstring)."""
+def score(model: BodyModel, motion: Motion, tracked: Markers, joint_map: JointMap) -> tuple[np.ndarray, np.ndarray]:
+    """Joint-centre errors [T, J] (m) of ``motion`` against the ``tracked`` source points, and its ankle and toe
+    points [T, K, 3] (m)."""
     points = _points(model, motion.values)
-    return np.linalg.norm(points - tracked.positions, axis=-1), _skate(points[:, _feet(model, joint_map)],
-                                                                       tracked.rate)
+    return np.linalg.norm(points - tracked.positions, axis=-1), points[:, _feet(model, joint_map)]

@@ -32,6 +32,8 @@ MIN_VERSION = 40000
 MAX_VERSION = 40600
 
 GROUND = "/ground"
+#: Muscle classes whose parameters biomotion reads (`biomotion.muscles.properties`) and static optimization uses.
+MUSCLE_TYPES = ("Thelen2003Muscle", "Millard2012EquilibriumMuscle")
 
 
 # --- functions -------------------------------------------------------------------------------------------------

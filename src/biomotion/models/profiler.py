@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from biomotion.generation.conditioning import BIODATA_FIELDS, METADATA_FIELDS
+from biomotion.models.conditioning import BIODATA_FIELDS, METADATA_FIELDS
 
 
 def branch(n_in: int, width: int) -> nn.Sequential:

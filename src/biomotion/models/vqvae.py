@@ -15,9 +15,9 @@ cross-entropy against stance labels of the real clip (weight ``w_contact``), and
 mask m_t. They are outputs only: contact is a function of the motion the encoder already sees, and an encoder
 input would make every caller compute it. Table 4's penetration term (weight ``w_penetration``: the decoded foot
 points' mean depth below the floor, in cm) needs the body model, so the training loop adds it
-(`biomotion.models.train_tokenizer`).
+(`biomotion.training.train_tokenizer`).
 
-Input is the canonical skeleton (`biomotion.data.canonical`, 39 Rajagopal coordinates, SI units) with a
+Input is the canonical skeleton (`biomotion.body.canonical`, 39 Rajagopal coordinates, SI units) with a
 per-coordinate mask [B, 39]. Masked coordinates are zeroed at the input, the mask is given to the encoder as 39
 extra channels, and they are excluded from every loss term, so a source lacking a coordinate cannot leak into
 the model through its placeholder values.
@@ -32,7 +32,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.body.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
 from biomotion.errors import ModelError
 from biomotion.models.foot_contact import N_CONTACT
 from biomotion.settings import settings_from_dict

@@ -1,10 +1,8 @@
 """Muscles: path geometry (lengths, moment arms), muscle parameters and curves, batched static optimization.
 
-Nothing here needs OpenSim at run time; `biomotion.muscles.fit_paths` (a build step) and
-`biomotion.muscles.validation` use it as the oracle.
+Nothing here needs OpenSim at run time; `biomotion.training.fit_paths` (a build step) and
+`biomotion.validation.muscles` use it as the oracle (through `biomotion.muscles.opensim_paths`).
 """
-
-from pathlib import Path
 
 from biomotion.muscles.geometry import MusclePaths, PathGroup, shipped_paths
 from biomotion.muscles.properties import (
@@ -20,12 +18,6 @@ from biomotion.muscles.static_optimization import (
 )
 
 
-def validate_muscles(data_root: str | Path, poses: int = 200) -> dict:
-    """Moment-arm and static-optimization figures against OpenSim (see `biomotion.muscles.validation`)."""
-    from biomotion.muscles.validation import validate_muscles as run
-
-    return run(data_root, poses)
-
 
 __all__ = [
     "MuscleParameters",
@@ -38,5 +30,4 @@ __all__ = [
     "read_muscles",
     "shipped_paths",
     "solve_static_optimization",
-    "validate_muscles",
 ]

@@ -3,7 +3,7 @@
 Each muscle's length is a multivariate polynomial in the coordinates it spans (a total-degree tensor-product
 Chebyshev basis), fitted to lengths and moment arms
 sampled from OpenSim's path geometry (via points, conditional and moving points, wrapping surfaces) by
-`biomotion.muscles.fit_paths`. This is the approach of OpenSim's ``PolynomialPathFitter`` / ``FunctionBasedPath``
+`biomotion.training.fit_paths`. This is the approach of OpenSim's ``PolynomialPathFitter`` / ``FunctionBasedPath``
 (OpenSim 4.5+, after van den Bogert et al. 2013, "An adaptive polynomial method for muscle path geometry",
 J Biomech 46:1455, and Sobinov et al. 2020): the moment arm is ``r_j = -dL/dq_j`` (An et al. 1984, J Biomech
 17:113), exact for the fitted function, so forces and torques stay consistent. Evaluating the functions needs only

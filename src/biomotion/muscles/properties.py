@@ -33,9 +33,8 @@ import torch
 
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io import osim
+from biomotion.io.osim import MUSCLE_TYPES
 from biomotion.muscles import millard
-
-MUSCLE_TYPES = ("Thelen2003Muscle", "Millard2012EquilibriumMuscle")
 
 # OpenSim 4 defaults (Thelen2003Muscle::constructProperties, Muscle::constructProperties) for absent elements.
 _THELEN_DEFAULTS = {"FmaxTendonStrain": 0.033, "FmaxMuscleStrain": 0.6, "KshapeActive": 0.45, "KshapePassive": 5.0,

@@ -5,10 +5,10 @@ a_{t,m} predicted from the kinematics by a surrogate of OpenSim's (non-different
 ``L_act = 1/T sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm)`` with the 5th/95th percentiles of the training
 labels as bounds (Table 1). The surrogate maps joint kinematics to activations (A.7) and is validated by R^2 and
 RMSE against the static-optimization targets (A.8, Table 7); BIGE (Maheshwari 2025) trains its surrogate with an
-L1 loss, as we do (`biomotion.muscles.train_surrogate`).
+L1 loss, as we do (`biomotion.training.train_surrogate`).
 
 Ours is a small temporal convolution network rather than PG-BIG's transformer encoder, sized for a CPU: input
-canonical coordinates q [B, T, 39] (`biomotion.data.canonical`, SI units, ``config.rate`` Hz) and an optional
+canonical coordinates q [B, T, 39] (`biomotion.body.canonical`, SI units, ``config.rate`` Hz) and an optional
 coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2016 muscles. Per frame it sees
 
 - positions of every coordinate except the coupled knee ``_beta`` ones (a function of the knee angle) and the
@@ -25,7 +25,7 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
 - with ``config.smooth_hz`` > 0 (ours), the coordinates low-passed the way the labels' inverse dynamics low-passes
   them (`smoothing_taps`: the zero-lag Butterworth's impulse response, 35 taps at 6 Hz and 30 Hz, wider than the
   receptive field) and their velocities and accelerations. Measured once and not kept (2026-12-06, seed 0, the
-  shipped cache and settings, 27 minutes: ``python -m biomotion.muscles.train_surrogate --config <configs/
+  shipped cache and settings, 27 minutes: ``python -m biomotion.training.train_surrogate --config <configs/
   surrogate.yaml with model.smooth_hz 6.0> --cache build/dataset_lab_post --out build/surrogate_smooth.safetensors
   --minutes 27 --iterations 40000 --threads 2``): held-out `surrogate_r2` 0.889 (one pass 0.874, pooled 0.909)
   against 0.895 (0.879, 0.915), but after 24911 iterations against the shipped run's 37437, the machine slower that
@@ -35,7 +35,7 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
 - with ``config.dilation`` > 1 (ours), a wider receptive field at the same cost (WaveNet's dilated convolutions,
   van den Oord et al. 2016). Measured once and not kept (2026-12-06, seed 0, the shipped cache and settings, the
   shipped run's 37437 iterations, 31 minutes on that day's slower machine: ``python -m
-  biomotion.muscles.train_surrogate --config <configs/surrogate.yaml with model.dilation 2> --cache
+  biomotion.training.train_surrogate --config <configs/surrogate.yaml with model.dilation 2> --cache
   build/dataset_lab_post --out build/surrogate_dil.safetensors --minutes 40 --iterations 37437 --threads 2``):
   dilation 2 (33 frames, 1.1 s at 30 Hz) read held-out `surrogate_r2` 0.893 (one pass 0.881, pooled 0.913, COM
   velocity 0.996) against 0.895 (0.879, 0.915, 0.997): a second of context does not help;
@@ -48,17 +48,17 @@ A.7-A.8: "80 activations plus COM terms", validated by COM velocity and accelera
 the ``com_mean``/``com_std`` buffers of the training labels. With ``config.members`` m > 1 (ours) the network is
 m such networks side by side, each ``width`` wide and started from its own random weights: one stem, then grouped
 convolutions and heads, so a member's channels see only its own; each member is fitted to the labels on its own
-(`predict_members`, `biomotion.muscles.train_surrogate`) and a prediction is the members' mean, a deep ensemble
+(`predict_members`, `biomotion.training.train_surrogate`) and a prediction is the members' mean, a deep ensemble
 (Lakshminarayanan, Pritzel & Blundell 2017, "Simple and scalable predictive uncertainty estimation using deep
 ensembles", NeurIPS), which removes part of the error that depends on the random start. Measured once and not
 kept (2026-12-05, seed 0, the shipped cache and training settings, 27 minutes: ``python -m
-biomotion.muscles.train_surrogate --config <configs/surrogate.yaml with model.width 80, model.members 2> --cache
+biomotion.training.train_surrogate --config <configs/surrogate.yaml with model.width 80, model.members 2> --cache
 build/dataset_lab_post --out build/surrogate_ensemble.safetensors --minutes 27 --iterations 40000 --threads 2``,
 34491 iterations): two members 80 wide, the widest pair within the shipped network's time on a 3 s clip (4.5
 against 4.3 ms mirror-averaged, one thread), read held-out `surrogate_r2` 0.882 (one pass 0.874, pooled 0.904)
 against the single 128-wide network's 0.895 (0.879, 0.915): at this time budget width helps more than members.
 Masked coordinates are set to 0 before anything
-else, which is also how the labels treated absent coordinates (`biomotion.muscles.surrogate_labels`). Everything
+else, which is also how the labels treated absent coordinates (`biomotion.training.surrogate_labels`). Everything
 is differentiable with respect to q.
 
 Buffers ``low``/``high`` hold the 5th/95th percentile of each muscle's training-split labels (PG-BIG Table 1
@@ -81,8 +81,8 @@ from torch import nn
 
 from biomotion.body.contact import ContactSettings, foot_points
 from biomotion.body.kinematics import forward_kinematics, points_in_ground
-from biomotion.data.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
-from biomotion.data.mirror import NEGATED, mirror_permutation
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
+from biomotion.body.mirror import NEGATED, mirror_permutation
 from biomotion.errors import ConfigError, ModelError
 from biomotion.settings import settings_from_dict
 
@@ -90,6 +90,8 @@ N_COORDS = len(CANONICAL_COORDINATES)
 FORMAT = "biomotion-muscle-surrogate/1"
 _NO_POSITION = ("pelvis_tx", "pelvis_tz", "pelvis_rotation")
 #: The COM head's outputs: whole-body COM velocity and acceleration in the ground frame (m/s, m/s^2).
+#: The whole-body COM columns of the surrogate labels: position, velocity, acceleration (m, m/s, m/s²).
+COM_COLUMNS = ("com_x", "com_y", "com_z", "com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
 COM_OUTPUTS = ("com_vx", "com_vy", "com_vz", "com_ax", "com_ay", "com_az")
 #: Canonical indices whose positions / derivatives are features.
 POSITION_COORDS = tuple(i for i, n in enumerate(CANONICAL_COORDINATES) if n not in COUPLED_COORDINATES + _NO_POSITION)
@@ -159,7 +161,7 @@ def smoothing_taps(cutoff_hz: float, rate: float, order: int = LABEL_FILTER_ORDE
                    ) -> torch.Tensor:
     """The impulse response of the labels' zero-lag Butterworth low-pass (`biomotion.motion.lowpass`: ``order``
     per pass, run forward and backward) as a symmetric FIR [2K + 1], cut where its taps fall below ``tail`` of the
-    peak. A convolution with it low-passes q the way `biomotion.muscles.surrogate_labels` does before its inverse
+    peak. A convolution with it low-passes q the way `biomotion.training.surrogate_labels` does before its inverse
     dynamics, differentiably and in one batched operation."""
     sos = scipy.signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
     n = 8 * int(np.ceil(rate / cutoff_hz)) + 1
@@ -222,7 +224,7 @@ class MuscleSurrogate(nn.Module):
         if config.contact:
             if body is None:
                 raise ModelError("this muscle surrogate computes foot-contact features: give it the canonical body "
-                                 "model (biomotion.evaluation.clips.body_model(data_root), Rajagopal 2016)")
+                                 "model (biomotion.data.clips.body_model(data_root), Rajagopal 2016)")
             self.body = body.to(torch.float32)
             self.points = foot_points(self.body)
             self.point_mirror = torch.as_tensor(mirror_permutation(self.points.names))
@@ -362,7 +364,7 @@ class MuscleSurrogate(nn.Module):
     def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None,
                           heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """`predict` made exactly left-right equivariant: the mean of the prediction on the motion and the mirror
-        image of the prediction on its mirror image (`biomotion.data.mirror`: limb coordinates change sides,
+        image of the prediction on its mirror image (`biomotion.body.mirror`: limb coordinates change sides,
         midline rotations and pelvis_tz change sign; muscles change sides, the COM's z components change sign).
 
         The body and its muscles are left-right symmetric, so the activations of a mirrored motion are the mirrored

@@ -5,7 +5,7 @@ Figures (keys of the JSON report, issue 3):
 - ``fk_max_err_m``: max body-origin (and marker) error vs OpenSim over random in-range poses of every model found;
 - ``id_solver_max_err_nm``: our inverse dynamics vs OpenSim's InverseDynamicsSolver given identical q, q̇, q̈ and
   external loads (gait2392 subject01 walk, the trials of OpenCap Subject4 and of any other subject under
-  ``opencap/``, each plate applied to the foot `biomotion.analysis.plate_feet` finds on it);
+  ``opencap/``, each plate applied to the foot `biomotion.analysis.chain.plate_feet` finds on it);
 - ``id_ref_rmse_rel``: end to end (our filtering and differentiation vs OpenSim's InverseDynamicsTool run fresh on
   the same model, coordinates, GRF and 6 Hz filter): RMSE / peak |moment| per coordinate whose peak > 10 N·m;
 - ``grf_vertical_r2``, ``grf_vertical_rmse_bw``, ``grf_com_baseline_rmse_bw``: vertical GRF inferred from
@@ -17,7 +17,7 @@ Figures (keys of the JSON report, issue 3):
   plates and 0.158 against plates filtered this way, so that figure was most likely measured against filtered
   plates. The bar figures above stay on the raw plates, the measurement itself; these are beside them.
 - ``zmp_cop_rmse_m`` (and ``zmp_cop_rmse_m_per_source``): the ZMP from kinematics against the plates' combined
-  centre of pressure on the same trials (`biomotion.analysis.zmp_to_plate_cop`), the real-data check of the ZMP
+  centre of pressure on the same trials (`biomotion.analysis.chain.zmp_to_plate_cop`), the real-data check of the ZMP
   that the balance metrics use. Not an issue bar.
 
 Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK times come from the C3D, OpenCap's
@@ -25,7 +25,7 @@ Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK ti
 plates: the Fukuchi model markers posed by the IK match the C3D markers best at zero frame offset. The shift
 that would minimise the GRF error is −4 to −8 ms on the Fukuchi runners and +4 to +6 ms on OpenCap: no one
 physical lag explains both, and taking it from the plates would fit the test frames.) Frame rule for the GRF comparison
-(`biomotion.analysis.plate_frames`): frames where a foot the kinematics put on a support — the floor (lowest
+(`biomotion.analysis.chain.plate_frames`): frames where a foot the kinematics put on a support — the floor (lowest
 contact point within 2 cm of its rest height, vertical speed below 0.2 m/s) or a level where that foot stood
 still for 0.1 s without load on the plates (the drop-jump box) — carries < 20 N on the plates are left out: that
 foot is beside the plates (overground walking) or on something they do not measure, so the plate total is
@@ -44,7 +44,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.analysis import analyze, model_motion, plate_feet, plate_frames, torque_labels, unwrapped, \
+from biomotion.analysis.chain import analyze, model_motion, plate_feet, plate_frames, torque_labels, unwrapped, \
     vertical_agreement, zmp_to_plate_cop
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
@@ -154,7 +154,7 @@ def _opencap_trials(data_root: Path) -> list[tuple[str, Path, Path, Path]]:
 
 
 def _plate_bodies(model_path: Path, motion_path: Path, forces: GroundReaction) -> dict[str, str]:
-    """Each loaded plate's foot body (`biomotion.analysis.plate_feet`) on the trial's IK motion."""
+    """Each loaded plate's foot body (`biomotion.analysis.chain.plate_feet`) on the trial's IK motion."""
     model = BodyModel.from_osim(model_path)
     motion = model_motion(read_motion(motion_path), model)
     return plate_feet(forces, model, torch.tensor(motion.values, dtype=model.dtype), motion.times)
@@ -233,8 +233,8 @@ def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) ->
 
 def _fukuchi_chain_motion(base: Path, runner: str) -> Motion:
     """A runner's T35 coordinates from their C3D by the source's own processing chain
-    (`biomotion.ik.fukuchi_chain`, within about 1 deg of the shipped IK), in the simple model's columns and sign."""
-    from biomotion.ik.fukuchi_chain import as_simple, solve_trial
+    (`biomotion.data.fukuchi_chain`, within about 1 deg of the shipped IK), in the simple model's columns and sign."""
+    from biomotion.data.fukuchi_chain import as_simple, solve_trial
 
     result, _ = solve_trial(base, runner, "T35")
     return as_simple(result.motion)
@@ -246,7 +246,7 @@ def _grf_cases(data_root: Path) -> tuple[list[tuple[str, Path, object, object]],
     A Fukuchi runner's motion is the shipped ``ik/T35`` IK; where a runner has none (a data root of new runners
     may hold only their captures) it is solved from the running C3D by the source's chain, as the dataset
     registry does."""
-    from biomotion.ik.fukuchi_chain import runner_files
+    from biomotion.data.fukuchi_chain import runner_files
 
     cases, skipped = [], []
     fukuchi = data_root / "fukuchi-running"

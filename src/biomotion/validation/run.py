@@ -24,8 +24,8 @@ SOURCES = {
 def run_validation(what: str, data_root: Path, json_path: Path, progress: bool = True,
                    md_path: Path | None = None, command: str = "biomotion validate") -> dict:
     """Run ``what`` on ``data_root``, write the report to ``json_path`` (and tables to ``md_path``)."""
-    from biomotion.ik.validate import validate_ik
-    from biomotion.muscles.validation import validate_muscles
+    from biomotion.validation.ik import validate_ik
+    from biomotion.validation.muscles import validate_muscles
     from biomotion.validation import dynamics
 
     data_root = Path(data_root)
@@ -71,7 +71,7 @@ def _bvh_markdown(rows: list[dict]) -> list[str]:
 
 ZMP_NOTE = ("The ZMP comes from the kinematics alone (`biomotion.body.balance.zero_moment_point`), the CoP from the "
             "plates, on frames with every supporting foot on a plate and at least 0.2 body weights on the plates "
-            "(`biomotion.analysis.zmp_to_plate_cop`). The Fukuchi runners' models lump head, arms and trunk into the "
+            "(`biomotion.analysis.chain.zmp_to_plate_cop`). The Fukuchi runners' models lump head, arms and trunk into the "
             "pelvis (37.9 of RBDS001's 62 kg) and their markers cover pelvis and legs only: the upper body's own "
             "motion is missing from the whole-body moment, which is why their ZMP lies far from the plates' CoP; "
             "OpenCap's full-body models put it within a few cm.")

@@ -1,6 +1,6 @@
 """Train the profile-action prior (with its subject profiler) on tokenized dataset clips; ship weights + card.
 
-    python -m biomotion.models.train_generator --config configs/generator.yaml --cache build/dataset \\
+    python -m biomotion.training.train_generator --config configs/generator.yaml --cache build/dataset \\
         --tokenizer checkpoints/tokenizer.safetensors --data-root ../shared/data \\
         --out checkpoints/generator.safetensors [--population] [--minutes N] [--seed N]
 
@@ -41,13 +41,13 @@ import torch.nn.functional as F
 import yaml
 from tqdm import tqdm
 
-from biomotion.data.mirror import mirror_coordinates
+from biomotion.body.mirror import mirror_coordinates
 from biomotion.data.registry import DatasetCache
-from biomotion.data_root import default_data_root
+from biomotion.settings import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.generation.actions import ActionRequest, ActionVocabulary
-from biomotion.generation.bundle import GeneratorBundle, action_bounds
-from biomotion.generation.conditioning import (
+from biomotion.models.actions import ActionRequest, ActionVocabulary
+from biomotion.models.bundle import GeneratorBundle, action_bounds
+from biomotion.models.conditioning import (
     Features,
     action_features,
     action_size,
@@ -55,7 +55,7 @@ from biomotion.generation.conditioning import (
     mean_features,
     metadata_features,
 )
-from biomotion.models.cards import environment, write_card
+from biomotion.training.cards import environment, write_card
 from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
 
@@ -78,7 +78,7 @@ class TokenizedClip:
 def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary: ActionVocabulary,
                    progress: bool = True, mirror: bool = False) -> list[TokenizedClip]:
     """Tokenize every clip at least one token long (4 frames); COM from ``body`` (the canonical model). With
-    ``mirror``, each training-split clip also gives its left-right mirror image (`biomotion.data.mirror`), a clip
+    ``mirror``, each training-split clip also gives its left-right mirror image (`biomotion.body.mirror`), a clip
     of the same person and action."""
     from biomotion.body.kinematics import center_of_mass
 
@@ -239,7 +239,7 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
           population: bool = False, minutes: float | None = None, iterations: int | None = None, seed: int = 0,
           progress: bool = True, command: str = "") -> dict:
     """Train the prior from ``config`` (YAML dict); save `GeneratorBundle` weights + card next to ``out``."""
-    from biomotion.evaluation.clips import body_model
+    from biomotion.data.clips import body_model
 
     try:
         model_cfg, train_cfg = dict(config.get("model", {})), config["train"]
@@ -318,7 +318,7 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
         "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
         "tokenizer": Path(tokenizer_path).name,
         "tokenizer_sha256": bundle.tokenizer_sha256,
-        "command": command or "biomotion.models.train_generator.train (Python API)",
+        "command": command or "biomotion.training.train_generator.train (Python API)",
         "config": config, "seed": seed, "iterations": step,
         "kept_iteration": best[1] if best[2] is not None else step,
         "dev_clips": len(dev_clips), "dev_cross_entropy": None if best[2] is None else best[0],
@@ -346,7 +346,7 @@ def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Pat
     """Recompute the per-action statistics of the trained bundle ``out`` (bounds and population postures) from
     the `statistics_indices` clips of ``cache_dir``, as `train` does, keep its weights, and update its card.
     Raises `ConfigError`, writing nothing, when the bounds the bundle had do not come out the same."""
-    from biomotion.evaluation.clips import body_model
+    from biomotion.data.clips import body_model
 
     out = Path(out)
     bundle = GeneratorBundle.load(out)
@@ -362,7 +362,7 @@ def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Pat
     card_file = out.with_suffix(".json")
     card = json.loads(card_file.read_text()) if card_file.exists() else {"weights": out.name}
     card.update({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
-                 "statistics_command": command or "biomotion.models.train_generator.refresh_statistics (Python API)"})
+                 "statistics_command": command or "biomotion.training.train_generator.refresh_statistics (Python API)"})
     if {"metrics_held_out", "metrics_train", "metrics_held_out_before", "data"} <= set(card):
         write_card(out, card, _markdown(card))
     else:
@@ -405,7 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = yaml.safe_load(args.config.read_text())
         given = argv if argv is not None else sys.argv[1:]
-        command = " ".join(["python -m biomotion.models.train_generator", *given])
+        command = " ".join(["python -m biomotion.training.train_generator", *given])
         if args.statistics_only:
             card = refresh_statistics(config, args.cache, args.data_root, args.out, command=command)
             print(f"{args.out}: statistics recomputed, SHA-256 {card['sha256']}")

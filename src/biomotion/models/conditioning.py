@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
-from biomotion.generation.actions import ActionRequest, ActionVocabulary
+from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.models.actions import ActionRequest, ActionVocabulary
 from biomotion.profile import Profile
 
 LEVELS = {"recreational": 0.0, "amateur": 0.0, "competitive": 0.5, "elite": 1.0}

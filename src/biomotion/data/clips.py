@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
+from biomotion.body.canonical import CANONICAL_COORDINATES, DEFAULT_RATE
 from biomotion.errors import BiomotionError, DataFormatError
+from biomotion.metrics.clip_set import ClipSet
 from biomotion.motion import Motion
 
 MODEL_FILE = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
@@ -45,30 +46,6 @@ WINTER_SEGMENTS = (
     ("Head", "Head", 0.081, 0.0),
 )
 TRUNK_FRACTION = 0.497
-
-
-@dataclass(frozen=True)
-class ClipSet:
-    """Padded kinematics of a set of clips (see the module docstring); ``kind`` is "coordinates" or "bvh";
-    ``root`` is the index of the pelvis among ``points`` (ground_pelvis for the model, Hips for a BVH)."""
-
-    kind: str
-    names: tuple[str, ...]
-    groups: tuple[str, ...]
-    rate: float
-    valid: torch.Tensor
-    points: torch.Tensor
-    feet: torch.Tensor
-    com: torch.Tensor
-    total_mass: float
-    q: torch.Tensor | None = None
-    mask: torch.Tensor | None = None
-    qd: torch.Tensor | None = None
-    qdd: torch.Tensor | None = None
-    root: int = 0
-
-    def __len__(self) -> int:
-        return len(self.names)
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Muscle activations of one analysed trial on its own model: ``biomotion analyze --muscles PATHS``.
 
-The inverse-dynamics torques of `biomotion.analysis.analyze` (measured plates when given, the inferred ground
+The inverse-dynamics torques of `biomotion.analysis.chain.analyze` (measured plates when given, the inferred ground
 reaction otherwise) are balanced by the model's muscles with the batched static optimization of
 `biomotion.muscles.static_optimization` (Crowninshield & Brand 1981; OpenSim's ``StaticOptimization``): squared
 activations, muscle forces from the model's own force-length-velocity curves and pennation (Thelen 2003 or
@@ -9,7 +9,7 @@ actuator that is penalised like a muscle (`TrialSettings`) so the muscles carry 
 balanced; their torques stay in ``torques.sto``.
 
 Muscle geometry comes from path functions fitted to the model's own OpenSim geometry
-(`biomotion.muscles.fit_paths`, minutes per model, once): a scaled model's moment arms differ from the generic
+(`biomotion.training.fit_paths`, minutes per model, once): a scaled model's moment arms differ from the generic
 model's, so paths fitted on another model file are used only with a warning, which `PathCheck` records. The shipped
 files are the generic Rajagopal 2016 model (``rajagopal2016``) and OpenSim's gait2392 ``subject01_simbody.osim``
 (``gait2392_subject01``); against OpenSim 4.6 the whole chain on that gait2392 walk agrees to a mean activation R²
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.analysis import Analysis
+from biomotion.analysis.chain import Analysis
 from biomotion.errors import ModelError
 from biomotion.io.mot import write_storage
 from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
@@ -58,7 +58,7 @@ class PathCheck:
 
 
 def load_paths(spec: str | Path) -> tuple[MusclePaths, str]:
-    """Path functions from a ``.safetensors`` file written by `biomotion.muscles.fit_paths`, or a shipped name."""
+    """Path functions from a ``.safetensors`` file written by `biomotion.training.fit_paths`, or a shipped name."""
     path = Path(spec)
     if path.suffix == ".safetensors" or path.exists():
         if not path.exists():
@@ -81,7 +81,7 @@ def check_paths(paths: MusclePaths, label: str, model_path: str | Path, coordina
     if recorded != hashlib.sha256(Path(model_path).read_bytes()).hexdigest():
         return PathCheck(label, source, False,
                          f"{label} was fitted on another model file ({source}); a differently scaled model has other "
-                         f"moment arms: fit paths for this one with `python -m biomotion.muscles.fit_paths --model "
+                         f"moment arms: fit paths for this one with `python -m biomotion.training.fit_paths --model "
                          f"{model_path} --out PATHS.safetensors`")
     return PathCheck(label, source, True, None)
 

@@ -22,10 +22,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from biomotion.body.contact import GROUND_PERCENTILE
 from biomotion.body.model import BodyModel
 from biomotion.ik.skeleton import (FILTER_HZ, filtered_in_range, joint_map_for, joint_positions, retarget_skeleton,
                                   score)
 from biomotion.io.bvh import read_bvh
+from biomotion.metrics.contact import CONTACT_HEIGHT, skate_ratio
 
 BANDAI = "bandai-namco"
 RAJAGOPAL_MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
@@ -48,12 +50,21 @@ def _clip(path: str) -> dict:
     lower, upper = model.ranges[clamped, 0].numpy(), model.ranges[clamped, 1].numpy()
     outside = (values[:, clamped] < lower - 1e-9) | (values[:, clamped] > upper + 1e-9)
     forced = filtered_in_range(result.ik_motion, model, FILTER_HZ, always=True)
-    forced_errors, forced_skate = score(model, forced, result.tracked, joint_map_for(source.names))
+    forced_errors, forced_feet = score(model, forced, result.tracked, joint_map_for(source.names))
     return {"clip": Path(path).name.removesuffix(".bvh.gz"), "frames": result.motion.n_frames,
             "mean_err_m": round(result.mean_error, 5), "max_err_m": round(result.max_error, 5),
-            "range_violations": int(outside.sum()), "skate_source": result.skate_source,
-            "skate_result": result.skate_result, "skate_filtered": forced_skate,
+            "range_violations": int(outside.sum()), "skate_source": foot_skate(result.feet_source, source.rate),
+            "skate_result": foot_skate(result.feet_result, source.rate),
+            "skate_filtered": foot_skate(forced_feet, source.rate),
             "mean_err_filtered_m": round(float(np.nanmean(forced_errors)), 5)}
+
+
+def foot_skate(points: np.ndarray, rate: float) -> float:
+    """Skate ratio (`biomotion.metrics.contact.skate_ratio`) of ankle and toe points [T, K, 3], each point's contact
+    height 5 cm above its own 5th-percentile height, so that the comparison of source and result is not moved by
+    the floor shift or by a joint centre's height above the sole."""
+    height = np.nanpercentile(points[..., 1], GROUND_PERCENTILE, axis=0) + CONTACT_HEIGHT
+    return float(skate_ratio(torch.as_tensor(points), rate, height=torch.as_tensor(height)))
 
 
 def bvh_clips(data_root: Path) -> list[Path]:

@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.data.canonical import CANONICAL_COORDINATES
+from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.errors import ModelError
-from biomotion.generation.actions import ActionVocabulary
+from biomotion.models.actions import ActionVocabulary
 from biomotion.models.prior import PriorConfig, ProfileActionPrior
 
 FORMAT = "biomotion-generator/1"

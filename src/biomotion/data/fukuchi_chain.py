@@ -62,7 +62,7 @@ from biomotion.body.model import BodyModel
 from biomotion.errors import DataFormatError
 from biomotion.ik.markers import IKResult, solve_ik
 from biomotion.ik.scaling import scale_static
-from biomotion.ik.setup import Measurement, ScaleSetup, read_ik_setup, read_scale_setup
+from biomotion.io.setup import Measurement, ScaleSetup, read_ik_setup, read_scale_setup
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion
 from biomotion.io.tables import read_subject_table

@@ -16,9 +16,9 @@
 - ``scale_factor_max_rel_err``: the worst relative difference between our ScaleTool-measurement factors from
   each Fukuchi runner's static C3D and the runner's shipped ScaleSet;
 - ``fukuchi_ik_rmse_deg`` / ``fukuchi_ik_rmse_m``: the Fukuchi source's own processing chain reproduced from the
-  raw C3D (`biomotion.ik.fukuchi_chain`) against its shipped ``ik/T35/*_ik_simple.mot``, worst coordinate over
+  raw C3D (`biomotion.data.fukuchi_chain`) against its shipped ``ik/T35/*_ik_simple.mot``, worst coordinate over
   the runners present;
-- ``bvh_*``: every Bandai-Namco BVH clip retargeted onto Rajagopal 2016 (`biomotion.ik.validate_bvh`).
+- ``bvh_*``: every Bandai-Namco BVH clip retargeted onto Rajagopal 2016 (`biomotion.validation.bvh`).
 
 Per case the detail holds every coordinate's RMSE and, for coordinates over the bar, how many frames OpenSim's
 own objective is at least 1 % above ours there (OpenSim stopping short or in another local minimum).
@@ -50,11 +50,12 @@ import numpy as np
 
 from biomotion.body.model import BodyModel
 from biomotion.data.sources import OPENCAP_MODEL_FILE
-from biomotion.ik.fukuchi_chain import validate_fukuchi_chain
+from biomotion.data.fukuchi_chain import validate_fukuchi_chain
 from biomotion.ik.markers import IKResult, evaluate_ik, solve_ik
-from biomotion.ik.scaling import body_scale_factors, scale_static, write_scaled_osim
-from biomotion.ik.setup import CoordinateTask, read_ik_setup, read_scale_setup
-from biomotion.ik.validate_bvh import BANDAI, RAJAGOPAL_MODEL, validate_bvh
+from biomotion.ik.scaling import body_scale_factors, scale_static
+from biomotion.body.scaling.osim_file import write_scaled_osim
+from biomotion.io.setup import CoordinateTask, read_ik_setup, read_scale_setup
+from biomotion.validation.bvh import BANDAI, RAJAGOPAL_MODEL, validate_bvh
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion, write_motion
 from biomotion.io.osim import read_scale_set
@@ -368,7 +369,7 @@ def validate_ik(data_root: str | Path, *, opencap_trials: Sequence[str] = OPENCA
 
     ``opencap_trials`` picks the trials of each OpenCap subject (``("all",)`` for every trial with markers and an
     IK setup); ``runners`` caps the Fukuchi runners whose 3.5 m/s trial is solved (scaling is checked on every
-    runner present); ``bvh`` retargets every Bandai-Namco clip present (`biomotion.ik.validate_bvh`).
+    runner present); ``bvh`` retargets every Bandai-Namco clip present (`biomotion.validation.bvh`).
     """
     root = Path(data_root)
     cases: dict[str, dict] = {}

@@ -25,7 +25,7 @@ arms by the sides), from the foot bottom to the top of the head:
   by forward kinematics. A scaled model re-read from its file has no scaling history: without a head marker it
   would be measured as the generic height again.
 
-The scaled model file is written by `biomotion.ik.scaling.write_scaled_osim` (bodies, joints, markers, meshes,
+The scaled model file is written by `biomotion.body.scaling.osim_file.write_scaled_osim` (bodies, joints, markers, meshes,
 wrap objects, muscle paths and fibre/tendon lengths), so OpenSim loads it.
 """
 
@@ -47,10 +47,10 @@ from biomotion.body.kinematics import (
     points_in_ground,
 )
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling import scale_model
-from biomotion.body.segment_scaling import body_factors, measures_of, segment_factors
+from biomotion.body.scaling.bodies import scale_model
+from biomotion.body.scaling.segments import body_factors, measures_of, segment_factors
 from biomotion.errors import BiomotionWarning, ConfigError, ModelError
-from biomotion.ik.scaling import ScaleResult, write_scaled_osim
+from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.io.atomic import atomic_write
 from biomotion.profile import Profile
 
@@ -108,10 +108,10 @@ def scale_to_profile(generic_osim: str | Path, height: float | None, mass: float
     ``measures`` (mm); write it to ``out_osim``.
 
     Every body gets the factor ``height / standing_height(generic)`` on all three axes, except the bodies of a
-    segment whose measures are given, which get that segment's factor (`biomotion.body.segment_scaling`); then all
+    segment whose measures are given, which get that segment's factor (`biomotion.body.scaling.segments`); then all
     masses and inertias are multiplied by ``mass / total mass`` (mass distribution preserved). A None ``height``
     or ``mass`` leaves that aspect as in the generic model. The file is the generic one edited by
-    `biomotion.ik.scaling.write_scaled_osim` (OpenSim loads it); ``name`` renames the model in it.
+    `biomotion.body.scaling.osim_file.write_scaled_osim` (OpenSim loads it); ``name`` renames the model in it.
 
     Returns:
         The scaled model, as written (masses, inertias, joint frames, markers), in float64; its ``spec`` is the

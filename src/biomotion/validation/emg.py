@@ -6,12 +6,12 @@ predictions of the same trial:
 
 - **static optimization** (primary, ``emg_source``): OpenSim's ScaleTool with the pipeline's two walk scale setups
   (``Scale/scale_setup_walk_scaleOnly.xml`` then ``Scale/scale_setup_walk.xml``, with ``generic_unscaled.osim`` =
-  Rajagopal2016.osim, as `biomotion.ik.validate.rajagopal_case` does), `biomotion.ik.markers.solve_ik` of
+  Rajagopal2016.osim, as `biomotion.validation.ik.rajagopal_case` does), `biomotion.ik.markers.solve_ik` of
   ``ExpData/motion_capture_walk.trc`` with ``IK/ik_setup_walk.xml``'s weights and time range, inverse dynamics
-  with the measured ground reaction (`biomotion.analysis.analyze`; ``ExpData/grf_walk.mot`` applied to
+  with the measured ground reaction (`biomotion.analysis.chain.analyze`; ``ExpData/grf_walk.mot`` applied to
   ``calcn_r``/``calcn_l`` as ``ID/grf_walk.xml`` says; coordinates 6 Hz zero-lag low-pass and quintic-spline
   derivatives, as OpenSim's inverse-dynamics tool), then the surrogate labels' static optimization
-  (`biomotion.muscles.surrogate_labels.Labeler`: squared activations, 10 balanced coordinates, reserves, shipped
+  (`biomotion.analysis.activation_labels.Labeler`: squared activations, 10 balanced coordinates, reserves, shipped
   Rajagopal 2016 path functions, the model's Millard 2012 curves) on those torques;
 - **surrogate** (secondary, keys ``*_surrogate``): `biomotion.muscles.surrogate.MuscleSurrogate` from
   ``checkpoints/surrogate.safetensors`` on the same IK coordinates, resampled to its 30 Hz and placed like its
@@ -66,7 +66,7 @@ clocks (``emg_alignment``: measured lag 0 samples, r = 0.999). No electromechani
 the activation are compared at the same instant (``emg_lead_s`` in the detail reports, per muscle, by how much the
 envelope leads the activation; it is not used for the figure).
 
-Measured (``python -m biomotion.muscles.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
+Measured (``python -m biomotion.validation.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
 optimization and 0.748 with the shipped surrogate (`MuscleSurrogate.predict_symmetric`; the surrogate before it,
 trained without trimming window cuts, 0.768, the one before the contact features 0.785, and before that 0.759),
 both below the 0.80 bar; see ``tests/muscles/test_emg.py``.
@@ -83,9 +83,9 @@ from pathlib import Path
 
 import numpy as np
 
-from biomotion.data_root import default_data_root
+from biomotion.settings import default_data_root
 from biomotion.errors import DataFormatError
-from biomotion.ik.validate import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
+from biomotion.validation.ik import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
 
 RAJAGOPAL = "opensim-models/Pipelines/Rajagopal"
 EMG_FILE = f"{RAJAGOPAL}/ExpData/emg_walk_raw.anc"
@@ -412,13 +412,13 @@ def predict_walk_activations(data_root: Path, surrogate: Path | None = SURROGATE
     surrogate's activations on the same coordinates (see the module docstring). Needs ``opensim`` (ScaleTool)."""
     import torch
 
-    from biomotion.analysis import analyze, model_motion, unwrapped
+    from biomotion.analysis.chain import analyze, model_motion, unwrapped
     from biomotion.body.model import BodyModel
     from biomotion.ik.markers import solve_ik
-    from biomotion.ik.setup import read_ik_setup
+    from biomotion.io.setup import read_ik_setup
     from biomotion.io.mot import read_ground_reaction
     from biomotion.io.trc import read_trc
-    from biomotion.muscles.surrogate_labels import Labeler
+    from biomotion.analysis.activation_labels import Labeler
 
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
@@ -476,10 +476,10 @@ def _surrogate_activations(checkpoint: Path, motion, labeler, data_root: Path) -
     """The surrogate's activations [T, M] (``labeler.muscle_names`` order) on ``motion``'s frames."""
     import torch
 
-    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.data.placement import place_clip
     from biomotion.errors import ModelError
-    from biomotion.ik.setup import read_scale_setup
+    from biomotion.io.setup import read_scale_setup
     from biomotion.muscles.surrogate import MuscleSurrogate
 
     network = MuscleSurrogate.load(checkpoint, body=labeler.model)
@@ -609,7 +609,7 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m biomotion.muscles.emg [--data-root DIR]``: print `emg_check`'s result as JSON."""
+    """``python -m biomotion.validation.emg [--data-root DIR]``: print `emg_check`'s result as JSON."""
     import argparse
     import json
 

@@ -1,7 +1,7 @@
 """Segment-by-segment scale factors from ANSUR II body measures (issue 3: scale the generic model to a `Profile`,
 "optionally ANSUR II measures").
 
-`biomotion.body.profile_scaling` scales every body by the stature ratio. A person measured as the ANSUR II survey
+`biomotion.body.scaling.stature` scales every body by the stature ratio. A person measured as the ANSUR II survey
 measures (Gordon et al. 2014, "2012 Anthropometric Survey of U.S. Army Personnel", NATICK/TR-15/007; landmark
 heights and lengths in millimetres) can be scaled segment by segment instead, as OpenSim's ScaleTool scales a body
 by the ratio of a measured length to the model's (Delp et al. 2007, IEEE TBME 54:1940):
@@ -15,10 +15,10 @@ stands for. Measuring the model's own segment between joint centres instead woul
 landmarks (the trochanterion lies several centimetres above the hip centre); the ratio to the population's length
 at the model's stature needs no such correspondence. The factor applies to all three axes of the segment's bodies
 (right and left alike), as OpenSim setups scale a segment by one measurement. Bodies whose segment was not measured
-keep the stature ratio (`biomotion.body.profile_scaling`).
+keep the stature ratio (`biomotion.body.scaling.stature`).
 
 The lines are fitted once from ``anthropometry/ANSUR_II_MALE_Public.csv`` and shipped as ``ansur_segments.json``
-beside this module (``python -m biomotion.body.segment_scaling --data-root ../shared/data`` writes it again; a
+beside this module (``python -m biomotion.body.scaling.segments --data-root ../shared/data`` writes it again; a
 test checks the shipped file against a fresh fit).
 """
 

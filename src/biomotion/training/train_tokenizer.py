@@ -1,6 +1,6 @@
 """Train the motion tokenizer (`MotionVQVAE`) on a dataset cache; write safetensors weights and a model card.
 
-    python -m biomotion.models.train_tokenizer --config configs/tokenizer.yaml --cache DIR \\
+    python -m biomotion.training.train_tokenizer --config configs/tokenizer.yaml --cache DIR \\
         --out checkpoints/tokenizer.safetensors [--data-root ../shared/data] [--minutes N] [--iterations N] [--seed N]
 
 Optimisation follows PG-BIG Table 4 and the authors' code: AdamW, lr 2e-4 with linear warm-up, step decay
@@ -30,9 +30,9 @@ import yaml
 from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
-from biomotion.data_root import default_data_root
+from biomotion.settings import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.models.cards import environment, write_card
+from biomotion.training.cards import environment, write_card
 from biomotion.models.foot_contact import FootKinematics
 from biomotion.models.vqvae import N_COORDS, TRANSLATIONS, MotionVQVAE, VQVAEConfig
 
@@ -124,7 +124,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     model.set_normalisation(x_train, m_train)
     body_feet = c_train = c_val = None
     if model_cfg.foot_contact or model_cfg.w_penetration > 0:
-        from biomotion.evaluation.clips import body_model
+        from biomotion.data.clips import body_model
 
         body_feet = FootKinematics(body_model(data_root))
     if model_cfg.foot_contact:
@@ -167,7 +167,7 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         "model": "biomotion MotionVQVAE (PG-BIG Sec. 3.1 tokenizer)",
         "weights": out.name,
         "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
-        "command": command or "biomotion.models.train_tokenizer.train (Python API)",
+        "command": command or "biomotion.training.train_tokenizer.train (Python API)",
         "config": config,
         "seed": seed,
         "iterations": step,
@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = yaml.safe_load(args.config.read_text())
         given = argv if argv is not None else sys.argv[1:]
-        command = " ".join(["python -m biomotion.models.train_tokenizer", *given])
+        command = " ".join(["python -m biomotion.training.train_tokenizer", *given])
         card = train(config, args.cache, args.out, data_root=args.data_root, minutes=args.minutes,
                      iterations=args.iterations, seed=args.seed, command=command)
     except BiomotionError as error:

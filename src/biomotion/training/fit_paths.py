@@ -1,16 +1,16 @@
 """Build step: fit polynomial path functions to OpenSim's muscle geometry and write them as .safetensors.
 
-    python -m biomotion.muscles.fit_paths --model MODEL.osim --out FILE.safetensors [--samples N] [--seed S]
+    python -m biomotion.training.fit_paths --model MODEL.osim --out FILE.safetensors [--samples N] [--seed S]
                                           [--range COORD=LO:HI ...]
 
 The shipped files were made with the defaults (``--samples 6000 --seed 0``) from the data root ``../shared/data``;
 Rajagopal2016 in its own coordinate ranges, gait2392 (whose model ranges are far wider than a person moves) in
 Rajagopal2016's ranges, rounded to 4 decimals::
 
-    OMP_NUM_THREADS=1 python -m biomotion.muscles.fit_paths \
+    OMP_NUM_THREADS=1 python -m biomotion.training.fit_paths \
         --model ../shared/data/opensim-models/Models/Rajagopal/Rajagopal2016.osim \
         --out src/biomotion/muscles/paths/rajagopal2016.safetensors
-    OMP_NUM_THREADS=1 python -m biomotion.muscles.fit_paths \
+    OMP_NUM_THREADS=1 python -m biomotion.training.fit_paths \
         --model ../shared/data/opensim-models/Pipelines/Gait2392_Simbody/OutputReference/subject01_simbody.osim \
         --out src/biomotion/muscles/paths/gait2392_subject01.safetensors \
         --range hip_flexion_r=-0.5236:2.0944 --range hip_adduction_r=-0.8727:0.5236 \
@@ -24,7 +24,7 @@ Rajagopal2016's ranges, rounded to 4 decimals::
 
 The two fits took 8 and 5 minutes run side by side on a shared 2-core machine (``info["fit_seconds"]`` in
 each file); ``info`` also records the samples, seed, ranges and each muscle's held-out result. Validation
-(`biomotion.muscles.validation.moment_arm_errors`) draws fresh poses from another seed.
+(`biomotion.validation.muscles.moment_arm_errors`) draws fresh poses from another seed.
 
 OpenSim (the ``validate`` extra) is the oracle here and only here: it samples musculotendon lengths
 (``GeometryPath.getLength``) and moment arms (``GeometryPath.computeMomentArm``) at random poses drawn uniformly
@@ -67,8 +67,8 @@ from tqdm import tqdm
 
 from biomotion.errors import ConfigError
 from biomotion.muscles.geometry import MusclePaths, PathGroup, basis
+from biomotion.muscles.opensim_paths import OpenSimPaths
 
-FD_STEP = 1e-5         # rad (or m): central-difference step for the span probe
 SPAN_TOLERANCE = 1e-5  # m: a coordinate is spanned if its length derivative exceeds this at some probe pose
 MAX_TERMS = 500        # most basis terms of one polynomial (total degree 12 in 3 coordinates, 8 in 4)
 MAX_DEGREE = 14
@@ -79,132 +79,11 @@ BALL_SAMPLES = 1        # extra samples around each differing pair
 RARE_BELOW = 400        # configurations seen fewer times (train + boundary samples) get extra samples around them
 RARE_BALL = 8           # ... this many per sample, within RARE_RADIUS (normalised coordinates)
 RARE_RADIUS = 0.15
-PROGRESS_FROM = 200     # sampling passes over this many poses show a progress bar
 MIN_PIECE = 20          # configurations seen fewer times get no piece of their own
 GATE_DEGREES = (4, 6, 8)
 OTHER_WEIGHT = 1e-3     # weight of other configurations' samples in a piece's fit (tames its extrapolation)
 EXTRA_TRAIN = 8000      # piecewise candidates: extra training poses of the muscle alone
 EXTRA_HELD_OUT = 4000   # ... and extra held-out poses
-
-
-class OpenSimPaths:
-    """Musculotendon lengths and moment arms of an .osim model from OpenSim (the oracle; needs ``opensim``)."""
-
-    def __init__(self, model_path: str | Path) -> None:
-        import opensim
-
-        opensim.Logger.setLevelString("error")
-        self.opensim = opensim
-        self.model = opensim.Model(str(model_path))
-        coordinate_set = self.model.getCoordinateSet()
-        self.coordinates = [coordinate_set.get(i) for i in range(coordinate_set.getSize())]
-        for c in self.coordinates:
-            c.set_locked(False)
-        self.state = self.model.initSystem()
-        self.coordinate_names = tuple(c.getName() for c in self.coordinates)
-        muscles = self.model.getMuscles()
-        self.muscles = [muscles.get(i) for i in range(muscles.getSize())]
-        self.muscle_names = tuple(m.getName() for m in self.muscles)
-        self.paths = [m.getGeometryPath() for m in self.muscles]
-        self.couplers = []   # (dependent index, independent index, function, scale)
-        constraints = self.model.getConstraintSet()
-        index = {n: i for i, n in enumerate(self.coordinate_names)}
-        for i in range(constraints.getSize()):
-            coupler = opensim.CoordinateCouplerConstraint.safeDownCast(constraints.get(i))
-            if coupler is not None and coupler.get_isEnforced():
-                self.couplers.append((index[coupler.getDependentCoordinateName()],
-                                      index[coupler.getIndependentCoordinateNames().get(0)],
-                                      coupler.getFunction(), float(coupler.getPropertyByName("scale_factor").toString())))
-        self.dependent = {d for d, _, _, _ in self.couplers}
-        self.ranges = np.array([[c.getRangeMin(), c.getRangeMax()] for c in self.coordinates])
-        self.defaults = np.array([c.getDefaultValue() for c in self.coordinates])
-
-    def _set(self, q: np.ndarray) -> None:
-        q = q.copy()
-        for dependent, independent, function, scale in self.couplers:
-            q[dependent] = scale * function.calcValue(self.opensim.Vector(1, float(q[independent])))
-        for c, value in zip(self.coordinates, q):
-            c.setValue(self.state, float(value), False)
-        self.model.realizePosition(self.state)
-
-    def _poses(self, q: np.ndarray, what: str):
-        """``q``'s poses, with a progress bar on a pass of at least `PROGRESS_FROM` poses (the minutes of a fit)."""
-        return tqdm(q, desc=f"OpenSim {what}", unit="pose", leave=False, disable=len(q) < PROGRESS_FROM)
-
-    def lengths(self, q: np.ndarray) -> np.ndarray:
-        """[N, M] lengths at poses ``q`` [N, n_q] (dependent coordinates are overwritten by their couplers)."""
-        out = np.empty((len(q), len(self.paths)))
-        for n, pose in enumerate(self._poses(q, "lengths")):
-            self._set(pose)
-            out[n] = [p.getLength(self.state) for p in self.paths]
-        return out
-
-    def difference_moment_arms(self, q: np.ndarray, columns: list[int]) -> np.ndarray:
-        """[N, M, len(columns)] moment arms -dL/dq by central differences (total derivative through couplers)."""
-        out = np.empty((len(q), len(self.paths), len(columns)))
-        for j, column in enumerate(columns):
-            step = np.zeros(q.shape[1])
-            step[column] = FD_STEP
-            out[:, :, j] = -(self.lengths(q + step) - self.lengths(q - step)) / (2 * FD_STEP)
-        return out
-
-    def moment_arms(self, q: np.ndarray, pairs: list[tuple[int, int]]) -> np.ndarray:
-        """[N, len(pairs)] OpenSim's own moment arms (``GeometryPath.computeMomentArm``) for (muscle, coordinate)."""
-        out = np.empty((len(q), len(pairs)))
-        for n, pose in enumerate(self._poses(q, "moment arms")):
-            self._set(pose)
-            out[n] = [self.paths[m].computeMomentArm(self.state, self.coordinates[c]) for m, c in pairs]
-        return out
-
-    def configuration(self, m: int) -> str:
-        """The current path configuration of muscle ``m`` (after `_set`): its active points in order, each wrap
-        object that touches the path named where it acts, with the side it wraps on (sign of the z component of
-        the two tangent points' cross product in the wrap object's frame: for a cylinder, which way round)."""
-        path = self.paths[m]
-        path.getLength(self.state)   # brings the path up to date
-        current = path.getCurrentPath(self.state)
-        ground = self.model.getGround()
-        names, tangent = [], []
-        for i in range(current.getSize()):
-            point = current.get(i)
-            if point.getConcreteClassName() != "PathWrapPoint":
-                names.append(point.getName())
-                continue
-            wrap = self.opensim.PathWrapPoint.safeDownCast(point).getWrapObject()
-            local = ground.findStationLocationInAnotherFrame(self.state, point.getLocationInGround(self.state),
-                                                             wrap.getFrame())
-            local = wrap.getTransform().shiftBaseStationToFrame(local)
-            tangent.append((local.get(0), local.get(1)))
-            if len(tangent) == 2:
-                (x1, y1), (x2, y2) = tangent
-                names.append(f"{wrap.getName()}{'+' if x1 * y2 - y1 * x2 > 0 else '-'}")
-                tangent = []
-        return "|".join(names)
-
-    def configurations(self, q: np.ndarray) -> list[list[str]]:
-        """[N][M] path configurations at poses ``q``."""
-        out = []
-        for pose in self._poses(q, "path configurations"):
-            self._set(pose)
-            out.append([self.configuration(m) for m in range(len(self.paths))])
-        return out
-
-    def muscle_samples(self, q: np.ndarray, m: int, coordinates: list[int]) -> tuple[np.ndarray, np.ndarray, list]:
-        """Length [N], moment arms [N, len(coordinates)] and configurations [N] of muscle ``m`` alone."""
-        lengths, arms, configurations = np.empty(len(q)), np.empty((len(q), len(coordinates))), []
-        for n, pose in enumerate(q):
-            self._set(pose)
-            configurations.append(self.configuration(m))
-            lengths[n] = self.paths[m].getLength(self.state)
-            arms[n] = [self.paths[m].computeMomentArm(self.state, self.coordinates[c]) for c in coordinates]
-        return lengths, arms, configurations
-
-    def sample_poses(self, ranges: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-        """[n, n_q] poses uniform in ``ranges`` where finite, default values elsewhere."""
-        q = np.tile(self.defaults, (n, 1))
-        free = np.isfinite(ranges).all(1)
-        q[:, free] = rng.uniform(ranges[free, 0], ranges[free, 1], size=(n, int(free.sum())))
-        return q
 
 
 def exponent_table(k: int, degree: int) -> np.ndarray:
@@ -572,7 +451,7 @@ def _parse_range(text: str) -> tuple[str, tuple[float, float]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m biomotion.muscles.fit_paths", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m biomotion.training.fit_paths", description=__doc__.split("\n")[0])
     parser.add_argument("--model", required=True, help=".osim model")
     parser.add_argument("--out", required=True, help="output .safetensors")
     parser.add_argument("--samples", type=int, default=6000, help="training poses (plus 25%% held out)")

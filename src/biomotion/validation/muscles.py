@@ -27,15 +27,15 @@
   (`MuscleSurrogate.predict_symmetric`, both mirror images in one batch), and one pass (what guidance runs) under
   ``surrogate_ms_per_clip_one_pass``;
 - ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
-  trial (`biomotion.muscles.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
+  trial (`biomotion.validation.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
   ``emg_onoff_agreement_opensim_so``: the same rule on OpenSim's own StaticOptimization of the walk's shared inputs
   above (generic model, our IK), what the issue's method scores when the oracle runs it, with ours on those inputs
   beside it (``emg_onoff_agreement_same_inputs_ours``);
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
-  (`biomotion.muscles.surrogate_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
+  (`biomotion.analysis.activation_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
   under the data root whose subject the surrogate was not trained on, of the activations it reports
   (`MuscleSurrogate.predict_symmetric`; one pass under ``surrogate_r2_one_pass``): mean R² over the muscles whose
-  labels vary (`biomotion.muscles.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
+  labels vary (`biomotion.training.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
   R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the
   subjects the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`),
   so on a data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides
@@ -59,10 +59,10 @@ import numpy as np
 import torch
 
 from biomotion.errors import DataFormatError
-from biomotion.muscles.emg import SURROGATE, emg_check
+from biomotion.validation.emg import SURROGATE, emg_check
 from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
 from biomotion.muscles.properties import max_active_force, read_muscles
-from biomotion.muscles.surrogate_labels import LabelSettings
+from biomotion.analysis.activation_labels import LabelSettings
 from biomotion.muscles.static_optimization import (
     StaticOptimizationResult,
     optimize_activations,
@@ -87,7 +87,7 @@ def moment_arm_errors(paths: MusclePaths, model_path: str | Path, poses: int = 2
                       muscles: list[str] | None = None) -> dict[tuple[str, str], float]:
     """RMSE (m) of ``paths``' moment arms against OpenSim's at ``poses`` random poses in the sampled box, for every
     (muscle, coordinate) pair whose OpenSim moment arm is non-zero (> 1e-4 m) at some pose."""
-    from biomotion.muscles.fit_paths import OpenSimPaths
+    from biomotion.muscles.opensim_paths import OpenSimPaths
 
     oracle = OpenSimPaths(model_path)
     rng = np.random.default_rng(seed)
@@ -281,10 +281,10 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
     balance are those of a consistent, if smaller (1.70 m for the subject's 1.83 m), body."""
     from biomotion.body.model import BodyModel
     from biomotion.ik.markers import solve_ik
-    from biomotion.ik.setup import read_ik_setup
+    from biomotion.io.setup import read_ik_setup
     from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_motion
     from biomotion.io.trc import read_trc
-    from biomotion.muscles import emg
+    from biomotion.validation import emg
 
     data_root = Path(data_root).resolve()
     generic = generic_with_walk_markers(data_root, folder / "Rajagopal2016_walk_markers.osim")
@@ -345,11 +345,11 @@ def solver_torques(inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimiza
     radians (`rajagopal_walk_inputs`) OpenSim's InverseDynamicsTool on the same file agrees with these torques to
     0.15 N·m RMS on every balanced coordinate (from a degrees file it reported up to 270 N·m at the swing hip, the
     patella-speed conversion fault)."""
-    from biomotion.analysis import _loads, loads_on_frames, model_motion
+    from biomotion.analysis.chain import _loads, loads_on_frames, model_motion
     from biomotion.body.dynamics import inverse_dynamics
     from biomotion.body.model import BodyModel
     from biomotion.io.mot import read_ground_reaction, read_motion
-    from biomotion.muscles import emg
+    from biomotion.validation import emg
 
     model = BodyModel.from_osim(inputs.model)
     filtered, qd, qdd = model_motion(read_motion(inputs.coordinates), model).smoothed(6.0)
@@ -421,7 +421,7 @@ def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path,
     ``ms`` of the activations it reports (`MuscleSurrogate.predict_symmetric`), ``ms_one_pass`` of one pass (what
     guidance runs); and the clip's length (s)."""
     from biomotion.body.model import BodyModel
-    from biomotion.data.canonical import CANONICAL_COORDINATES
+    from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.data.placement import place_clip
     from biomotion.io.mot import read_motion
     from biomotion.muscles.surrogate import MuscleSurrogate
@@ -530,10 +530,10 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
 
 def _emg_same_inputs(data_root: Path, reference: OpenSimStaticOptimization, ours: np.ndarray,
                      names: Sequence[str]) -> dict:
-    """EMG on/off agreement (`biomotion.muscles.emg`, its a-priori settings) of OpenSim's StaticOptimization and of
+    """EMG on/off agreement (`biomotion.validation.emg`, its a-priori settings) of OpenSim's StaticOptimization and of
     ours on the Rajagopal walk's shared inputs: the oracle's own score under the issue's method. Empty without the
     EMG recording."""
-    from biomotion.muscles import emg
+    from biomotion.validation import emg
 
     if not (data_root / emg.EMG_FILE).exists():
         return {}
@@ -569,7 +569,7 @@ def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5
         report["skipped"].append(f"gait2392 static optimization: {', '.join(absent)} not under {data_root}")
     else:
         report.update(_gait_figures(data_root, start, end))
-    from biomotion.muscles import emg
+    from biomotion.validation import emg
     walk = [RAJAGOPAL_MODEL, emg.MARKER_FILE, emg.GRF_FILE, emg.GRF_LOADS, emg.IK_SETUP,
             f"{RAJAGOPAL_PIPELINE}/Scale/markerset_walk_preScale.xml"]
     absent = [n for n in walk if not (data_root / n).exists()]
@@ -595,10 +595,10 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
     """The shipped surrogate against fresh static-optimization labels of the held-out clips under ``data_root``
     (see the module docstring); appends to ``skipped`` what it could not do."""
     from biomotion.data.sources import SOURCES
-    from biomotion.evaluation.clips import build_temporary_cache
+    from biomotion.data.clips import build_temporary_cache
     from biomotion.muscles.surrogate import MuscleSurrogate
-    from biomotion.muscles.surrogate_labels import Labeler
-    from biomotion.muscles.train_surrogate import COM_LABEL_COLUMNS, evaluate
+    from biomotion.analysis.activation_labels import Labeler
+    from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS, evaluate
 
     empty = {"surrogate_r2": None, "surrogate_rmse": None, "surrogate_com_vel_r2": None}
     if surrogate is None or not Path(surrogate).exists():
