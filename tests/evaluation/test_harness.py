@@ -140,3 +140,29 @@ def test_eval_without_report_files_prints_the_table_and_writes_nothing(tmp_path,
     out = capsys.readouterr().out
     assert "| Generated | 1 |" in out and "Jerk (m/s³) ↓" in out and "wrote" not in out
     assert list(tmp_path.iterdir()) == []
+
+
+def test_markdown_arrow_comes_from_higher_is_better():
+    """The header mark of a column is the metric object's direction (`higher_is_better`), through its record."""
+    import torch
+
+    from biomotion.evaluation.harness import markdown_table
+    from biomotion.metrics.base import ARROWS
+    from biomotion.metrics.registry import DIVERSITY, every_metric, record
+
+    for metric in every_metric("bvh"):
+        values = torch.tensor([1.0, 2.0])
+        rec = record(metric, values)
+        table = markdown_table({"Generated": {metric.name: rec}})
+        unit = metric.display_unit or metric.unit
+        assert f"| {metric.label} ({unit}) {ARROWS[metric.higher_is_better]} |" in table, metric.name
+    assert DIVERSITY.arrow == "→"
+
+    from biomotion.metrics.stability import ZMPInsideSupport
+
+    class LowerIsBetter(ZMPInsideSupport):
+        higher_is_better = False
+
+    table = markdown_table({"a": {"zmp_in_support": record(ZMPInsideSupport(), torch.tensor([0.9]))},
+                            "b": {"low": record(LowerIsBetter(), torch.tensor([0.9]))}})
+    assert "ZMP in support (%) ↑" in table and "ZMP in support (%) ↓" in table

@@ -59,6 +59,8 @@ from tqdm import tqdm
 from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.errors import BiomotionError
+from biomotion.metrics.base import Metric
+from biomotion.metrics.stability import ZMPInsideSupport
 from biomotion.models.actions import ActionRequest
 from biomotion.motion import Motion
 
@@ -246,31 +248,59 @@ def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: fl
     """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits,
     and the error of the requested locomotion speed."""
     from biomotion.data.clips import CoordinateClip, coordinate_set
-    from biomotion.metrics.registry import record as _record
-    from biomotion.metrics.registry import MetricSpec, score_pairs, summarize_set
+    from biomotion.metrics.registry import record, score_pairs, score_set, summarize_set
 
     reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
                                model, rate, derivatives=True)
-    muscle = MetricSpec("muscle_violations", "Muscle-limit violations", "%", 100.0, "↓", None)
-    speed = MetricSpec("speed_error", "Speed error vs label", "m/s", 1.0, "↓", None)
-    trunk = MetricSpec("zmp_in_support_measured_trunk", "ZMP in support, targets with a measured trunk", "%", 1.0,
-                       "↑", None)
-    measured = [measured_trunk(m) for m in variants["reference"]]
+    muscle, speed, trunk = MuscleLimitViolations(), SpeedError(), MeasuredTrunkZMP()
+    measured = torch.tensor([measured_trunk(m) for m in variants["reference"]])
     table = {}
     for variant, motions in variants.items():
         clips = coordinate_set([CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate,
                                derivatives=True)
-        records = summarize_set(clips, model, physics=True)
-        records[muscle.key] = _record(muscle, torch.tensor(muscle_violation_share(motions, surrogate)))
-        records[speed.key] = _record(speed, torch.tensor(speed_errors(motions, speeds, heights)))
-        if "zmp_in_support" in records:   # the whole-body ZMP only means something where the trunk was measured
-            shares = [v if keep and v is not None else math.nan
-                      for v, keep in zip(records["zmp_in_support"]["values"], measured)]
-            records[trunk.key] = _record(trunk, torch.tensor(shares, dtype=torch.float64))
+        scores = score_set(clips, model, physics=True)
+        records = summarize_set(clips, model, physics=True, scores=scores)
+        records[muscle.name] = record(muscle, muscle.score(motions, surrogate))
+        records[speed.name] = record(speed, speed.score(motions, speeds, heights))
+        if trunk.of in scores:   # the whole-body ZMP only means something where the trunk was measured
+            shares = scores[trunk.of].to(torch.float64)
+            records[trunk.name] = record(trunk, torch.where(measured, shares, torch.full_like(shares, math.nan)))
         if variant != "reference":
             records.update(score_pairs(clips, reference)[1])
         table[variant] = records
     return table
+
+
+class MuscleLimitViolations(Metric):
+    """`muscle_violation_share` per clip: the activation bounds of PG-BIG Table 1 as a violation rate."""
+
+    name, label, unit, display_unit, display_scale = "muscle_violations", "Muscle-limit violations", "1", "%", 100.0
+    higher_is_better = False
+    paper = "PG-BIG Sec. 3.3, Table 1 L_act (5-95th percentile bounds); FlexMotion Sec. 4 \"Muscle Limit\""
+    equation = "share of frames x muscles whose surrogate activation a_tm lies outside [a_m^low, a_m^high]"
+
+    def score(self, motions: list[Motion], surrogate) -> torch.Tensor:
+        return torch.tensor(muscle_violation_share(motions, surrogate))
+
+
+class SpeedError(Metric):
+    """`speed_errors` per clip: how far the generated locomotion speed is from the requested one."""
+
+    name, label, unit = "speed_error", "Speed error vs label", "m/s"
+    higher_is_better = False
+    paper = "no paper metric: the speed of the action request (docs/generation.md)"
+    equation = "|mean horizontal pelvis speed x height / 1.70 m - labelled speed|"
+
+    def score(self, motions: list[Motion], speeds: list[float | None], heights: list[float | None]) -> torch.Tensor:
+        return torch.tensor(speed_errors(motions, speeds, heights))
+
+
+class MeasuredTrunkZMP(ZMPInsideSupport):
+    """ZMP in support (the registry's ``zmp_in_support``, scored ``of`` it) over the targets whose real clip
+    carries its trunk's motion (`measured_trunk`); NaN on the others."""
+
+    name, label = "zmp_in_support_measured_trunk", "ZMP in support, targets with a measured trunk"
+    of = ZMPInsideSupport.name
 
 
 def interval95(means: Sequence[float]) -> float | None:

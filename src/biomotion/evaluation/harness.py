@@ -21,9 +21,8 @@ import torch
 from biomotion.data.clips import body_model, build_temporary_cache, cache_clips, coordinate_set, load_clip_set
 from biomotion.metrics.clip_set import ClipSet
 from biomotion.io.atomic import atomic_write
-from biomotion.metrics.registry import (DIVERSITY, record, diversity_features, score_pairs, score_set, set_metrics,
-                                        summarize_set)
-from biomotion.metrics.fidelity import pairwise_diversity
+from biomotion.metrics.registry import (DIVERSITY, diversity_features, metrics, record, score_pairs, score_set,
+                                        set_record, summarize_set)
 
 
 def _cell(record: dict) -> str:
@@ -35,7 +34,8 @@ def _cell(record: dict) -> str:
 
 def markdown_table(rows: dict[str, dict], first: str = "Method") -> str:
     """A Markdown table: one row per name in ``rows`` (name -> metric records), one column per metric with its
-    unit and better direction (PG-BIG Table 2 / PhysPT Table 1 layout); "–" where a metric does not apply."""
+    label, unit and direction mark (PG-BIG Table 2 / PhysPT Table 1 layout), as `biomotion.metrics.registry.record`
+    took them from the metric object (the mark from its ``higher_is_better``); "–" where a metric does not apply."""
     keys: list[str] = []
     for records in rows.values():
         keys += [k for k in records if k not in keys]
@@ -46,7 +46,7 @@ def markdown_table(rows: dict[str, dict], first: str = "Method") -> str:
     lines = [f"| {first} | N | " + " | ".join(header[k] for k in keys) + " |",
              "|---|---:|" + "---:|" * len(keys)]
     for name, records in rows.items():
-        count = max((rec["count"] for k, rec in records.items() if k != DIVERSITY.key), default=0)
+        count = max((rec["count"] for k, rec in records.items() if k != DIVERSITY.name), default=0)
         cells = [_cell(records[k]) if k in records else "–" for k in keys]
         lines.append(f"| {name} | {count} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -148,23 +148,22 @@ def reference_metrics(cache, model, *, physics: bool = True) -> dict:
     groups: dict[str, list] = {}
     for clip in cache_clips(cache):
         groups.setdefault(clip.group, []).append(clip)
-    rows, pooled, features, specs = {}, {}, [], []
+    rows, pooled, features, registered = {}, {}, [], []
     for group, members in sorted(groups.items()):
         clips = coordinate_set(members, model, cache.rate, derivatives=physics)
         scores = score_set(clips, model, physics=physics)
         rows[group] = summarize_set(clips, model, physics=physics, scores=scores)
-        specs = set_metrics(clips.kind, model, physics=physics)
+        registered = metrics(clips.kind, model, physics=physics)
         for key, value in scores.items():
             pooled.setdefault(key, []).append(value)
         features.append(diversity_features(clips))
     scores = {key: torch.cat(values) for key, values in pooled.items()}
-    everything = {spec.key: record(spec, scores[spec.key]) for spec in specs}
-    distances = pairwise_diversity(torch.cat(features))
-    everything[DIVERSITY.key] = {k: v for k, v in record(DIVERSITY, distances).items() if k != "values"}
+    everything = {metric.name: record(metric, scores[metric.name]) for metric in registered}
+    everything[DIVERSITY.name] = set_record(DIVERSITY, DIVERSITY.score(torch.cat(features)))
     rows["all real data"] = everything
     for records in rows.values():
-        for record in records.values():
-            record.pop("values", None)
+        for rec in records.values():
+            rec.pop("values", None)
     return {"format": "biomotion-reference-metrics/1", "rate_hz": cache.rate, "clips": len(cache),
             "physics": physics, "groups": rows}
 

@@ -29,12 +29,12 @@ from biomotion.motion import Motion
 def physics_metrics(motion: Motion, model) -> dict[str, dict]:
     """The per-clip metrics of `biomotion eval` (contact, smoothness, energy, joint range, ZMP) of one motion."""
     from biomotion.data.clips import CoordinateClip, coordinate_set
-    from biomotion.metrics.registry import summarize_set
+    from biomotion.metrics.registry import metrics, summarize_set
 
     clips = coordinate_set([CoordinateClip("generated", "generated", motion)], model, motion.rate, derivatives=True)
     records = summarize_set(clips, model, physics=True)
-    return {k: {"label": r["label"], "unit": r["unit"], "value": r["mean"]} for k, r in records.items()
-            if k != "diversity"}
+    return {m.name: {"label": records[m.name]["label"], "unit": records[m.name]["unit"],
+                     "value": records[m.name]["mean"]} for m in metrics(clips.kind, model, physics=True)}
 
 
 def planting_changes(generated) -> list[dict]:

@@ -2,7 +2,9 @@
 
 Every metric is a function of plain tensors (batched over leading dims, masks respected, differentiable where the
 definition is) and a `Metric` object whose ``update()`` scores a batch per sequence and whose ``compute()`` returns
-mean ± std over sequences (`MetricResult`). Probes and diversity score sets of motions instead.
+mean ± std over sequences (`MetricResult`). Each metric object describes itself: name, label, SI unit, direction
+(``higher_is_better``), paper, equation and how reports print it (`biomotion.metrics.base`). Probes and diversity
+score sets of motions instead. `biomotion.metrics.registry` lists the metrics the evaluation scores on sets of clips.
 """
 
 from biomotion.metrics.base import Metric, MetricResult

@@ -10,6 +10,15 @@ reported as mean ± std in Table 2).
 
 Units are SI throughout (m, s, rad, J); papers that print cm or mm are converted only when reporting.
 
+Description. Like torchmetrics' ``higher_is_better``, every metric object carries what a report needs to print and
+judge it, so no table elsewhere restates it (`DESCRIPTION` lists the fields): ``name`` (the key of JSON records),
+``label`` (the human name of a table header), ``unit`` (SI unit of ``score``), ``higher_is_better`` (True, False,
+or None for "closer to the reference is better", e.g. entropy and diversity), ``paper`` and ``equation`` (where the
+metric is defined and its formula), and how reports print it: ``display_scale`` times the value in
+``display_unit`` (e.g. m printed as cm: 100, "cm"; empty ``display_unit`` prints ``unit``). A configured variant
+derives its name and label from the configuration that changes what it measures (``Penetration(ground=
+"clip_median")`` is ``penetration_median``, "Penetration (clip median)"); thresholds and joint indices do not.
+
 Masks. ``valid`` is an optional per-frame validity mask ``[..., T]`` (False on padding of a batch); it removes
 frames from every average, and a finite difference is valid only where all frames it uses are valid.
 """
@@ -50,11 +59,32 @@ class MetricResult:
         return self.mean
 
 
+DESCRIPTION = ("name", "label", "unit", "higher_is_better", "paper", "equation", "display_unit", "display_scale")
+"""The fields with which a metric describes itself (module docstring, "Description")."""
+
+ARROWS = {True: "↑", False: "↓", None: "→"}
+"""Direction mark of a report header per ``higher_is_better`` (PG-BIG Table 2 prints ↓ and →)."""
+
+
 class Metric(ABC):
-    """A per-sequence metric with ``update()`` / ``compute()`` (see the module docstring)."""
+    """A per-sequence metric with ``update()`` / ``compute()`` that describes itself (see the module docstring).
+
+    ``higher_is_better`` has no default: a metric that does not declare its direction fails when asked for it.
+    """
 
     name: str = ""
+    label: str = ""
     unit: str = ""
+    higher_is_better: bool | None
+    paper: str = ""
+    equation: str = ""
+    display_unit: str = ""
+    display_scale: float = 1.0
+
+    @property
+    def arrow(self) -> str:
+        """The report's direction mark, from ``higher_is_better``: ↑ higher, ↓ lower, → closer to the reference."""
+        return ARROWS[self.higher_is_better]
 
     def __init__(self) -> None:
         self._values: list[Tensor] = []

@@ -220,14 +220,28 @@ def lowest_point_sliding(points, valid=None) -> Tensor:
     return masked_mean(step, pair_mask(valid), -1)
 
 
+def _ground_variant(metric: Metric, ground: str) -> None:
+    """Name and label of the ``ground`` variant: the clip-median ground (PG-BIG's public evaluator) appends
+    ``_median`` to the name and "(clip median)" to the label, and cites the evaluator."""
+    if ground not in GROUND_MODES:
+        raise DataFormatError(None, f"ground must be one of {GROUND_MODES}, got {ground!r}", field="ground")
+    if ground == "clip_median":
+        metric.name, metric.label = f"{metric.name}_median", f"{metric.label} (clip median)"
+        metric.paper = f"{metric.paper}; clip-median ground: PG-BIG public evaluator (pg-big-reference-notes.md)"
+
+
 class Penetration(Metric):
     """`penetration` per sequence (m). PG-BIG Sec. 4.2 / Table 2 "Penetration" (printed in cm)."""
 
-    name, unit = "penetration", "m"
+    name, label, unit, display_unit, display_scale = "penetration", "Penetration", "m", "cm", 100.0
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Floor Penetration\", Table 2"
+    equation = "mean_t max(0, -z_t), z_t the height of the lowest point at frame t"
 
     def __init__(self, ground: str = "absolute") -> None:
         super().__init__()
         self.ground = ground
+        _ground_variant(self, ground)
 
     def score(self, points, valid=None) -> Tensor:
         return penetration(points, valid, ground=self.ground)
@@ -236,12 +250,17 @@ class Penetration(Metric):
 class Floating(Metric):
     """`floating` per sequence (m). PG-BIG Sec. 4.2 / Table 2 "Floating" (printed in cm)."""
 
-    name, unit = "floating", "m"
+    name, label, unit, display_unit, display_scale = "floating", "Floating", "m", "cm", 100.0
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Floor Floating\", Table 2"
+    equation = ("mean over stance frames of max(0, z_t - eps), z_t the height of the lowest planted point "
+                "(horizontal speed below stance_speed)")
 
     def __init__(self, ground: str = "absolute", tolerance: float = 0.0,
                  stance_speed: float | None = STANCE_SPEED) -> None:
         super().__init__()
         self.ground, self.tolerance, self.stance_speed = ground, tolerance, stance_speed
+        _ground_variant(self, ground)
 
     def score(self, points, rate: float, valid=None) -> Tensor:
         return floating(points, rate, valid, ground=self.ground, tolerance=self.tolerance,
@@ -251,11 +270,15 @@ class Floating(Metric):
 class FootContactVelocity(Metric):
     """`foot_contact_velocity` per sequence (m/s). PG-BIG Sec. 4.2 "Foot Contact Velocity"."""
 
-    name, unit = "foot_contact_velocity", "m/s"
+    name, label, unit = "foot_contact_velocity", "Foot contact vel.", "m/s"
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Foot Contact Velocity\""
+    equation = "mean ||p_dot_xz|| over the points in contact at frames t and t + 1"
 
     def __init__(self, height: float | Tensor = CONTACT_HEIGHT, ground: str = "absolute") -> None:
         super().__init__()
         self.height, self.ground = height, ground
+        _ground_variant(self, ground)
 
     def score(self, points, rate: float, valid=None, contact=None) -> Tensor:
         return foot_contact_velocity(points, rate, valid, contact=contact, ground=self.ground, height=self.height)
@@ -264,11 +287,15 @@ class FootContactVelocity(Metric):
 class FootSliding(Metric):
     """`foot_sliding` per sequence (m/frame). PhysPT Sec. 4 / Table 1 "FS" (printed in mm)."""
 
-    name, unit = "foot_sliding", "m/frame"
+    name, label, unit, display_unit, display_scale = "foot_sliding", "FS", "m/frame", "mm/frame", 1000.0
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"FS\", Table 1"
+    equation = "mean ||p_{t+1} - p_t|| over the points in contact at frames t and t + 1"
 
     def __init__(self, height: float | Tensor = CONTACT_HEIGHT, ground: str = "absolute") -> None:
         super().__init__()
         self.height, self.ground = height, ground
+        _ground_variant(self, ground)
 
     def score(self, points, valid=None, contact=None) -> Tensor:
         return foot_sliding(points, valid, contact=contact, ground=self.ground, height=self.height)
@@ -277,11 +304,15 @@ class FootSliding(Metric):
 class GroundPenetration(Metric):
     """`ground_penetration` per sequence (m). PhysPT Sec. 4 / Table 1 "GP" (printed in mm)."""
 
-    name, unit = "ground_penetration", "m"
+    name, label, unit, display_unit, display_scale = "ground_penetration", "GP", "m", "mm", 1000.0
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"GP\", Table 1"
+    equation = "mean depth -z of the points below the ground, over those points only (0 when none)"
 
     def __init__(self, ground: str = "absolute") -> None:
         super().__init__()
         self.ground = ground
+        _ground_variant(self, ground)
 
     def score(self, points, valid=None) -> Tensor:
         return ground_penetration(points, valid, ground=self.ground)
@@ -290,12 +321,17 @@ class GroundPenetration(Metric):
 class SkateRatio(Metric):
     """`skate_ratio` per sequence (share of frame pairs). GMD / OmniControl skating ratio, HUMOS "skate"."""
 
-    name, unit = "skate_ratio", "1"
+    name, label, unit, display_unit, display_scale = "skate_ratio", "Skate", "1", "%", 100.0
+    higher_is_better = False
+    paper = "GMD / OmniControl skating ratio (thresh_height 0.05 m, thresh_vel 0.5 m/s); HUMOS \"skate\""
+    equation = ("share of frame pairs in which a point below height at both frames moves horizontally faster than "
+                "speed, also on average over a centred window")
 
     def __init__(self, height: float | Tensor = CONTACT_HEIGHT, speed: float = SKATE_SPEED,
                  window: float = SKATE_WINDOW, ground: str = "absolute") -> None:
         super().__init__()
         self.height, self.speed, self.window, self.ground = height, speed, window, ground
+        _ground_variant(self, ground)
 
     def score(self, points, rate: float, valid=None) -> Tensor:
         return skate_ratio(points, rate, valid, height=self.height, speed=self.speed, window=self.window,
@@ -305,7 +341,11 @@ class SkateRatio(Metric):
 class LowestPointSliding(Metric):
     """`lowest_point_sliding` per sequence (m/frame): PG-BIG public evaluator's "Sliding"."""
 
-    name, unit = "lowest_point_sliding", "m/frame"
+    name, label, unit, display_unit, display_scale = ("lowest_point_sliding", "Sliding (lowest point)", "m/frame",
+                                                      "cm/frame", 100.0)
+    higher_is_better = False
+    paper = "PG-BIG public evaluator \"sliding\" (pg-big-reference-notes.md), PG-BIG Table 2 \"Sliding\""
+    equation = "mean_t ||p_{t+1} - p_t||, p_t the lowest point at frame t (no contact mask, per frame)"
 
     def score(self, points, valid=None) -> Tensor:
         return lowest_point_sliding(points, valid)

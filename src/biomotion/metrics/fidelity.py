@@ -189,16 +189,31 @@ def pairwise_diversity(features) -> Tensor:
     return torch.linalg.vector_norm(features[i] - features[j], dim=-1)
 
 
-class Fidelity(Metric):
-    """`aligned_joint_error` per generated clip (PG-BIG Table 2 "Fidelity", printed in cm)."""
+def _printed_in_cm(metric: Metric, unit: str) -> None:
+    """Features given in metres are printed in cm (PG-BIG Table 2); other units as they are."""
+    metric.unit = unit
+    if unit == "m":
+        metric.display_unit, metric.display_scale = "cm", 100.0
 
-    name, unit = "fidelity", "m"
+
+class Fidelity(Metric):
+    """`aligned_joint_error` per generated clip (PG-BIG Table 2 "Fidelity", printed in cm); ``align="linear"`` is
+    named ``fidelity_linear``."""
+
+    name, label, unit, display_unit, display_scale = "fidelity", "Fidelity (DTW)", "m", "cm", 100.0
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Fidelity\", Table 2"
 
     def __init__(self, align: str = "dtw", root: int | None = None) -> None:
         super().__init__()
         if align not in ALIGNMENTS:
             raise DataFormatError(None, f"align must be one of {ALIGNMENTS}, got {align!r}", field="align")
         self.align, self.root = align, root
+        self.equation = ("mean joint-centre error ||p_pred - p_ref|| along the optimal DTW path (path cost / path "
+                         "length)")
+        if align == "linear":
+            self.name, self.label = "fidelity_linear", "Fidelity (linear)"
+            self.equation = "mean joint-centre error ||p_pred - p_ref|| with pred resampled linearly onto ref"
 
     def score(self, pred, ref, pred_valid=None, ref_valid=None, joints=None) -> Tensor:
         return aligned_joint_error(pred, ref, pred_valid=pred_valid, ref_valid=ref_valid, joints=joints,
@@ -206,9 +221,17 @@ class Fidelity(Metric):
 
 
 class GaussianFidelity(Metric):
-    """`gaussian_w2` per generated clip (PG-BIG public code's fidelity; units of the features)."""
+    """`gaussian_w2` per generated clip (PG-BIG public code's fidelity) in the ``unit`` of the features (metres
+    are printed in cm)."""
 
-    name, unit = "gaussian_w2", "feature units"
+    name, label, unit = "gaussian_w2", "Fidelity (W2)", "feature units"
+    higher_is_better = False
+    paper = "PG-BIG public code's fidelity (pg-big-reference-notes.md, \"Evaluation in code\")"
+    equation = "mean over features of sqrt((mu_p - mu_r)^2 + (sigma_p - sigma_r)^2), moments over time"
+
+    def __init__(self, unit: str = "feature units") -> None:
+        super().__init__()
+        _printed_in_cm(self, unit)
 
     def score(self, pred, ref, pred_valid=None, ref_valid=None, mask=None) -> Tensor:
         return gaussian_w2(pred, ref, pred_valid=pred_valid, ref_valid=ref_valid, mask=mask)
@@ -217,7 +240,10 @@ class GaussianFidelity(Metric):
 class MotionEntropy(Metric):
     """`motion_entropy` per sequence (nats; PG-BIG Table 2 "Entropy", closer to the reference is better)."""
 
-    name, unit = "motion_entropy", "nat"
+    name, label, unit = "entropy", "Entropy", "nat"
+    higher_is_better = None
+    paper = "PG-BIG Sec. 4.2 \"Motion Entropy\", Table 2 \"Entropy\""
+    equation = "H = -sum_k p_k log p_k of the histogram (equal bins over the clip's range) of the clip's values"
 
     def __init__(self, bins: int = ENTROPY_BINS) -> None:
         super().__init__()
@@ -227,17 +253,28 @@ class MotionEntropy(Metric):
         return motion_entropy(values, valid, bins=self.bins)
 
 
-class Diversity:
-    """Pairwise diversity of a set of motions: ``update(features [..., D])`` collects feature vectors (one per
-    motion), ``compute()`` gives the mean ± std of the distances over all pairs (`pairwise_diversity`)."""
+class Diversity(Metric):
+    """Pairwise diversity of a set of motions, in the ``unit`` of the features (metres are printed in cm).
 
-    name, unit = "diversity", "feature units"
+    A set metric: ``score(features [N, D])`` gives one value per pair of motions, the N (N - 1) / 2 distances
+    (`pairwise_diversity`), not one per motion; ``update(features [..., D])`` collects feature vectors (one per
+    motion) and ``compute()`` gives the mean ± std of the distances over all pairs of everything collected."""
 
-    def __init__(self) -> None:
+    name, label, unit = "diversity", "Diversity", "feature units"
+    higher_is_better = None
+    paper = "FlexMotion Sec. 4 and App. \"DIV\" (after MDM); all pairs instead of MDM's random pairs"
+    equation = "mean over pairs i < j of ||f_i - f_j||, f the per-motion feature vectors"
+
+    def __init__(self, unit: str = "feature units") -> None:
+        super().__init__()
+        _printed_in_cm(self, unit)
         self._features: list[Tensor] = []
 
     def reset(self) -> None:
         self._features = []
+
+    def score(self, features) -> Tensor:
+        return pairwise_diversity(features)
 
     def update(self, features) -> None:
         features = as_tensor(features, "features", min_dims=1)

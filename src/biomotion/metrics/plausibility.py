@@ -134,9 +134,13 @@ def joint_range_violation(q, *, low=None, high=None, bounds: PercentileBounds | 
 
 
 class _BoundMetric(Metric):
-    """A bound violation metric: ``statistic`` "rate" (share, unit 1) or "excess" (Table 1 loss, unit of x)."""
+    """A bound violation metric: ``statistic`` "rate" (share, unit 1, printed in %) or "excess" (Table 1 loss, unit
+    of x; named ``<name>_excess``, labelled "... (excess)"). ``equation`` is the rate's, ``excess_equation`` the
+    excess's."""
 
     excess_unit = ""
+    excess_equation = ""
+    higher_is_better = False
 
     def __init__(self, bounds: PercentileBounds | None = None, *, low=None, high=None,
                  statistic: str = "rate") -> None:
@@ -145,13 +149,20 @@ class _BoundMetric(Metric):
             raise DataFormatError(None, f"statistic must be one of {STATISTICS}, got {statistic!r}",
                                   field="statistic")
         self.bounds, self.low, self.high, self.statistic = bounds, low, high, statistic
-        self.unit = "1" if statistic == "rate" else self.excess_unit
+        if statistic == "rate":
+            self.unit, self.display_unit, self.display_scale = "1", "%", 100.0
+        else:
+            self.unit, self.equation = self.excess_unit, self.excess_equation
+            self.name, self.label = f"{self.name}_excess", f"{self.label} (excess)"
 
 
 class AngularVelocityViolation(_BoundMetric):
     """`angular_velocity_violation` per sequence (PG-BIG Table 1 "Angular Velocity")."""
 
-    name, excess_unit = "angular_velocity_violation", "rad/s"
+    name, label, excess_unit = "angular_velocity_violation", "Angular velocity violations", "rad/s"
+    paper = "PG-BIG Sec. 3.3, Table 1 L_omega"
+    equation = "share of frames x coordinates with |dq_j/dt| > qdot_j^high"
+    excess_equation = "L_omega = (1/T) sum_t sum_j max(0, |dq_tj/dt| - qdot_j^high)"
 
     def score(self, q, rate: float, mask=None, valid=None) -> Tensor:
         return angular_velocity_violation(q, rate, bounds=self.bounds, high=self.high, mask=mask, valid=valid,
@@ -161,7 +172,10 @@ class AngularVelocityViolation(_BoundMetric):
 class ComVelocityViolation(_BoundMetric):
     """`com_velocity_violation` per sequence (PG-BIG Table 1 "COM Velocity")."""
 
-    name, excess_unit = "com_velocity_violation", "m/s"
+    name, label, excess_unit = "com_velocity_violation", "COM velocity violations", "m/s"
+    paper = "PG-BIG Sec. 3.3, Table 1 L_v"
+    equation = "share of frames with ||c_dot_t|| outside [c_dot^low, c_dot^high]"
+    excess_equation = "L_v = (1/T) sum_t max(0, ||c_dot_t|| - c_dot^high, c_dot^low - ||c_dot_t||)"
 
     def score(self, com, rate: float, valid=None) -> Tensor:
         return com_velocity_violation(com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid,
@@ -171,7 +185,10 @@ class ComVelocityViolation(_BoundMetric):
 class ComAccelerationViolation(_BoundMetric):
     """`com_acceleration_violation` per sequence (PG-BIG Table 1 "COM Acceleration")."""
 
-    name, excess_unit = "com_acceleration_violation", "m/s^2"
+    name, label, excess_unit = "com_acceleration_violation", "COM acceleration violations", "m/s^2"
+    paper = "PG-BIG Sec. 3.3, Table 1 L_a"
+    equation = "share of frames with ||c_ddot_t|| outside [c_ddot^low, c_ddot^high]"
+    excess_equation = "L_a = (1/T) sum_t max(0, ||c_ddot_t|| - c_ddot^high, c_ddot^low - ||c_ddot_t||)"
 
     def score(self, com, rate: float, valid=None) -> Tensor:
         return com_acceleration_violation(com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid,
@@ -181,7 +198,10 @@ class ComAccelerationViolation(_BoundMetric):
 class ActivationViolation(_BoundMetric):
     """`activation_violation` per sequence (PG-BIG Table 1 "Muscle Activation"; FlexMotion "Muscle Limit")."""
 
-    name, excess_unit = "activation_violation", "1"
+    name, label, excess_unit = "activation_violation", "Muscle activation violations", "1"
+    paper = "PG-BIG Sec. 3.3, Table 1 L_act; FlexMotion Sec. 4 and App. \"Muscle Limit\" (after Lee et al. 2019)"
+    equation = "share of frames x muscles with a_tm outside [a_m^low, a_m^high] ([0, 1] without bounds)"
+    excess_equation = "L_act = (1/T) sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm)"
 
     def __init__(self, bounds: PercentileBounds | None = None, *, low=0.0, high=1.0,
                  statistic: str = "rate") -> None:
@@ -195,7 +215,10 @@ class ActivationViolation(_BoundMetric):
 class JointRangeViolation(_BoundMetric):
     """`joint_range_violation` per sequence (coordinates outside their range of motion)."""
 
-    name, excess_unit = "joint_range_violation", "rad or m"
+    name, label, excess_unit = "joint_range", "Out of range", "rad or m"
+    paper = "range-of-motion check, no paper metric (ranges of the body model, e.g. Rajagopal et al. 2016)"
+    equation = "share of frames x coordinates with q_j outside [q_j^low, q_j^high]"
+    excess_equation = "(1/T) sum_t sum_j max(0, q_tj - q_j^high, q_j^low - q_tj)"
 
     def score(self, q, mask=None, valid=None) -> Tensor:
         return joint_range_violation(q, low=self.low, high=self.high, bounds=self.bounds, mask=mask, valid=valid,

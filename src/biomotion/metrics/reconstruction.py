@@ -96,7 +96,10 @@ def global_trajectory_error(pred, target, rate: float, valid=None, *, joints=Non
 class JointError(Metric):
     """`joint_error` per sequence (PhysPT Table 1 "MJE", printed in mm)."""
 
-    name, unit = "mje", "m"
+    name, label, unit, display_unit, display_scale = "mje", "MJE", "m", "mm", 1000.0
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"MJE\", Table 1"
+    equation = "mean over frames and joints of ||p_pred - p_target|| (relative to the root joint when given)"
 
     def __init__(self, root: int | None = None) -> None:
         super().__init__()
@@ -109,7 +112,10 @@ class JointError(Metric):
 class ProcrustesJointError(Metric):
     """`procrustes_joint_error` per sequence (PhysPT Table 1 "P-MJE", printed in mm)."""
 
-    name, unit = "p_mje", "m"
+    name, label, unit, display_unit, display_scale = "p_mje", "P-MJE", "m", "mm", 1000.0
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"P-MJE\", Table 1"
+    equation = "MJE after the per-frame similarity transform that best maps pred onto target (Umeyama 1991)"
 
     def score(self, pred, target, valid=None, joints=None) -> Tensor:
         return procrustes_joint_error(pred, target, valid, joints=joints)
@@ -118,7 +124,11 @@ class ProcrustesJointError(Metric):
 class GlobalTrajectoryError(Metric):
     """`global_trajectory_error` per sequence (PhysPT Supp. E Table 6 "G-MPJPE", printed in mm)."""
 
-    name, unit = "g_mpjpe", "m"
+    name, label, unit, display_unit, display_scale = "g_mpjpe", "G-MPJPE", "m", "mm", 1000.0
+    higher_is_better = False
+    paper = "PhysPT Supp. E, Table 6 \"G-MPJPE\""
+    equation = ("world-frame MJE with the root re-aligned to the target's at the first frame of each window "
+                "(10 s)")
 
     def __init__(self, root: int = 0, window: float = GLOBAL_WINDOW) -> None:
         super().__init__()

@@ -1,27 +1,32 @@
-"""The metrics that apply to a set of clips, and the paired metrics of a predicted set against a reference set.
+"""The registry of the metrics that apply to a set of clips, and of the paired metrics of a predicted set against a
+reference set: `Metric` objects with the adapters that feed them from a `ClipSet`.
 
-Per-set metrics (docs/metrics.md gives every definition and its paper): the contact family on the sole points with
-the absolute ground and PG-BIG's clip-median ground, jerk of the joint centres, energy consistency of the
-whole-body COM as a point mass (and, with ``physics=True`` on coordinate clips, of the full-body energy of the
-body model, with the ZMP-inside-support share), joint-range violations against the model's ranges (coordinate
-clips), motion entropy of the body-point heights and the pairwise diversity of the clips.
-Paired metrics (clips paired by name, else in order): MJE and P-MJE (PhysPT Sec. 4), ACCL and VEL, and PG-BIG's
-fidelity (DTW, pelvis-relative) with its Gaussian W2 variant.
+Each entry is a `ClipSetMetric`: a configured metric of a family module and the adapter that turns a `ClipSet`
+(or a pair of them) into that metric's ``score`` arguments. Name, label, unit, direction, paper, equation and
+display are the metric's own: `record` and every report read them from the object, so nothing here restates them.
+
+Per-set metrics (`metrics`, one value per clip; docs/metrics.md gives every definition and its paper): the contact
+family on the sole points with the absolute ground and PG-BIG's clip-median ground, jerk of the joint centres,
+energy consistency of the whole-body COM as a point mass (and, with ``physics=True`` on coordinate clips, of the
+full-body energy of the body model, with the ZMP-inside-support share), joint-range violations against the model's
+ranges (coordinate clips) and motion entropy of the body-point heights; `DIVERSITY`, the pairwise diversity of the
+clips, is scored per set. Paired metrics (`paired_metrics`, clips paired by name, else in order): MJE and P-MJE
+(PhysPT Sec. 4), ACCL and VEL, and PG-BIG's fidelity (DTW, pelvis-relative) with its Gaussian W2 variant.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import torch
 
 from biomotion.errors import BiomotionError
-from biomotion.metrics.base import pair_mask, summarize
+from biomotion.metrics.base import DESCRIPTION, Metric, Tensor, pair_mask, summarize
 from biomotion.metrics.clip_set import ClipSet
 from biomotion.metrics.contact import FootContactVelocity, Floating, Penetration, SkateRatio
-from biomotion.metrics.fidelity import Fidelity, GaussianFidelity, MotionEntropy, pairwise_diversity
+from biomotion.metrics.fidelity import Diversity, Fidelity, GaussianFidelity, MotionEntropy
 from biomotion.metrics.plausibility import JointRangeViolation
 from biomotion.metrics.reconstruction import JointError, ProcrustesJointError
 from biomotion.metrics.smoothness import (AccelerationError, EnergyConsistency, JerkIndex, VelocityError,
@@ -29,85 +34,92 @@ from biomotion.metrics.smoothness import (AccelerationError, EnergyConsistency, 
 from biomotion.metrics.stability import ZMPInsideSupport
 
 
-@dataclass(frozen=True)
-class MetricSpec:
-    """How one metric is computed from a `ClipSet` (per clip, [N]) and printed (unit, scale, better direction)."""
+class ClipSetMetric(Metric):
+    """A registered metric fed from clip sets: ``score(clips)`` for a per-set metric ([N], one value per clip) or
+    ``score(pred, ref, both)`` for a paired one is ``metric.score(*inputs(...))``. The description (`DESCRIPTION`:
+    name, label, unit, direction, paper, equation, display) is the wrapped metric's, copied at registration, which
+    fails for a metric that does not declare its direction."""
 
-    key: str
-    label: str
-    unit: str
-    scale: float
-    better: str  # "↓" lower, "↑" higher, "→" closer to the reference
-    score: Callable[..., torch.Tensor]
+    def __init__(self, metric: Metric, inputs: Callable[..., tuple]) -> None:
+        super().__init__()
+        self.metric, self.inputs = metric, inputs
+        for field in DESCRIPTION:
+            setattr(self, field, getattr(metric, field))
+
+    def score(self, *clips) -> Tensor:
+        return self.metric.score(*self.inputs(*clips))
 
 
-def _feet(s: ClipSet) -> tuple[torch.Tensor, torch.Tensor]:
+def _feet(s: ClipSet) -> tuple:
     return s.feet, s.valid
 
 
-def _com_energy(s: ClipSet) -> torch.Tensor:
-    energy = mechanical_energy(s.com[..., None, :], [s.total_mass], s.rate)
-    return EnergyConsistency(std=True).score(energy, pair_mask(s.valid))
+def _feet_rate(s: ClipSet) -> tuple:
+    return s.feet, s.rate, s.valid
 
 
-def _joint_ranges(model) -> Callable[[ClipSet], torch.Tensor]:
+def _com_energy(s: ClipSet) -> tuple:
+    """Point-mass energy of the whole-body COM, one value per frame pair."""
+    return mechanical_energy(s.com[..., None, :], [s.total_mass], s.rate), pair_mask(s.valid)
+
+
+def _joint_ranges(model) -> ClipSetMetric:
     translation = torch.tensor([n.endswith(("_tx", "_ty", "_tz")) for n in model.coordinate_names])
     metric = JointRangeViolation(low=model.ranges[:, 0], high=model.ranges[:, 1])
-    return lambda s: metric.score(s.q, s.mask & ~translation, s.valid)
+    return ClipSetMetric(metric, lambda s: (s.q, s.mask & ~translation, s.valid))
 
 
-def _body_energy(model) -> Callable[[ClipSet], torch.Tensor]:
+def _body_energy(model) -> Callable[[ClipSet], tuple]:
+    """Full-body energy of the body model (kinetic with segment rotation plus potential) per valid frame."""
     from biomotion.body.balance import mechanical_energy as body_energy
     from biomotion.body.kinematics import torch_threads
 
-    def score(s: ClipSet) -> torch.Tensor:
+    def inputs(s: ClipSet) -> tuple:
         with torch_threads(1), torch.no_grad():
             kinetic, potential = body_energy(model, s.q[s.valid], s.qd[s.valid])
         energy = s.q.new_zeros(s.valid.shape)
         energy[s.valid] = kinetic + potential
-        return EnergyConsistency(std=True).score(energy, s.valid)
-    return score
+        return energy, s.valid
+    return inputs
 
 
-def _zmp_share(model) -> Callable[[ClipSet], torch.Tensor]:
+def _zmp(model) -> Callable[[ClipSet], tuple]:
+    """The body model's ZMP per valid frame (NaN elsewhere) with the sole points."""
     from biomotion.body.balance import zero_moment_point
     from biomotion.body.kinematics import torch_threads
 
-    def score(s: ClipSet) -> torch.Tensor:
+    def inputs(s: ClipSet) -> tuple:
         with torch_threads(1), torch.no_grad():
             zmp_valid = zero_moment_point(model, s.q[s.valid], s.qd[s.valid], s.qdd[s.valid])
         zmp = s.q.new_full((*s.valid.shape, 3), float("nan"))
         zmp[s.valid] = zmp_valid
-        return ZMPInsideSupport().score(zmp, s.feet, s.valid)
-    return score
+        return zmp, s.feet, s.valid
+    return inputs
 
 
-def set_metrics(kind: str, model=None, *, physics: bool = False) -> list[MetricSpec]:
-    """The per-clip metrics that apply to a set of ``kind`` ("coordinates" or "bvh")."""
-    specs = [
-        MetricSpec("penetration", "Penetration", "cm", 100.0, "↓", lambda s: Penetration().score(*_feet(s))),
-        MetricSpec("penetration_median", "Penetration (clip median)", "cm", 100.0, "↓",
-                   lambda s: Penetration(ground="clip_median").score(*_feet(s))),
-        MetricSpec("floating", "Floating", "cm", 100.0, "↓",
-                   lambda s: Floating().score(s.feet, s.rate, s.valid)),
-        MetricSpec("floating_median", "Floating (clip median)", "cm", 100.0, "↓",
-                   lambda s: Floating(ground="clip_median").score(s.feet, s.rate, s.valid)),
-        MetricSpec("skate_ratio", "Skate", "%", 100.0, "↓", lambda s: SkateRatio().score(s.feet, s.rate, s.valid)),
-        MetricSpec("foot_contact_velocity", "Foot contact vel.", "m/s", 1.0, "↓",
-                   lambda s: FootContactVelocity().score(s.feet, s.rate, s.valid)),
-        MetricSpec("jerk", "Jerk", "m/s³", 1.0, "↓",
-                   lambda s: JerkIndex(squared=False).score(s.points, s.rate, s.valid)),
-        MetricSpec("energy_com", "Energy std (COM)", "J", 1.0, "↓", _com_energy),
-        MetricSpec("entropy", "Entropy", "nat", 1.0, "→", lambda s: MotionEntropy().score(s.points[..., 1], s.valid)),
+def metrics(kind: str, model=None, *, physics: bool = False) -> list[ClipSetMetric]:
+    """The per-clip metrics that apply to a set of ``kind`` ("coordinates" or "bvh"), in report order; coordinate
+    clips need the body ``model`` (joint ranges, and with ``physics`` full-body energy and ZMP)."""
+    entries = [
+        ClipSetMetric(Penetration(), _feet),
+        ClipSetMetric(Penetration(ground="clip_median"), _feet),
+        ClipSetMetric(Floating(), _feet_rate),
+        ClipSetMetric(Floating(ground="clip_median"), _feet_rate),
+        ClipSetMetric(SkateRatio(), _feet_rate),
+        ClipSetMetric(FootContactVelocity(), _feet_rate),
+        ClipSetMetric(JerkIndex(squared=False), lambda s: (s.points, s.rate, s.valid)),
+        ClipSetMetric(EnergyConsistency(std=True, energy="com"), _com_energy),
+        ClipSetMetric(MotionEntropy(), lambda s: (s.points[..., 1], s.valid)),
     ]
     if kind == "coordinates":
         if model is None:
             raise BiomotionError("coordinate clips need the body model to check joint ranges")
-        specs.insert(8, MetricSpec("joint_range", "Out of range", "%", 100.0, "↓", _joint_ranges(model)))
+        extra = [_joint_ranges(model)]
         if physics:
-            specs.insert(8, MetricSpec("energy_body", "Energy std (body)", "J", 1.0, "↓", _body_energy(model)))
-            specs.insert(9, MetricSpec("zmp_in_support", "ZMP in support", "%", 100.0, "↑", _zmp_share(model)))
-    return specs
+            extra = [ClipSetMetric(EnergyConsistency(std=True, energy="body"), _body_energy(model)),
+                     ClipSetMetric(ZMPInsideSupport(), _zmp(model)), *extra]
+        entries[8:8] = extra
+    return entries
 
 
 def diversity_features(s: ClipSet) -> torch.Tensor:
@@ -122,33 +134,40 @@ def diversity_features(s: ClipSet) -> torch.Tensor:
     return torch.cat([mean, std], -1)
 
 
-DIVERSITY = MetricSpec("diversity", "Diversity", "cm", 100.0, "→", diversity_features)  # scored per set, not per clip
+DIVERSITY = Diversity(unit="m")
+"""The diversity of a set: ``DIVERSITY.score(diversity_features(clips))`` gives the distances of all clip pairs."""
 
 
-def paired_metrics() -> list[MetricSpec]:
-    """Metrics of a predicted clip against its reference clip; ``score`` takes (pred, ref) padded to one length."""
+def paired_metrics(root: int = 0) -> list[ClipSetMetric]:
+    """Metrics of a predicted clip against its reference clip: ``score(pred, ref, both)`` with pred and ref padded
+    to one length and ``both`` the frames valid in both; ``root`` is the pelvis among the points."""
     return [
-        MetricSpec("mje", "MJE", "mm", 1000.0, "↓",
-                   lambda p, r, v: JointError(root=p.root).score(p.points, r.points, v)),
-        MetricSpec("p_mje", "P-MJE", "mm", 1000.0, "↓",
-                   lambda p, r, v: ProcrustesJointError().score(p.points, r.points, v)),
-        MetricSpec("accl", "ACCL", "m/s²", 1.0, "↓",
-                   lambda p, r, v: AccelerationError().score(p.points, r.points, p.rate, v)),
-        MetricSpec("vel", "VEL", "m/s", 1.0, "↓", lambda p, r, v: VelocityError().score(p.points, r.points, p.rate, v)),
-        MetricSpec("fidelity", "Fidelity (DTW)", "cm", 100.0, "↓",
-                   lambda p, r, v: Fidelity(root=p.root).score(p.points, r.points, p.valid, r.valid)),
-        MetricSpec("gaussian_w2", "Fidelity (W2)", "cm", 100.0, "↓",
-                   lambda p, r, v: GaussianFidelity().score(_relative_flat(p), _relative_flat(r), p.valid, r.valid)),
+        ClipSetMetric(JointError(root=root), lambda p, r, v: (p.points, r.points, v)),
+        ClipSetMetric(ProcrustesJointError(), lambda p, r, v: (p.points, r.points, v)),
+        ClipSetMetric(AccelerationError(), lambda p, r, v: (p.points, r.points, p.rate, v)),
+        ClipSetMetric(VelocityError(), lambda p, r, v: (p.points, r.points, p.rate, v)),
+        ClipSetMetric(Fidelity(root=root), lambda p, r, v: (p.points, r.points, p.valid, r.valid)),
+        ClipSetMetric(GaussianFidelity(unit="m"),
+                      lambda p, r, v: (_relative_flat(p), _relative_flat(r), p.valid, r.valid)),
     ]
+
+
+def every_metric(kind: str, model=None, *, physics: bool = False) -> list[Metric]:
+    """Everything the registry scores on clips of ``kind``: the per-clip metrics, the diversity and the paired
+    metrics, in report order."""
+    return [*metrics(kind, model, physics=physics), DIVERSITY, *paired_metrics()]
 
 
 def _relative_flat(s: ClipSet) -> torch.Tensor:
     return (s.points - s.points[..., s.root: s.root + 1, :]).flatten(-2)
 
 
-def record(spec: MetricSpec, values: torch.Tensor) -> dict:
-    result = summarize(spec.key, spec.unit, values.detach().to(torch.float64) * spec.scale)
-    return {"label": spec.label, "unit": spec.unit, "better": spec.better, "mean": _num(result.mean),
+def record(metric: Metric, values: torch.Tensor) -> dict:
+    """The JSON record of per-clip ``values`` (SI) of ``metric``: its label, printed unit and direction mark, and
+    mean, std, count and values in the printed unit (``display_scale`` times SI; None where undefined)."""
+    unit = metric.display_unit or metric.unit
+    result = summarize(metric.name, unit, values.detach().to(torch.float64) * metric.display_scale)
+    return {"label": metric.label, "unit": unit, "better": metric.arrow, "mean": _num(result.mean),
             "std": _num(result.std), "count": result.count, "values": [_num(v) for v in result.values.tolist()]}
 
 
@@ -156,22 +175,27 @@ def _num(x: float) -> float | None:
     return None if not math.isfinite(x) else float(x)
 
 
+def set_record(metric: Metric, values: torch.Tensor) -> dict:
+    """`record` of a set-level metric (the diversity): without per-pair values."""
+    return {k: v for k, v in record(metric, values).items() if k != "values"}
+
+
 def score_set(clips: ClipSet, model=None, *, physics: bool = False) -> dict[str, torch.Tensor]:
-    """Per-clip values [N] (SI units) of every metric that applies to ``clips``, keyed by metric key."""
-    return {spec.key: spec.score(clips) for spec in set_metrics(clips.kind, model, physics=physics)}
+    """Per-clip values [N] (SI units) of every metric that applies to ``clips``, keyed by metric name."""
+    return {metric.name: metric.score(clips) for metric in metrics(clips.kind, model, physics=physics)}
 
 
 def summarize_set(clips: ClipSet, model=None, *, physics: bool = False,
                   selection: Sequence[int] | None = None, scores: dict[str, torch.Tensor] | None = None) -> dict:
-    """Records (label, unit in print units, mean, std, count, per-clip values) of every metric and the diversity,
-    over all clips or the ``selection``; pass ``scores`` from `score_set` to summarize groups without rescoring."""
-    specs = set_metrics(clips.kind, model, physics=physics)
+    """Records (`record`) of every per-clip metric and of the diversity, over all clips or the ``selection``; pass
+    ``scores`` from `score_set` to summarize groups without rescoring."""
+    registered = metrics(clips.kind, model, physics=physics)
     scores = score_set(clips, model, physics=physics) if scores is None else scores
     index = torch.arange(len(clips)) if selection is None else torch.as_tensor(list(selection), dtype=torch.long)
-    records = {spec.key: record(spec, scores[spec.key][index]) for spec in specs}
+    records = {metric.name: record(metric, scores[metric.name][index]) for metric in registered}
     features = diversity_features(clips)[index]
-    distances = pairwise_diversity(features) if len(index) > 1 else torch.full((1,), float("nan"))
-    records[DIVERSITY.key] = {k: v for k, v in record(DIVERSITY, distances).items() if k != "values"}
+    distances = DIVERSITY.score(features) if len(index) > 1 else torch.full((1,), float("nan"))
+    records[DIVERSITY.name] = set_record(DIVERSITY, distances)
     return records
 
 
@@ -220,4 +244,4 @@ def score_pairs(pred: ClipSet, ref: ClipSet) -> tuple[list[tuple[int, int]], dic
     length = max(p.valid.shape[1], r.valid.shape[1])
     p, r = _pad_time(p, length), _pad_time(r, length)
     both = p.valid & r.valid
-    return pairs, {spec.key: record(spec, spec.score(p, r, both)) for spec in paired_metrics()}
+    return pairs, {metric.name: record(metric, metric.score(p, r, both)) for metric in paired_metrics(p.root)}

@@ -94,56 +94,93 @@ def velocity_error(pred, target, rate: float, valid=None, *, joints=None, per_fr
 
 
 class JerkIndex(Metric):
-    """`jerk_index` per sequence. PG-BIG Sec. 4.2 / Table 2 "Jerk"."""
+    """`jerk_index` per sequence. PG-BIG Sec. 4.2 / Table 2 "Jerk": the squared index (``jerk_index``) is the
+    paper's definition, the unsquared one (``jerk``, m/s^3) the unit Table 2 prints."""
 
-    name = "jerk_index"
+    name, label = "jerk_index", "Jerk index"
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Jerk Index\", Table 2 \"Jerk\""
 
     def __init__(self, squared: bool = True) -> None:
         super().__init__()
         self.squared = squared
-        self.unit = "(m/s^3)^2" if squared else "m/s^3"
+        if squared:
+            self.unit, self.display_unit = "(m/s^3)^2", "(m/s³)²"
+            self.equation = "mean over frames and joints of ||d^3 x / dt^3||^2"
+        else:
+            self.name, self.label, self.unit, self.display_unit = "jerk", "Jerk", "m/s^3", "m/s³"
+            self.equation = "mean over frames and joints of ||d^3 x / dt^3||"
 
     def score(self, x, rate: float, valid=None, joints=None) -> Tensor:
         return jerk_index(x, rate, valid, joints=joints, squared=self.squared)
 
 
+ENERGIES = {"com": "COM", "body": "body"}
+"""Energies `EnergyConsistency` names a variant after: the whole-body COM as a point mass (`mechanical_energy`) and
+the full-body energy of the body model (`biomotion.body.balance.mechanical_energy`)."""
+
+
 class EnergyConsistency(Metric):
-    """`energy_consistency` per sequence. PG-BIG Sec. 4.2 / Table 2 "Energy"."""
+    """`energy_consistency` per sequence. PG-BIG Sec. 4.2 / Table 2 "Energy".
 
-    name = "energy_consistency"
+    ``energy`` says which energy the caller passes (a key of `ENERGIES`) and names the variant: with ``std=True``
+    ``energy_com`` / "Energy std (COM)", with the variance ``energy_var_com``; None keeps ``energy_consistency``."""
 
-    def __init__(self, std: bool = False) -> None:
+    name, label = "energy_consistency", "Energy consistency"
+    higher_is_better = False
+    paper = "PG-BIG Sec. 4.2 \"Energy Consistency\" E_var, Table 2 \"Energy\""
+
+    def __init__(self, std: bool = False, energy: str | None = None) -> None:
         super().__init__()
-        self.std = std
-        self.unit = "J" if std else "J^2"
+        if energy is not None and energy not in ENERGIES:
+            raise DataFormatError(None, f"energy must be one of {tuple(ENERGIES)}, got {energy!r}", field="energy")
+        self.std, self.energy = std, energy
+        self.unit, self.display_unit = ("J", "J") if std else ("J^2", "J²")
+        self.equation = f"{'std' if std else 'variance'} over frames of E = E_kin + E_pot"
+        if energy is not None:
+            self.name = f"energy_{energy}" if std else f"energy_var_{energy}"
+            self.label = f"Energy {'std' if std else 'variance'} ({ENERGIES[energy]})"
 
     def score(self, energy, valid=None) -> Tensor:
         return energy_consistency(energy, valid, std=self.std)
 
 
 class AccelerationError(Metric):
-    """`acceleration_error` per sequence. PhysPT Sec. 4 / Table 1 "ACCL"."""
+    """`acceleration_error` per sequence. PhysPT Sec. 4 / Table 1 "ACCL" (``per_frame=True``: the paper's
+    per-frame unit, printed in mm/frame^2)."""
 
-    name = "acceleration_error"
+    name, label = "accl", "ACCL"
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"ACCL\", Table 1"
+    equation = "mean over frames and joints of ||a_pred - a_target||, a the second finite difference"
 
     def __init__(self, per_frame: bool = False) -> None:
         super().__init__()
         self.per_frame = per_frame
-        self.unit = "m/frame^2" if per_frame else "m/s^2"
+        self.unit, self.display_unit = "m/s^2", "m/s²"
+        if per_frame:
+            self.name, self.label = "accl_per_frame", "ACCL (per frame)"
+            self.unit, self.display_unit, self.display_scale = "m/frame^2", "mm/frame²", 1000.0
 
     def score(self, pred, target, rate: float, valid=None, joints=None) -> Tensor:
         return acceleration_error(pred, target, rate, valid, joints=joints, per_frame=self.per_frame)
 
 
 class VelocityError(Metric):
-    """`velocity_error` per sequence. PhysPT Sec. 4 / Table 1 "VEL"."""
+    """`velocity_error` per sequence. PhysPT Sec. 4 / Table 1 "VEL" (``per_frame=True``: the paper's per-frame
+    unit, printed in mm/frame)."""
 
-    name = "velocity_error"
+    name, label, unit = "vel", "VEL", "m/s"
+    higher_is_better = False
+    paper = "PhysPT Sec. 4 \"VEL\", Table 1"
+    equation = "mean over frames and joints of ||v_pred - v_target||, v the first finite difference"
 
     def __init__(self, per_frame: bool = False) -> None:
         super().__init__()
         self.per_frame = per_frame
-        self.unit = "m/frame" if per_frame else "m/s"
+        if per_frame:
+            self.name, self.label = "vel_per_frame", "VEL (per frame)"
+            self.unit, self.display_unit, self.display_scale = "m/frame", "mm/frame", 1000.0
 
     def score(self, pred, target, rate: float, valid=None, joints=None) -> Tensor:
         return velocity_error(pred, target, rate, valid, joints=joints, per_frame=self.per_frame)

@@ -113,7 +113,10 @@ class _SupportMetric(Metric):
 class ZMPInsideSupport(_SupportMetric):
     """Share of supported frames with the ZMP inside the support (HUMOS "dynamic stability", printed in %)."""
 
-    name, unit = "zmp_inside_support", "1"
+    name, label, unit, display_unit, display_scale = "zmp_in_support", "ZMP in support", "1", "%", 100.0
+    higher_is_better = True
+    paper = "HUMOS Sec. 3.4 \"dynamic stability\""
+    equation = "share of supported frames whose ZMP lies in the convex hull of the contact points in contact"
 
     def score(self, zmp, points, valid=None, contact=None) -> Tensor:
         return share_inside_support(zmp, points, valid, contact=contact, margin=self.margin, height=self.height)
@@ -123,7 +126,11 @@ class BaseOfSupport(_SupportMetric):
     """Share of supported frames with the COM's ground projection inside the support (PhysPT Table 5 "BOS",
     after IPMAN; printed in %)."""
 
-    name, unit = "base_of_support", "1"
+    name, label, unit, display_unit, display_scale = "base_of_support", "BOS", "1", "%", 100.0
+    higher_is_better = True
+    paper = "PhysPT Supp. D, Table 5 \"BOS\" (after IPMAN)"
+    equation = ("share of supported frames whose COM ground projection lies in the convex hull of the contact "
+                "points in contact")
 
     def score(self, com, points, valid=None, contact=None) -> Tensor:
         return share_inside_support(com, points, valid, contact=contact, margin=self.margin, height=self.height)
@@ -133,7 +140,10 @@ class SupportDistance(_SupportMetric):
     """Mean signed distance (m) of a point (ZMP or COM projection) to the support boundary, positive inside
     (HUMOS Sec. 3.4)."""
 
-    name, unit = "support_distance", "m"
+    name, label, unit, display_unit, display_scale = "support_distance", "Support distance", "m", "cm", 100.0
+    higher_is_better = True
+    paper = "HUMOS Sec. 3.4 (distance of the ZMP to the base of support)"
+    equation = "mean over supported frames of the signed distance to the support boundary, positive inside"
 
     def score(self, query, points, valid=None, contact=None) -> Tensor:
         return mean_support_margin(query, points, valid, contact=contact, margin=self.margin, height=self.height)
