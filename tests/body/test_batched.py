@@ -18,6 +18,7 @@ from biomotion.body.functions import FunctionStack
 from biomotion.body.kinematics import (KinematicTree, forward_kinematics, joint_terms, motion_subspace,
                                        to_frames_first, to_frames_last, torch_threads)
 from biomotion.body.model import BodyModel
+from biomotion.errors import ModelError
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"       # splines, a knee of three rotations
 OPENCAP = "opencap/Subject4/Models/optimized_scale_and_markers.osim"   # polynomials, multipliers, welds
@@ -103,3 +104,41 @@ def test_torch_threads_restores_the_setting() -> None:
     with torch_threads(1):
         assert torch.get_num_threads() == 1
     assert torch.get_num_threads() == before
+
+
+def test_subtree_matches_the_whole_tree_and_must_hold_its_parents() -> None:
+    """A tree over a subtree (the root, or the root and a leg) poses those bodies, places their points and gives
+    their coordinates' twists as the whole tree does; a subtree without a body's parent is rejected."""
+    model = BodyModel.from_osim(data_path(OPENCAP))
+    q = to_frames_last(torch.tensor(random_poses(model, np.random.default_rng(3), 4)), 1)
+    whole = KinematicTree.of(model, torch.float64)
+    root = next(j.child for j in model.joints if j.parent < 0)
+    leg = [root] + [b for b in range(model.n_bodies)
+                    if model.body_names[b] in ("femur_r", "tibia_r", "talus_r", "calcn_r", "toes_r")]
+
+    def passes(tree: KinematicTree) -> tuple:
+        values, slopes, _ = tree.axis_values(q)
+        frames = tree.joint_frames(values)
+        poses = tree.poses(frames)
+        return poses, tree.twists(tree.ground_axes(poses, frames), slopes)
+
+    full_poses, (full_w, full_v) = passes(whole)
+    for bodies in ([root], leg):
+        tree = KinematicTree(model, torch.float64, bodies=bodies)
+        assert tree.bodies.tolist() == sorted(bodies)
+        poses, (w, v) = passes(tree)
+        assert torch.allclose(poses.rotations, full_poses.rotations[tree.bodies], atol=1e-14)
+        assert torch.allclose(poses.positions, full_poses.positions[tree.bodies], atol=1e-14)
+        owned = [c for j in model.joints if j.child in bodies for c in j.coordinates]
+        assert torch.allclose(w[owned], full_w[owned], atol=1e-14) and torch.allclose(v[owned], full_v[owned],
+                                                                                        atol=1e-14)
+        others = [c for c in range(model.n_q) if c not in owned]
+        assert not w[others].any() and not v[others].any()
+        on = model.marker_bodies[torch.isin(model.marker_bodies, torch.tensor(bodies))]
+        offsets = torch.zeros(len(on), 3, dtype=torch.float64)
+        assert torch.allclose(tree.points(poses, tree.tree_bodies(on), offsets),
+                              whole.points(full_poses, on, offsets), atol=1e-14)
+    with pytest.raises(ModelError):
+        KinematicTree(model, torch.float64, bodies=leg[2:])
+    with pytest.raises(ModelError):
+        KinematicTree(model, torch.float64, bodies=[root]).tree_bodies(torch.tensor([leg[1]]))

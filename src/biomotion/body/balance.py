@@ -17,6 +17,7 @@ from torch.func import jvp
 
 from biomotion.body.kinematics import body_coms, forward_kinematics
 from biomotion.body.model import BodyModel
+from biomotion.body.spatial import vee
 
 
 @dataclass(frozen=True)
@@ -32,12 +33,6 @@ class BodyMotion:
     angular_acceleration: torch.Tensor
 
 
-def _vee(skew: torch.Tensor) -> torch.Tensor:
-    """Vector of the skew-symmetric part of [..., 3, 3] (the ω in ω^ = Ṙ Rᵀ)."""
-    return 0.5 * torch.stack([skew[..., 2, 1] - skew[..., 1, 2], skew[..., 0, 2] - skew[..., 2, 0],
-                              skew[..., 1, 0] - skew[..., 0, 1]], dim=-1)
-
-
 def body_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor) -> BodyMotion:
     """Velocities and accelerations of every body's COM and frame (Featherstone 2008, Sec. 2.7: v = J(q) q̇,
     a = J q̈ + J̇ q̇), from nested forward-mode derivatives of the forward kinematics."""
@@ -48,7 +43,7 @@ def body_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.
 
     def rates(qq: torch.Tensor, vv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         (_, rotation), (velocity, rotation_rate) = jvp(pose, (qq,), (vv,))
-        return velocity, _vee(rotation_rate @ rotation.transpose(-1, -2))
+        return velocity, vee(rotation_rate @ rotation.transpose(-1, -2))
 
     com, rotations = pose(q)
     (velocity, omega), (acceleration, omega_dot) = jvp(rates, (q, qd), (qd, qdd))
@@ -63,7 +58,7 @@ def sampled_body_motion(coms: torch.Tensor, rotations: torch.Tensor, rate: float
     velocity = torch.gradient(coms, spacing=step, dim=-3)[0]
     acceleration = torch.gradient(velocity, spacing=step, dim=-3)[0]
     rate_of_rotation = torch.gradient(rotations, spacing=step, dim=-4)[0]
-    omega = _vee(rate_of_rotation @ rotations.transpose(-1, -2))
+    omega = vee(rate_of_rotation @ rotations.transpose(-1, -2))
     omega_dot = torch.gradient(omega, spacing=step, dim=-3)[0]
     return BodyMotion(coms, velocity, acceleration, rotations, omega, omega_dot)
 

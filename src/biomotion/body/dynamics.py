@@ -16,6 +16,9 @@ RBDA Table 5.1 become sums over each body's ancestors (velocities, accelerations
 algorithm in ground coordinates), and the number of tensor operations does not grow with the number of bodies.
 `joint_velocity` is the same velocity-product term one joint at a time, in the child body frame.
 
+The spatial operators (transforms, cross products, inertia; both layouts) are those of `biomotion.body.spatial`,
+and every pose, axis and subspace column comes from the one kinematics engine, `KinematicTree`.
+
 The generalized forces are the quantity OpenSim's ``InverseDynamicsSolver`` returns: the mobility forces that
 produce the given accelerations with gravity and external loads, ignoring constraints (couplers and locks).
 """
@@ -26,9 +29,14 @@ from dataclasses import dataclass
 
 import torch
 
-from biomotion.body.kinematics import (JointTerms, KinematicTree, TreePoses, _cross, _mm, _mtv, _mv, _over,
-                                       joint_terms, motion_to_child, to_frames_first, to_frames_last)
+from biomotion.body.kinematics import (JointTerms, KinematicTree, TreePoses, _over, joint_terms, motion_to_child,
+                                       to_frames_first, to_frames_last)
 from biomotion.body.model import BodyModel, JointModel
+from biomotion.body.spatial import cross_frames_last as _cross
+from biomotion.body.spatial import cross_motion_frames_last, spatial_inertia_frames_last
+from biomotion.body.spatial import matmul_frames_last as _mm
+from biomotion.body.spatial import matvec_frames_last as _mv
+from biomotion.body.spatial import tmatvec_frames_last as _mtv
 from biomotion.errors import ModelError
 
 
@@ -40,39 +48,6 @@ class ExternalLoad:
     force: torch.Tensor
     point: torch.Tensor
     moment: torch.Tensor | None = None
-
-
-# ---- spatial algebra ------------------------------------------------------------------------------------------
-
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
-                        torch.stack([-y, x, zero], -1)], -2)
-
-
-def _blocks(a: torch.Tensor, b: torch.Tensor, c: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    return torch.cat([torch.cat([a, b], -1), torch.cat([c, d], -1)], -2)
-
-
-def motion_transform(rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-    """[..., 6, 6] ^B X_A for frame B at ``rotation``, ``translation`` in A (RBDA eq. 2.24)."""
-    rt = rotation.transpose(-1, -2)
-    return _blocks(rt, torch.zeros_like(rt), -rt @ _skew(translation), rt)
-
-
-def cross_motion(v: torch.Tensor) -> torch.Tensor:
-    """[..., 6, 6] the operator v×  on motion vectors (RBDA eq. 2.31)."""
-    w, u = _skew(v[..., :3]), _skew(v[..., 3:])
-    return _blocks(w, torch.zeros_like(w), u, w)
-
-
-def spatial_inertia(mass: torch.Tensor, com: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:
-    """[..., 6, 6] inertia about the frame origin of a body with ``inertia`` [..., 3, 3] about its COM."""
-    c = _skew(com)
-    m = mass[..., None, None]
-    eye = torch.eye(3, dtype=com.dtype).expand_as(c)
-    return _blocks(inertia + m * (c @ c.transpose(-1, -2)), m * c, m * c.transpose(-1, -2), m * eye)
 
 
 # ---- joint velocity terms ------------------------------------------------------------------------------------
@@ -174,12 +149,6 @@ def _tree_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor | None = No
     return _Motion(tree, poses, origin, subspace, joint_velocity, joint_bias)
 
 
-def _cross_motion(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
-    """v x m for motion vectors [..., 6, N] (RBDA eq. 2.31)."""
-    w = v[..., :3, :]
-    return torch.cat([_cross(w, m[..., :3, :]), _cross(w, m[..., 3:, :]) + _cross(v[..., 3:, :], m[..., :3, :])], -2)
-
-
 def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
                      loads: tuple[ExternalLoad, ...] | list[ExternalLoad] = (), gravity: bool = True,
                      hdot: str = "opensim") -> torch.Tensor:
@@ -200,7 +169,7 @@ def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: t
     # forward: a body's velocity and acceleration are sums over the body and its ancestors
     velocity = _over(tree.ancestors, motion.joint_velocity)                             # [B, 6, N]
     local = motion.joint_bias + _over(tree.owned, motion.subspace * to_frames_last(qdd, 1)[:, None]) + \
-        _cross_motion(velocity, motion.joint_velocity)
+        cross_motion_frames_last(velocity, motion.joint_velocity)
     acceleration = _over(tree.ancestors, local)
     if gravity:  # the ground's fictitious upward acceleration (RBDA Sec. 5.3)
         acceleration = acceleration - torch.cat([torch.zeros_like(tree.gravity), tree.gravity])
@@ -254,11 +223,9 @@ def mass_matrix(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
         raise ModelError(f"q must have {model.n_q} coordinates for model {model.name!r}")
     motion = _tree_motion(model, to_frames_last(q, 1))
     tree, rotations = motion.tree, motion.poses.rotations
-    com = _skew_frames_last(motion.poses.positions + _mv(rotations, tree.coms) - motion.origin)   # [B, 3, 3, N]
+    com = motion.poses.positions + _mv(rotations, tree.coms) - motion.origin                      # [B, 3, N]
     inertia = _mm(_mm(rotations, tree.inertias), rotations.transpose(1, 2))
-    m = tree.masses[..., None]
-    body = torch.cat([torch.cat([inertia + m * _mm(com, com.transpose(1, 2)), m * com], 2),
-                      torch.cat([m * com.transpose(1, 2), m * tree.eye.expand_as(com)], 2)], 1)  # [B, 6, 6, N]
+    body = spatial_inertia_frames_last(tree.masses[:, 0], com, inertia)                            # [B, 6, 6, N]
     composite = _over(tree.ancestors.T, body)
     s = motion.subspace                                                                   # [n_q, 6, N]
     moved = (composite[tree.coordinate_body] * s[:, None]).sum(2)                       # I^c_j S_j  [n_q, 6, N]
@@ -267,11 +234,3 @@ def mass_matrix(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
     upper = products * weights
     full = upper + upper.transpose(0, 1) + products * tree.same_joint.to(s.dtype)[..., None]
     return to_frames_first(full, q.shape[:-1])
-
-
-def _skew_frames_last(v: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3, N] cross-product matrices of [..., 3, N]."""
-    x, y, z = v.unbind(-2)
-    zero = torch.zeros_like(x)
-    return torch.stack([torch.stack([zero, -z, y], -2), torch.stack([z, zero, -x], -2),
-                        torch.stack([-y, x, zero], -2)], -3)

@@ -7,8 +7,11 @@ body B in ground is X_GB = X_GP X_PF X_FM(q) X_MB, with X_FM the joint's spatial
 The whole-model functions run on a `KinematicTree`, the model's constants stacked once: every transform axis of
 every joint is evaluated in one pass (`FunctionStack`), every joint transform in one batched product, and the
 tree is composed one depth level at a time, so the number of tensor operations does not grow with the number of
-bodies. The per-joint functions (`joint_motion`, `joint_terms`, `motion_subspace`) are the same formulas one
-joint at a time.
+bodies. The tree is the package's one forward-kinematics and Jacobian engine: marker IK (ik/markers.py), the
+dynamics, balance, contact, scaling, retargeting and the viewer pose a `BodyModel` through it (or through the
+functions here that wrap it). The per-joint functions (`joint_motion`, `joint_terms`, `motion_subspace`) are the
+same formulas one joint at a time, the reference the tree is tested against. Rotations, cross products and the
+frames-last 3x3 algebra come from `biomotion.body.spatial`.
 
 These are many small tensor operations: on a loaded or small machine torch's intra-op threads cost more than they
 give (up to 100x slower at 2 threads than at 1 on a busy 2-core machine, docs/results/dynamics.md); run them
@@ -18,14 +21,18 @@ inside `torch_threads(1)` there, and parallelise over trials instead.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
 
 from biomotion.body.functions import FunctionStack
-from biomotion.body.model import BodyModel, JointModel, axis_angle
+from biomotion.body.model import BodyModel, JointModel
+from biomotion.body.spatial import axis_angle, skew
+from biomotion.body.spatial import cross_frames_last as _cross
+from biomotion.body.spatial import matmul_frames_last as _mm
+from biomotion.body.spatial import matvec_frames_last as _mv
 from biomotion.errors import ModelError
 
 
@@ -133,9 +140,7 @@ def point_jacobians(model: BodyModel, q: torch.Tensor, bodies: torch.Tensor, off
     axes = tree.ground_axes(tree_poses, frames)
     angular, linear = tree.subspace(axes, slopes)                                        # [n_q, 3, N] at M
     index = bodies.clamp(min=0)
-    offsets = offsets.to(q.dtype)[..., None]
-    points = tree_poses.positions[index] + _mv(tree_poses.rotations[index], offsets)
-    points = torch.where((bodies < 0)[:, None, None], offsets, points)                  # [P, 3, N]
+    points = tree.points(tree_poses, bodies, offsets.to(q.dtype))                       # [P, 3, N]
     lever = points[:, None] - axes.centers[tree.coordinate_body][None]                  # [P, n_q, 3, N]
     columns = linear + _cross(angular, lever)
     moves = tree.moves[index] & (bodies >= 0)[:, None]                                  # [P, n_q]
@@ -229,28 +234,6 @@ def to_frames_first(x: torch.Tensor, batch: torch.Size) -> torch.Tensor:
     return x.movedim(-1, 0).reshape(*batch, *x.shape[:-1])
 
 
-def _mm(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Batched 3x3 products of [..., 3, 3, N] (or constants [..., 3, 3, 1])."""
-    return (a[..., :, :, None, :] * b[..., None, :, :, :]).sum(-3)
-
-
-def _mv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3, N] times [..., 3, N]."""
-    return (a * v[..., None, :, :]).sum(-2)
-
-
-def _mtv(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3, N] transposed times [..., 3, N]."""
-    return (a * v[..., :, None, :]).sum(-3)
-
-
-def _cross(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Cross products of [..., 3, N] (by components: several times faster than torch.linalg.cross here)."""
-    a0, a1, a2 = a.unbind(-2)
-    b0, b1, b2 = b.unbind(-2)
-    return torch.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -2)
-
-
 def _over(matrix: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """``matrix`` [R, K] applied along the first dim of ``x`` [K, ...]: one matrix product."""
     return (matrix @ x.reshape(x.shape[0], -1)).reshape(matrix.shape[0], *x.shape[1:])
@@ -291,30 +274,47 @@ class KinematicTree:
     """A `BodyModel`'s constants stacked for joint-vectorised kinematics, frames last; bodies and joints share an
     index (joint ``b`` is the one whose child is body ``b``; model.py guarantees one per body).
 
-    Built once per model and dtype and kept on the model (`of`); a model any of whose tensors requires grad
-    (e.g. differentiable scale factors) gets a fresh one per call, so gradients reach its parameters.
+    The one forward-kinematics and Jacobian engine of the package: `forward_kinematics`, `point_jacobians`, the
+    dynamics, balance and marker IK all evaluate a model through it. A pass is `axis_values` -> `joint_frames` ->
+    `poses`, then `points` for body-fixed points and `ground_axes` -> `subspace` / `twists` for derivatives.
+
+    ``bodies`` restricts the tree to a subtree closed under parents (e.g. the root body alone, for IK's root
+    multi-start); tree index k is then model body ``bodies[k]`` (`bodies`, in increasing order), coordinates keep
+    their model index and those of joints outside the subtree move nothing. Built once per model and dtype and
+    kept on the model (`of`, whole tree only); a model any of whose tensors requires grad (e.g. differentiable
+    scale factors) gets a fresh one per call, so gradients reach its parameters.
     """
 
-    def __init__(self, model: BodyModel, dtype: torch.dtype) -> None:
-        n_b, n_q = model.n_bodies, model.n_q
-        joints = [next(j for j in model.joints if j.child == b) for b in range(n_b)]
+    def __init__(self, model: BodyModel, dtype: torch.dtype, bodies: Sequence[int] | None = None) -> None:
+        kept = list(range(model.n_bodies)) if bodies is None else sorted({int(b) for b in bodies})
+        local = {b: k for k, b in enumerate(kept)}
+        n_b, n_q = len(kept), model.n_q
+        joint_of = {j.child: j for j in model.joints}
+        joints = [joint_of[b] for b in kept]
+        missing = [model.body_names[j.parent] for j in joints if j.parent >= 0 and j.parent not in local]
+        if missing:
+            raise ModelError(f"a subtree must hold the parents of its bodies; missing {sorted(set(missing))}")
+        parent_of = [local[j.parent] if j.parent >= 0 else -1 for j in joints]              # tree index, -1 ground
+        self.bodies = torch.tensor(kept, dtype=torch.long)
         depth: dict[int, int] = {}
         for j in model.joint_order:
             joint = model.joints[j]
-            depth[joint.child] = 0 if joint.parent < 0 else depth[joint.parent] + 1
+            if joint.child in local:
+                b = local[joint.child]
+                depth[b] = 0 if parent_of[b] < 0 else depth[parent_of[b]] + 1
         levels = [[b for b in range(n_b) if depth[b] == d] for d in range(max(depth.values(), default=-1) + 1)]
         place = {b: i for level in levels for i, b in enumerate(level)}
-        self.levels = [(torch.tensor(level), torch.tensor([place[joints[b].parent] for b in level]) if d else None)
+        self.levels = [(torch.tensor(level), torch.tensor([place[parent_of[b]] for b in level]) if d else None)
                        for d, level in enumerate(levels)]
         self.assemble = torch.argsort(torch.tensor([b for level in levels for b in level], dtype=torch.long))
-        self.parent = torch.tensor([j.parent if j.parent >= 0 else n_b for j in joints])  # n_b: ground
+        self.parent = torch.tensor([p if p >= 0 else n_b for p in parent_of], dtype=torch.long)  # n_b: ground
         self.reference = levels[0][0] if levels else 0                                      # a root body
         ancestors = torch.zeros(n_b, n_b, dtype=torch.bool)  # [b, a]: a is b or on its path to ground
         for b in range(n_b):
             a = b
             while a >= 0:
                 ancestors[b, a] = True
-                a = joints[a].parent
+                a = parent_of[a]
         coordinate_body = torch.zeros(n_q, dtype=torch.long)
         owned = torch.zeros(n_b, n_q, dtype=torch.bool)      # [b, c]: c is a coordinate of joint b
         for b, joint in enumerate(joints):
@@ -328,7 +328,7 @@ class KinematicTree:
         above = ancestors[coordinate_body][:, coordinate_body].T & both
         self.same_joint, self.ancestor_joint = same, above & ~same  # [c, c']: c's joint is above c''s
 
-        functions, scales, arguments = [], [], []
+        functions, scales, arguments, axis_body = [], [], [], []
         rotation, translation = [], []  # (axis index, body, rank, unit, coordinate, slot, joint)
         slots = [[None] * 3 for _ in range(n_b)]
         for b, joint in enumerate(joints):
@@ -345,8 +345,10 @@ class KinematicTree:
                 functions.append(axis.function)
                 scales.append(axis.scale)
                 arguments.append(coordinate)
+                axis_body.append(b)
         self.functions = FunctionStack(functions, scales, dtype)
         self.argument = torch.tensor(arguments, dtype=torch.long)      # n_q: the axis has no coordinate
+        self.axis_body = torch.tensor(axis_body, dtype=torch.long)     # every axis's joint, in joint axis order
         n_r = len(rotation)
         self.slots = torch.tensor([[n_r if s is None else s for s in row] for row in slots], dtype=torch.long)
 
@@ -372,8 +374,8 @@ class KinematicTree:
         self.unrank = torch.argsort(torch.cat(self.ranked))
         self.turns = [None] + [torch.tensor([b for b in range(n_b) if slots[b][r] is not None], dtype=torch.long)
                                for r in (1, 2)]                                # joints with a 2nd, a 3rd rotation
-        skew = _skew(self.rotation_units[..., 0])
-        self.skew, self.skew2 = skew[..., None], (skew @ skew)[..., None]
+        units = skew(self.rotation_units[..., 0])
+        self.skew, self.skew2 = units[..., None], (units @ units)[..., None]
         # which rotation rates carry axis k's frame (see dynamics.joint_velocity): the preceding axes of the
         # joint ("exact"), or Simbody's rule for CustomJoints ("opensim")
         exact = torch.zeros(n_r, n_r, dtype=dtype)
@@ -399,9 +401,10 @@ class KinematicTree:
         self.p_mb = -_mv(self.r_mb, self.p_bm)
         self.ancestors = ancestors.to(dtype)
         self.owned = owned.to(dtype)
-        self.masses = model.masses.to(dtype)[:, None, None]
-        self.coms = model.coms.to(dtype)[..., None]
-        self.inertias = model.inertias.to(dtype)[..., None]
+        index = self.bodies if bodies is not None else slice(None)
+        self.masses = model.masses[index].to(dtype)[:, None, None]
+        self.coms = model.coms[index].to(dtype)[..., None]
+        self.inertias = model.inertias[index].to(dtype)[..., None]
         self.gravity = model.gravity.to(dtype)[:, None]
         self.eye = torch.eye(3, dtype=dtype)[..., None]
 
@@ -430,7 +433,7 @@ class KinematicTree:
         a second or third rotation)."""
         n = values.shape[-1]
         angle = values[self.rotation, None, None, :]
-        rotations = self.eye + torch.sin(angle) * self.skew + (1.0 - torch.cos(angle)) * self.skew2  # Rodrigues
+        rotations = self.eye + torch.sin(angle) * self.skew + (1.0 - torch.cos(angle)) * self.skew2  # axis_angle
         rotations = torch.cat([rotations, self.eye.expand(3, 3, n)[None]])      # last: identity (no rotation)
         first = rotations[self.slots[:, 0]]
         second, third = self.turns[1], self.turns[2]
@@ -474,12 +477,43 @@ class KinematicTree:
         linear = _over(self.translation_columns, axes.translation * slopes[self.translation, None, :])
         return angular, linear
 
+    def twists(self, axes: GroundAxes, slopes: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Ground twist of every coordinate, (w_k, v_k) [n_q, 3, N] each: the `subspace` column moved from its
+        joint centre o_k to the ground origin, v_k = v_M + o_k x w_k, so that a point p fixed on a body the
+        coordinate moves has dp/dq_k = w_k x p + v_k (the spatial Jacobian in ground coordinates,
+        Featherstone 2008 RBDA ch. 4); zero for coordinates of no joint of the tree."""
+        angular, linear = self.subspace(axes, slopes)
+        return angular, linear + _cross(axes.centers[self.coordinate_body], angular)
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
-                        torch.stack([-y, x, zero], -1)], -2)
+    def points(self, poses: TreePoses, bodies: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        """[P, 3, N] ground positions of points fixed at ``offsets`` [P, 3] in tree bodies ``bodies`` [P] (-1 =
+        ground: the offset is the position)."""
+        index = bodies.clamp(min=0)
+        offsets = offsets.to(poses.positions.dtype)[..., None]
+        moved = poses.positions[index] + _mv(poses.rotations[index], offsets)
+        return torch.where((bodies < 0)[:, None, None], offsets, moved)
+
+    def tree_bodies(self, bodies: torch.Tensor) -> torch.Tensor:
+        """Tree indices of model body indices ``bodies`` [P] (-1 = ground stays -1); a `ModelError` for a body
+        outside the tree."""
+        position = {b: k for k, b in enumerate(self.bodies.tolist())}
+        found = [-1 if b < 0 else position.get(b) for b in bodies.tolist()]
+        if None in found:
+            raise ModelError("a point sits on a body outside the kinematic tree")
+        return torch.tensor(found, dtype=torch.long)
+
+    def affine_axes(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Which axis amounts are affine in their coordinate, amount = s q + c: ([A] bool, s [A], c [A]), the
+        axis scale folded in, s = c = 0 where not affine (`FunctionStack`'s own classification)."""
+        stack = self.functions
+        scale = stack.scale.detach()
+        affine = torch.zeros(stack.size, dtype=torch.bool)
+        affine[stack.affine] = True
+        slope = torch.zeros(stack.size, dtype=scale.dtype)
+        intercept = torch.zeros(stack.size, dtype=scale.dtype)
+        slope[stack.affine] = scale[stack.affine] * stack.slope.to(scale.dtype)
+        intercept[stack.affine] = scale[stack.affine] * stack.intercept.to(scale.dtype)
+        return affine, slope, intercept
 
 
 def _requires_grad(obj, depth: int = 0) -> bool:

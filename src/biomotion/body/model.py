@@ -25,6 +25,7 @@ from pathlib import Path
 import torch
 
 from biomotion.body.functions import Constant, Function, build_function
+from biomotion.body.spatial import body_fixed_xyz
 from biomotion.errors import ModelError
 from biomotion.io import osim
 
@@ -181,25 +182,6 @@ def _map_tensors(obj, dtype: torch.dtype):
     if hasattr(obj, "to") and callable(obj) and not isinstance(obj, torch.Tensor):  # torch functions
         return obj.to(dtype)
     return obj
-
-
-# ---- rotations ------------------------------------------------------------------------------------------------
-
-def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3] rotation by ``angle`` [...] about the unit ``axis`` [3] (Rodrigues' formula)."""
-    x, y, z = axis.unbind(-1)
-    zero = torch.zeros_like(x)
-    k = torch.stack([torch.stack([zero, -z, y]), torch.stack([z, zero, -x]), torch.stack([-y, x, zero])])
-    eye = torch.eye(3, dtype=axis.dtype)
-    s, c = torch.sin(angle)[..., None, None], torch.cos(angle)[..., None, None]
-    return eye + s * k + (1.0 - c) * (k @ k)
-
-
-def body_fixed_xyz(angles: torch.Tensor) -> torch.Tensor:
-    """[..., 3, 3] R = Rx(a) Ry(b) Rz(c): OpenSim's orientation convention for offset frames."""
-    eye = torch.eye(3, dtype=angles.dtype)
-    return axis_angle(eye[0], angles[..., 0]) @ axis_angle(eye[1], angles[..., 1]) @ axis_angle(eye[2],
-                                                                                               angles[..., 2])
 
 
 # ---- building -------------------------------------------------------------------------------------------------

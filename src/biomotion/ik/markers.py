@@ -17,9 +17,11 @@ Solver: Levenberg-Marquardt (Levenberg 1944; Marquardt 1963), every frame an ind
 SIAM J Control Optim 20:221). Derivatives are analytic: each coordinate moves its joint's axes, whose ground twist
 (omega, v) gives d x / d q = omega x x + v for every marker distal to the joint (the spatial Jacobian of
 Featherstone 2008, "Rigid Body Dynamics Algorithms", ch. 4), times the axis function's slope and the chain rule
-through couplers. The Gauss-Newton normal equations are assembled from per-body 6x6 marker sums accumulated down
-the tree, as the composite-rigid-body algorithm accumulates inertias (ibid., ch. 6), so the marker Jacobian is
-never formed: the cost per frame grows with markers + bodies + coordinates^2, not markers x coordinates^2.
+through couplers. Poses, markers and twists come from the body module's one kinematics engine
+(`biomotion.body.kinematics.KinematicTree`, the one forward kinematics and dynamics use). The Gauss-Newton normal
+equations are assembled from 6x6 marker sums accumulated over the subtree each coordinate moves, as the
+composite-rigid-body algorithm accumulates inertias (ibid., ch. 6), so the marker Jacobian is never formed: the
+cost per frame grows with markers x coordinates + coordinates^2, not markers x coordinates^2.
 
 Warm start, without a loop over frames: a coarse pass solves frames ``coarse_interval`` seconds apart, each from
 the best of a few root orientations (a multi-start over the root joint alone), then re-solves each from its
@@ -39,7 +41,7 @@ import numpy as np
 import scipy.interpolate
 import torch
 
-from biomotion.body.functions import Constant, Linear, Multiplier, PiecewiseCubic
+from biomotion.body.kinematics import KinematicTree
 from biomotion.body.model import BodyModel
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.setup import CoordinateTask
@@ -53,27 +55,7 @@ _NEIGHBOUR_ITERATIONS = 10   # coarse frames re-solved from their neighbours: en
 _STEP_TOLERANCE = 1e-6     # rad or m: an accepted step this small ends a frame's iterations
 
 
-# --- kinematics with analytic Jacobians -------------------------------------------------------------------------
-
-def _linear_coefficients(function, scale: float) -> tuple[float, float] | None:
-    """(slope, intercept) of ``scale * function`` when it is affine, else None."""
-    if isinstance(function, Linear):
-        return scale * function.slope, scale * function.intercept
-    if isinstance(function, Constant):
-        return 0.0, scale * function.value
-    if isinstance(function, Multiplier):
-        return _linear_coefficients(function.function, scale * float(function.scale))
-    return None
-
-
-def _spline(function, scale: float) -> tuple[PiecewiseCubic, float] | None:
-    """(piecewise cubic, scale) when ``scale * function`` is a scaled spline, else None."""
-    if isinstance(function, PiecewiseCubic):
-        return function, scale
-    if isinstance(function, Multiplier):
-        return _spline(function.function, scale * float(function.scale))
-    return None
-
+# --- kinematics with analytic Jacobians, on the body module's engine ----------------------------------------------
 
 def _value_and_slope(function, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """f(x) and f'(x) of one of the model's functions (analytic where the function offers it, else by
@@ -84,51 +66,16 @@ def _value_and_slope(function, x: torch.Tensor) -> tuple[torch.Tensor, torch.Ten
     return torch.func.jvp(function, (x,), (torch.ones_like(x),))
 
 
-class _Splines:
-    """Several scaled piecewise cubics evaluated together: x [T, S] -> values and slopes [T, S].
-
-    Same rule as `biomotion.body.functions.PiecewiseCubic`: the knot interval's cubic inside, linear beyond the
-    end knots with the end slopes."""
-
-    def __init__(self, pieces: Sequence[tuple[PiecewiseCubic, float]]) -> None:
-        width = max(p.x.numel() for p, _ in pieces)
-        inner = torch.full((len(pieces), max(width - 2, 1)), math.inf, dtype=_F64)
-        table = torch.zeros(5, len(pieces), width, dtype=_F64)   # knots, y, b, c, d
-        first, last = [], []
-        for i, (piece, scale) in enumerate(pieces):
-            n = piece.x.numel()
-            inner[i, : max(n - 2, 0)] = piece.x[1:-1].to(_F64)
-            table[0, i, :n] = piece.x.to(_F64)
-            for row, values in enumerate((piece.y, piece.b, piece.c, piece.d), start=1):
-                table[row, i, :n] = scale * values.to(_F64)
-            first.append((float(piece.x[0]), scale * float(piece.y[0]), scale * float(piece.b[0])))
-            last.append((float(piece.x[-1]), scale * float(piece.y[-1]), scale * float(piece.b[-1])))
-        self.inner = inner
-        self.flat = table.flatten(1)
-        self.offset = torch.arange(len(pieces)) * width
-        self.first = torch.tensor(first, dtype=_F64).T
-        self.last = torch.tensor(last, dtype=_F64).T
-
-    def __call__(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        k = (x[..., None] >= self.inner).sum(-1) + self.offset
-        knot, y, b, c, d = self.flat[:, k]
-        dx = x - knot
-        value = y + dx * (b + dx * (c + dx * d))
-        slope = b + dx * (2.0 * c + 3.0 * dx * d)
-        (x0, y0, b0), (x1, y1, b1) = self.first, self.last
-        below, above = x < x0, x > x1
-        value = torch.where(below, y0 + (x - x0) * b0, torch.where(above, y1 + (x - x1) * b1, value))
-        slope = torch.where(below, b0, torch.where(above, b1, slope))
-        return value, slope
-
-
 class _Kinematics:
     """Marker positions, coordinate twists and Gauss-Newton normal equations of a `BodyModel`, for chosen markers
     and free coordinates.
 
-    The pass is vectorised over joints: every joint's motion X_FM(q) at once, then the tree composed one depth
-    level at a time. ``joints`` restricts it to a subtree closed under parents (the root joint alone for the
-    multi-start); the markers must sit on bodies that subtree moves.
+    The forward kinematics is the body module's one engine, `KinematicTree` (poses, body-fixed points, each
+    coordinate's ground twist; body-indexed, joint b being the joint whose child is body b). What is IK's own: the
+    free coordinates z and the chain rule through couplers (`coordinates`, `dq_dz`), the normal equations
+    accumulated per coordinate without forming the marker Jacobian, and the structure the warm start reads
+    (periodic and whole-turn coordinates, ball joints). ``joints`` restricts the tree to a subtree closed under
+    parents (the root joint alone for the multi-start); the markers must sit on bodies that subtree moves.
     """
 
     def __init__(self, model: BodyModel, markers: Sequence[int], free: Sequence[int],
@@ -139,151 +86,70 @@ class _Kinematics:
         self.n_z = len(free)
         self.defaults = model.defaults.to(_F64)
         self.couplers = list(model.couplers)
+        if joints is None:
+            tree = KinematicTree.of(model, _F64)
+        else:
+            tree = KinematicTree(model, _F64, bodies=[model.joints[j].child for j in joints])
+        self.tree = tree
         # twist columns: the free coordinates, then the coupled ones (chain rule to z afterwards)
-        dependents = [c.dependent for c in self.couplers if c.dependent not in free]
-        self.column_of = {c: k for k, c in enumerate(free + dependents)}
-        chosen = set(model.joint_order if joints is None else joints)
-        order = [j for j in model.joint_order if j in chosen]
-        position = {j: k for k, j in enumerate(order)}
-        joint_of_body = {model.joints[j].child: position[j] for j in order}
-        n_joints = len(order)
-        self.n_joints = n_joints
-        self.parent_joint = torch.tensor([joint_of_body.get(model.joints[j].parent, n_joints) for j in order],
-                                         dtype=torch.long)  # n_joints stands for ground
-        depth: list[int] = []
-        for j in order:
-            parent = joint_of_body.get(model.joints[j].parent)
-            depth.append(0 if parent is None else depth[parent] + 1)
-        levels = [torch.tensor([k for k in range(n_joints) if depth[k] == d], dtype=torch.long)
-                  for d in range(max(depth, default=-1) + 1)]
-        self.levels = [(level, self.parent_joint[level]) for level in levels]
-        self.r_pf = torch.stack([model.joints[j].parent_rotation.to(_F64) for j in order])
-        self.p_pf = torch.stack([model.joints[j].parent_translation.to(_F64) for j in order])
-        self.r_mb = torch.stack([model.joints[j].child_rotation.to(_F64).T for j in order])
-        self.p_mb = -(self.r_mb @ torch.stack([model.joints[j].child_translation.to(_F64) for j in order])[..., None]
-                      )[..., 0]
+        self.dependents = [c.dependent for c in self.couplers if c.dependent not in free]
+        self.columns = torch.tensor(free + self.dependents, dtype=torch.long)
+        self.n_columns = len(self.columns)
+        # ancestor[c, d]: column c's joint is column d's joint or one of its ancestors (False without a joint)
+        self.ancestor = (tree.same_joint | tree.ancestor_joint)[self.columns][:, self.columns]
 
-        # every transform axis: amount = slope * q + intercept, or a spline, or another function of q
-        axes, joint_of_axis, rank, slopes, intercepts, coords = [], [], [], [], [], []
-        rotation_slots = torch.full((n_joints, 3), -1, dtype=torch.long)
-        for k, j in enumerate(order):
-            n_rot = 0
-            for axis in model.joints[j].axes:
-                index = len(axes)
-                axes.append(axis)
-                joint_of_axis.append(k)
-                rank.append(n_rot if axis.rotation else -1)
-                if axis.rotation:
-                    rotation_slots[k, n_rot] = index
-                    n_rot += 1
-                slope, intercept = _linear_coefficients(axis.function, float(axis.scale)) or (0.0, 0.0)
-                slopes.append(slope)
-                intercepts.append(intercept)
-                coords.append(-1 if axis.coordinate is None else axis.coordinate)
-        self.axes = axes
-        self.axis_coord = torch.tensor(coords, dtype=torch.long)
-        self.axis_arg = self.axis_coord.clamp(min=0)
-        self.axis_slope = torch.tensor(slopes, dtype=_F64)
-        self.axis_intercept = torch.tensor(intercepts, dtype=_F64)
-        nonlinear = [a for a, axis in enumerate(axes) if _linear_coefficients(axis.function, 1.0) is None]
-        nonlinear_set = set(nonlinear)
-        splines = [(a, _spline(axes[a].function, float(axes[a].scale))) for a in nonlinear]
-        self.spline_axes = torch.tensor([a for a, piece in splines if piece is not None], dtype=torch.long)
-        self.splines = _Splines([piece for _, piece in splines if piece is not None]) if len(self.spline_axes) \
-            else None
-        self.other_axes = [a for a, piece in splines if piece is None]
-        directions = torch.stack([a.axis.to(_F64) for a in axes]) if axes else torch.zeros(0, 3, dtype=_F64)
-        is_rotation = torch.tensor([a.rotation for a in axes], dtype=torch.bool)
-        # Rodrigues' formula for every rotation axis plus a last zero axis that yields the identity
-        self.rotations = is_rotation.nonzero().squeeze(-1)
-        slot_of = {int(a): k for k, a in enumerate(self.rotations)}
-        k = torch.cat([_skew(directions[self.rotations]), torch.zeros(1, 3, 3, dtype=_F64)])
-        self.skew, self.skew2 = k, k @ k
-        self.rotation_slots = rotation_slots.apply_(lambda a: slot_of.get(a, len(slot_of)))
-        joint_of_axis = torch.tensor(joint_of_axis, dtype=torch.long)
-        rank = torch.tensor(rank, dtype=torch.long)
-        self.trans_all = (~is_rotation).nonzero().squeeze(-1)
-        self.trans_joint_all = joint_of_axis[self.trans_all]
-        self.trans_directions_all = directions[self.trans_all]
-        has_column = torch.tensor([c in self.column_of for c in coords], dtype=torch.bool)
-        self.rot_axes = (is_rotation & has_column).nonzero().squeeze(-1)
-        self.trans_axes = (~is_rotation & has_column).nonzero().squeeze(-1)
-        self.rot_joint = joint_of_axis[self.rot_axes]
-        rot_rank = rank[self.rot_axes]
-        # the k-th rotation of a joint turns about (R_1 .. R_k-1) a, grouped by k
-        self.by_rank = [((rot_rank == k).nonzero().squeeze(-1), self.rot_joint[rot_rank == k],
-                         directions[self.rot_axes][rot_rank == k]) for k in range(3)]
-        self.trans_joint = joint_of_axis[self.trans_axes]
-        self.trans_directions = directions[self.trans_axes][..., None]
-        self.twist_columns = torch.tensor([self.column_of[coords[a]] for a in
-                                           self.rot_axes.tolist() + self.trans_axes.tolist()], dtype=torch.long)
-        self.n_columns = len(self.column_of)
-
-        # markers: the joint slot of their body (n_joints for ground: they move with nothing)
+        # markers: their tree body (-1 on ground) and which columns move them, [C, M]
         self.markers = torch.as_tensor(list(markers), dtype=torch.long)
-        bodies = model.marker_bodies[self.markers].tolist()
-        if any(b >= 0 and b not in joint_of_body for b in bodies):
-            raise ModelError("internal: a marker sits on a body outside the evaluated joints")
-        self.on_ground = torch.tensor([b < 0 for b in bodies], dtype=torch.bool)[:, None]
-        self.marker_joint = torch.tensor([joint_of_body.get(b, 0) for b in bodies], dtype=torch.long)
-        self.marker_slot = torch.tensor([joint_of_body.get(b, n_joints) for b in bodies], dtype=torch.long)
+        self.marker_body = tree.tree_bodies(model.marker_bodies[self.markers])
         self.marker_offsets = model.marker_offsets[self.markers].to(_F64)
-        # each column's joint, and ancestor[c, d]: column c's joint is d's joint or one of its ancestors
-        joint_position = [position.get(model.coordinate_joint[c]) for c in free + dependents]
-        self.column_joint = torch.tensor([j if j is not None else 0 for j in joint_position], dtype=torch.long)
-        chains = []
-        for j in joint_position:
-            chain = set()
-            while j is not None and j < n_joints:
-                chain.add(j)
-                parent = int(self.parent_joint[j])
-                j = parent if parent < n_joints else None
-            chains.append(chain)
-        self.ancestor = torch.tensor([[joint_position[c] is not None and joint_position[c] in chains[d]
-                                       for d in range(len(chains))] for c in range(len(chains))], dtype=torch.bool)
+        moved = tree.moves[self.marker_body.clamp(min=0)][:, self.columns] & (self.marker_body >= 0)[:, None]
+        self.marker_columns = moved.T.to(_F64)
+
         # free coordinates that only turn rotation axes with unit slope: a 2 pi change gives the same pose
+        affine, slope, intercept = tree.affine_axes()
+        rotation = torch.zeros(len(tree.argument), dtype=torch.bool)
+        rotation[tree.rotation] = True
+        unit_turn = rotation & affine & ((slope.abs() - 1.0).abs() < 1e-12)
         independent = {c.independent for c in self.couplers}
-        turning = torch.tensor([
-            c not in independent and any(a.coordinate == c for a in axes)
-            and all(a.rotation and abs(abs(slope) - 1.0) < 1e-12 and i not in nonlinear_set
-                    for i, (a, slope) in enumerate(zip(axes, slopes)) if a.coordinate == c)
-            for c in free], dtype=torch.bool)
+        turning = torch.tensor([c not in independent and bool((tree.argument == c).any())
+                                and bool(unit_turn[tree.argument == c].all()) for c in free], dtype=torch.bool)
         clamped = model.clamped[free]
         self.periodic = turning & ~clamped
         # clamped to a whole turn ([-pi, pi] and the like): every pose is in range, so the limit is only where the
         # circle is cut; solving across it (and wrapping back after) keeps a frame off a limit it could go round
         span = (model.ranges[free, 1] - model.ranges[free, 0]).to(_F64)
         self.full_turn = turning & clamped & (span >= 2 * math.pi - 1e-6)
-        self.ball_joints = self._ball_joints(model, order, free, slopes, intercepts, nonlinear_set)
+        self.ball_joints = self._ball_joints(model, free, affine, slope, intercept)
         self.task_base = torch.zeros(self.n_q, self.n_z, dtype=_F64)
         self.task_base[self.free, torch.arange(self.n_z)] = 1.0
-        self.dependents = dependents
 
-    def _ball_joints(self, model: BodyModel, order: Sequence[int], free: Sequence[int], slopes: Sequence[float],
-                     intercepts: Sequence[float], nonlinear: set[int]) -> list[tuple[tuple[int, int, int], float, float]]:
+    def _ball_joints(self, model: BodyModel, free: Sequence[int], affine: torch.Tensor, slope: torch.Tensor,
+                     intercept: torch.Tensor) -> list[tuple[tuple[int, int, int], float, float]]:
         """Joints that turn by three rotations about mutually orthogonal axes, each the amount s q + c (s = +-1) of
         its own free coordinate, and that translate independently of them (shoulders, usually): their pose has a
         second set of angles, (a + pi, pi - b, c + pi) in the rotation amounts (Tait-Bryan). Per joint the three
-        z columns, and the middle axis's slope and intercept."""
+        z columns, and the middle axis's slope and intercept; ``affine``, ``slope``, ``intercept`` are the tree's
+        `KinematicTree.affine_axes`."""
         column = {c: k for k, c in enumerate(free)}
+        tree_body = {b: k for k, b in enumerate(self.tree.bodies.tolist())}
         found = []
-        index = 0
-        for j in order:
-            axes = model.joints[j].axes
-            numbers = list(range(index, index + len(axes)))
-            index += len(axes)
-            rotations = [(a, n) for a, n in zip(axes, numbers) if a.rotation]
-            if len(rotations) != 3 or any(n in nonlinear or a.coordinate not in column
-                                          or abs(abs(slopes[n]) - 1.0) > 1e-12 for a, n in rotations):
+        for j in model.joint_order:
+            joint = model.joints[j]
+            if joint.child not in tree_body:
+                continue
+            numbers = (self.tree.axis_body == tree_body[joint.child]).nonzero().flatten().tolist()  # in axis order
+            rotations = [(a, n) for a, n in zip(joint.axes, numbers) if a.rotation]
+            if len(rotations) != 3 or any(not bool(affine[n]) or a.coordinate not in column
+                                          or abs(abs(float(slope[n])) - 1.0) > 1e-12 for a, n in rotations):
                 continue
             coordinates = [a.coordinate for a, _ in rotations]
             directions = torch.stack([a.axis.to(_F64) for a, _ in rotations])
-            moved = any(a.coordinate in coordinates for a in axes if not a.rotation)
+            moved = any(a.coordinate in coordinates for a in joint.axes if not a.rotation)
             if len(set(coordinates)) < 3 or moved or not torch.allclose(directions @ directions.T,
                                                                           torch.eye(3, dtype=_F64), atol=1e-9):
                 continue
             middle = rotations[1][1]
-            found.append((tuple(column[c] for c in coordinates), float(slopes[middle]), float(intercepts[middle])))
+            found.append((tuple(column[c] for c in coordinates), float(slope[middle]), float(intercept[middle])))
         return found
 
     # coordinates ------------------------------------------------------------------------------------------------
@@ -314,72 +180,21 @@ class _Kinematics:
         return out
 
     # forward kinematics -----------------------------------------------------------------------------------------
-    def _amounts(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Every axis' amount (rad or m) and its slope d amount / d q[coordinate], [T, A] each."""
-        x = q[:, self.axis_arg]
-        amount = self.axis_slope * x + self.axis_intercept
-        slope = self.axis_slope.expand_as(amount)
-        if self.splines is None and not self.other_axes:
-            return amount, slope
-        slope = slope.clone()
-        if self.splines is not None:
-            value, derivative = self.splines(x[:, self.spline_axes])
-            amount[:, self.spline_axes] = value
-            slope[:, self.spline_axes] = derivative
-        for a in self.other_axes:
-            axis = self.axes[a]
-            scale = axis.scale.to(_F64)
-            value, derivative = _value_and_slope(axis.function, x[:, a])
-            amount[:, a] = scale * value
-            slope[:, a] = scale * derivative
-        return amount, slope
-
     def evaluate(self, z: torch.Tensor, twists: bool = True) -> _Pose:
-        """Markers in ground and, with ``twists``, every column's ground twist at free coordinates z [T, n_z]."""
+        """Markers in ground and, with ``twists``, every column's ground twist at free coordinates z [T, n_z]: the
+        tree's pass (`KinematicTree.axis_values` -> `joint_frames` -> `poses` -> `points`, and `ground_axes` ->
+        `twists`), frames last, turned frames first for the normal equations."""
         q, coupled = self.coordinates(z)
-        n, n_joints = z.shape[0], self.n_joints
-        amount, slope = self._amounts(q)
-        eye = torch.eye(3, dtype=_F64)
-        angles = torch.nn.functional.pad(amount[:, self.rotations], (0, 1))
-        sin, cos = torch.sin(angles)[..., None, None], torch.cos(angles)[..., None, None]
-        rot = eye + sin * self.skew + (1.0 - cos) * self.skew2
-        r1, r2, r3 = rot[:, self.rotation_slots].unbind(2)   # [T, J, 3, 3] each
-        r12 = r1 @ r2
-        r_fm = r12 @ r3
-        p_fm = z.new_zeros(n, n_joints, 3).index_add_(1, self.trans_joint_all,
-                                                       amount[:, self.trans_all, None] * self.trans_directions_all)
-        # child body in parent body: X_PF X_FM X_MB
-        r_pb = self.r_pf @ r_fm @ self.r_mb
-        p_pb = self.p_pf + (self.r_pf @ (p_fm + (r_fm @ self.p_mb[..., None])[..., 0])[..., None])[..., 0]
-        r_gb = z.new_empty(n, n_joints + 1, 3, 3)
-        r_gb[:, n_joints] = eye
-        p_gb = z.new_zeros(n, n_joints + 1, 3)
-        for level, parents in self.levels:
-            r_gp = r_gb[:, parents]
-            r_gb[:, level] = r_gp @ r_pb[:, level]
-            p_gb[:, level] = p_gb[:, parents] + (r_gp @ p_pb[:, level, :, None])[..., 0]
-        joint = self.marker_joint
-        x = p_gb[:, joint] + (r_gb[:, joint] @ self.marker_offsets[..., None])[..., 0]
-        x = torch.where(self.on_ground, self.marker_offsets, x)
+        tree = self.tree
+        values, slopes, _ = tree.axis_values(q.T)
+        frames = tree.joint_frames(values)
+        poses = tree.poses(frames)
+        x = tree.points(poses, self.marker_body, self.marker_offsets).permute(2, 0, 1)       # [T, M, 3]
         if not twists:
             return _Pose(x, q, coupled, None, None)
-        # ground twist of every axis: rotations about R_GF (R_1..R_k-1) a through the origin of M, translations
-        # along R_GF a; omega x p + v is then the velocity of a point p per unit of the axis amount
-        r_gp, p_gp = r_gb[:, self.parent_joint], p_gb[:, self.parent_joint]
-        r_gf = r_gp @ self.r_pf
-        origin = p_gp + (r_gp @ self.p_pf[..., None])[..., 0] + (r_gf @ p_fm[..., None])[..., 0]
-        local = z.new_empty(n, len(self.rot_axes), 3)
-        for (slots, joints, directions), before in zip(self.by_rank, (None, r1, r12)):
-            local[:, slots] = directions if before is None else (before[:, joints] @ directions[..., None])[..., 0]
-        u = (r_gf[:, self.rot_joint] @ local[..., None])[..., 0]
-        d = (r_gf[:, self.trans_joint] @ self.trans_directions)[..., 0]
-        k_rot, k_trans = slope[:, self.rot_axes, None], slope[:, self.trans_axes, None]
-        omega_axes = torch.cat([k_rot * u, torch.zeros_like(d)], dim=1)
-        velocity_axes = torch.cat([k_rot * torch.linalg.cross(origin[:, self.rot_joint], u, dim=-1), k_trans * d],
-                                  dim=1)
-        omega = z.new_zeros(n, self.n_columns, 3).index_add_(1, self.twist_columns, omega_axes)
-        velocity = z.new_zeros(n, self.n_columns, 3).index_add_(1, self.twist_columns, velocity_axes)
-        return _Pose(x, q, coupled, omega, velocity)
+        # omega x p + v is the velocity of a point p per unit rate of the column's coordinate
+        omega, velocity = tree.twists(tree.ground_axes(poses, frames), slopes)                # [n_q, 3, T]
+        return _Pose(x, q, coupled, omega[self.columns].permute(2, 0, 1), velocity[self.columns].permute(2, 0, 1))
 
     def normal_equations(self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
                          ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -389,17 +204,14 @@ class _Kinematics:
         Summing over markers, each body contributes twist^T G_b twist with the 6x6 G_b = sum_i w_i A_i^T A_i,
         A_i = [-[x_i]x | I]; and the bodies below a joint add up (the composite inertia trick of Featherstone's
         CRBA, "Rigid Body Dynamics Algorithms" ch. 6), so H_cd = twist_c^T G~_j twist_d with j the deeper of the
-        two columns' joints when one is the other's ancestor, 0 otherwise.
+        two columns' joints when one is the other's ancestor, 0 otherwise. G~ of each column's joint is one product
+        of the per-marker sums with the tree's [column, marker] "moves" mask.
         """
         x = pose.x
         wx = weights[..., None] * x
         sums = torch.cat([weights[..., None], wx, (wx[..., :, None] * x[..., None, :]).flatten(-2),
                           torch.linalg.cross(wx, residuals, dim=-1), weights[..., None] * residuals], dim=-1)
-        n = x.shape[0]
-        composite = x.new_zeros(n, self.n_joints + 1, sums.shape[-1]).index_add_(1, self.marker_slot, sums)
-        for level, parents in reversed(self.levels):
-            composite.index_add_(1, parents, composite[:, level])
-        at = composite[:, self.column_joint]                              # [T, C, 19]
+        at = self.marker_columns @ sums                                   # [T, C, 19]
         w, s1, xx = at[..., 0:1], at[..., 1:4], at[..., 4:13].unflatten(-1, (3, 3))
         xr, r = at[..., 13:16], at[..., 16:19]
         omega, velocity = pose.omega, pose.velocity
@@ -420,12 +232,6 @@ class _Pose:
     coupled: torch.Tensor              # [T, n_dependents, n_z] d(coupled coordinates)/dz
     omega: torch.Tensor | None         # [T, C, 3] angular part of each column's ground twist
     velocity: torch.Tensor | None      # [T, C, 3] linear part (velocity of the point at the ground origin)
-
-
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    x, y, z = v.unbind(-1)
-    o = torch.zeros_like(x)
-    return torch.stack([torch.stack([o, -z, y], -1), torch.stack([z, o, -x], -1), torch.stack([-y, x, o], -1)], -2)
 
 
 # --- the least-squares problem ----------------------------------------------------------------------------------
