@@ -46,6 +46,18 @@ class ConfigError(BiomotionError):
     """Bad options, setup files or command-line arguments."""
 
 
+class ProfileError(ConfigError, ValueError):
+    """A profile field that is unknown, of the wrong type or outside its documented range; ``field`` names it.
+
+    Also a ValueError, so code that validates a profile's values with ``except ValueError`` (and adds the file
+    or table row to the message) keeps catching it.
+    """
+
+    def __init__(self, message: str, *, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
 class DataSourceMissing(BiomotionError):
     """A data source the command needs is not under the data root."""
 

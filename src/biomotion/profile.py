@@ -1,14 +1,21 @@
 """Who moves: `Profile` (biodata, sport, injuries) and `InjuryRecord`.
 
 A profile conditions generation (PG-BIG Sec. 3.2, A.6) and scales the body model. Every field is optional:
-an absent field is None and is masked downstream, never invented.
+an absent field is None and is masked downstream, never invented. A field that is present is checked: an unknown
+field name (``agee``) is refused naming the closest known one, a number must lie in its documented range
+(`RANGES`), and a failure is a `biomotion.errors.ProfileError` (a ConfigError) that names the field.
 """
 
 from __future__ import annotations
 
+import difflib
+import math
 import numbers
-from dataclasses import asdict, dataclass, field
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
+
+from biomotion.errors import ProfileError
 
 
 @dataclass(frozen=True)
@@ -21,6 +28,25 @@ class InjuryRecord:
 
 
 SEXES = ("F", "M")
+RANGES: dict[str, tuple[float, float, str]] = {
+    "height": (0.3, 2.8, "m"), "mass": (2.0, 400.0, "kg"), "age": (0.0, 130.0, "years"),
+    "experience_years": (0.0, 100.0, "years")}
+"""Documented range (inclusive) and unit of each numeric field: values outside are a unit mistake or a typo."""
+INJURY_FIELDS = ("location", "diagnosis", "date")
+SYNONYMS = {"weight": "mass", "body_mass": "mass", "stature": "height", "gender": "sex", "id": "subject_id",
+            "subject": "subject_id", "experience": "experience_years", "dominant_side": "dominance"}
+"""Names people use for a field, suggested when a profile uses them (difflib would not find most)."""
+
+
+def _unknown(keys: list[str], known: tuple[str, ...], what: str) -> ProfileError:
+    """The error for unknown field names: each with the closest known one, then the known ones."""
+    named = []
+    for key in keys:
+        close = [SYNONYMS[key.lower()]] if SYNONYMS.get(key.lower()) in known else \
+            difflib.get_close_matches(key.lower(), known, n=1, cutoff=0.5)
+        named.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    return ProfileError(f"unknown {what}{'s' if len(keys) > 1 else ''} {', '.join(named)}; known: "
+                        f"{', '.join(known)}", field=keys[0])
 
 
 @dataclass(frozen=True)
@@ -51,16 +77,24 @@ class Profile:
 
     def __post_init__(self) -> None:
         if self.sex is not None and self.sex not in SEXES:
-            raise ValueError(f"sex must be one of {SEXES} or None, got {self.sex!r}")
-        for name in ("age", "height", "mass", "experience_years"):
+            raise ProfileError(f"sex must be one of {SEXES} or None, got {self.sex!r}", field="sex")
+        for name, (low, high, unit) in RANGES.items():
             value = getattr(self, name)
-            if value is not None and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
-                raise ValueError(f"{name} must be a number (SI units: m, kg, years), got {value!r}")
-        for name, low, high in (("height", 0.3, 2.8), ("mass", 2.0, 400.0), ("age", 0.0, 130.0)):
-            value = getattr(self, name)
-            if value is not None and not low <= value <= high:
-                raise ValueError(f"{name}={value} is outside [{low}, {high}] (SI units: m, kg, years)")
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise ProfileError(f"{name} must be a number (SI units: m, kg, years), got {value!r}", field=name)
+            if not (math.isfinite(value) and low <= value <= high):
+                hint = f": in metres, {value / 100:g} for {value:g} cm" if name == "height" and 30 <= value <= 280 \
+                    else ""
+                raise ProfileError(f"{name}={value} is outside [{low:g}, {high:g}] {unit}{hint}", field=name)
+        if not isinstance(self.extra, Mapping):
+            raise ProfileError(f"extra must be a mapping of other fields, got {self.extra!r}", field="extra")
         object.__setattr__(self, "injuries", tuple(self.injuries))
+        for number, injury in enumerate(self.injuries):
+            if not isinstance(injury, InjuryRecord):
+                raise ProfileError(f"injuries[{number}] must be an InjuryRecord, got {injury!r}",
+                                   field=f"injuries[{number}]")
 
     @property
     def weight(self) -> float | None:
@@ -73,9 +107,39 @@ class Profile:
         return data
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> "Profile":
-        known = {k: v for k, v in data.items() if k in cls.__dataclass_fields__ and k not in ("injuries", "extra")}
-        injuries = tuple(InjuryRecord(**i) for i in data.get("injuries") or ())
-        extra = dict(data.get("extra") or {})
-        extra.update({k: v for k, v in data.items() if k not in cls.__dataclass_fields__})
-        return cls(**known, injuries=injuries, extra=extra)
+    def from_dict(cls, data: Mapping[str, Any]) -> "Profile":
+        """The inverse of `to_dict`, and how profile files are read: the keys must be `Profile` fields (other
+        information goes under ``extra``), ``injuries`` a list of mappings with keys among `INJURY_FIELDS`.
+
+        Raises:
+            ProfileError: an unknown key (named with the closest field), a value of the wrong type or outside
+                `RANGES`; ``error.field`` names the field.
+        """
+        names = tuple(f.name for f in fields(cls))
+        if not isinstance(data, Mapping):
+            raise ProfileError(f"a profile is a mapping of fields ({', '.join(names)}), got {type(data).__name__}")
+        unknown = [str(key) for key in data if key not in names]
+        if unknown:
+            raise _unknown(unknown, names, "profile field")
+        listed = data.get("injuries") or ()
+        if isinstance(listed, (str, Mapping)) or not isinstance(listed, (list, tuple)):
+            raise ProfileError(f"injuries must be a list of {{{', '.join(INJURY_FIELDS)}}} mappings, got "
+                               f"{listed!r}", field="injuries")
+        injuries = []
+        for number, injury in enumerate(listed):
+            if isinstance(injury, InjuryRecord):
+                injuries.append(injury)
+                continue
+            if not isinstance(injury, Mapping):
+                raise ProfileError(f"injuries[{number}] must be a mapping with keys among {', '.join(INJURY_FIELDS)}, "
+                                   f"got {injury!r}", field=f"injuries[{number}]")
+            unknown = [str(key) for key in injury if key not in INJURY_FIELDS]
+            if unknown:
+                error = _unknown(unknown, INJURY_FIELDS, f"injuries[{number}] field")
+                raise ProfileError(str(error), field=f"injuries[{number}].{unknown[0]}")
+            injuries.append(InjuryRecord(**injury))
+        extra = data.get("extra") or {}
+        if not isinstance(extra, Mapping):
+            raise ProfileError(f"extra must be a mapping of other fields, got {extra!r}", field="extra")
+        values = {k: v for k, v in data.items() if k not in ("injuries", "extra")}
+        return cls(**values, injuries=tuple(injuries), extra=dict(extra))

@@ -232,3 +232,40 @@ def test_a_pace_word_without_a_number_picks_a_quartile_of_the_training_speeds(mo
     assert vocabulary.notes("walk, toe-in, slowly", toe_in) == [
         "'slowly' asks for a pace, but 'walk' (toe-in) was trained at 1.25 m/s only: state a speed in m/s or km/h "
         "to ask for another"]
+
+
+@pytest.mark.parametrize("text", ["asdfgh", "qwerty zxcv", "aaaa", "kjhkjh", "cook dinner"])
+def test_nonsense_is_refused_listing_the_closest_actions(vocabulary, encoder, text):
+    """Below the similarity floor (keyboard strings score 0.17-0.31 against these labels, `MIN_SIMILARITY` 0.35;
+    a text with no word the encoder knows whole needs `UNKNOWN_WORD_SIMILARITY`), nothing is generated: the error
+    names the text, its best match and score, and the closest known actions with theirs."""
+    with pytest.raises(ConfigError) as info:
+        vocabulary.parse(text)
+    message = str(info.value)
+    assert message.startswith(f"no known action resembles {text!r}: its best match, ")
+    assert "below the floor" in message
+    closest = message.split("closest known actions: ")[1]
+    listed = [part.split(" (")[0] for part in closest.split(" (`")[0].split(", ")]
+    assert 1 <= len(listed) <= 5 and set(listed) <= set(vocabulary.actions)
+    scores = [float(part.split(" (")[1].rstrip(")")) for part in closest.split(" (`")[0].split(", ")]
+    assert scores == sorted(scores, reverse=True) and scores[0] < actions.UNKNOWN_WORD_SIMILARITY
+    with pytest.raises(ConfigError, match="no known action resembles"):
+        vocabulary.resolve(text)
+
+
+def test_every_request_the_tests_accept_clears_the_floor(vocabulary, encoder):
+    """The floor sits between the nonsense above and the least similar legitimate requests (measured: "sprint"
+    0.37, "climb stairs" 0.47, "deep knee bend" 0.50); rare words still pass when they match well."""
+    for text in ("running at 3.5 m/s", "a slow jog at 9 km/h", "sit down and stand up from a chair", "jump off a box",
+                 "walking with toes pointing outward", "deep knee bend", "standing still", "stand quietly",
+                 "getting out of a seat", "climb stairs", "sprint", "jog", "squatting"):
+        label, score = vocabulary.match_score(text)
+        assert score >= actions.MIN_SIMILARITY, (text, label, score)
+        vocabulary.parse(text)
+    assert vocabulary.match_score("asdfgh")[1] < actions.MIN_SIMILARITY < vocabulary.match_score("sprint")[1]
+
+
+def test_the_empty_text_is_refused_listing_the_known_actions(vocabulary):
+    with pytest.raises(ConfigError, match="empty action text") as info:
+        vocabulary.parse("")
+    assert all(action in str(info.value) for action in vocabulary.actions)

@@ -319,6 +319,35 @@ def test_text_empty_and_missing_files_raise(tmp_path):
             read_c3d_markers(path)
 
 
+def test_directory_is_refused(tmp_path):
+    with pytest.raises(DataFormatError, match="is a directory") as error:
+        read_c3d(tmp_path)
+    assert str(error.value).startswith(f"{tmp_path}: ")
+
+
+def test_non_finite_plate_channels_and_infinite_points_are_refused(tmp_path):
+    """NaN or inf in an analog channel a plate uses would become a NaN force (read downstream as no load), and an
+    infinite coordinate is no documented gap: both are refused, naming the file, frame and channel or marker."""
+    rng = np.random.default_rng(5)
+    frames = 10
+    analogs = np.column_stack([rng.uniform(-50, 50, (frames * RATIO, 2)), rng.uniform(-900, -300, frames * RATIO),
+                               rng.uniform(-1e4, 1e4, (frames * RATIO, 3))]).T
+    analogs[2, 7 * RATIO + 1] = np.nan                 # channel 3 (Fz) in frame 7
+    plate = {"type": 2, "origin": [0.0, 0.0, -40.0], "corners": _plate_corners(np.zeros(3)),
+             "channel": np.arange(1, 7)}
+    points = rng.uniform(100, 900, (3, 2, frames))
+    path = _write(tmp_path / "nan_plate.c3d", labels=["A", "B"], points=points, analogs=analogs, plates=[plate])
+    with pytest.raises(DataFormatError, match="analog channel 3 \\('ch2'\\) holds nan") as error:
+        read_c3d_forces(path)
+    assert error.value.frame == 7 and str(error.value).startswith(f"{path}: frame 7, field 'ANALOG:DATA': ")
+    assert read_c3d_markers(path).n_frames == frames          # the markers themselves are fine
+    points[1, 1, 3] = np.inf
+    path = _write(tmp_path / "inf_point.c3d", labels=["A", "B"], points=points)
+    with pytest.raises(DataFormatError, match="marker 'B' has an infinite y coordinate") as error:
+        read_c3d_markers(path)
+    assert error.value.frame == 3 and str(path) in str(error.value)
+
+
 def test_whole_copy_still_reads(tmp_path):
     copy = tmp_path / "copy.c3d"
     shutil.copyfile(data_path(f"{FUKUCHI}/c3d/RBDS04static.c3d"), copy)

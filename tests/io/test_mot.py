@@ -166,3 +166,67 @@ def test_property_corrupted_files_raise_only_data_format_errors(tmp_path, cut, s
         return
     # a cut exactly at a line end can leave a shorter but complete-looking file only if nRows still matches
     assert table.data.shape[1] == 2 and len(table.times) == 20
+
+
+def _with_cell(source, end, row, column, token):
+    """The lines of ``source`` with data row ``row`` (0-based) holding ``token`` in column ``column``."""
+    lines = list(source)
+    cells = lines[end + 2 + row].split("\t")
+    cells[column] = token
+    lines[end + 2 + row] = "\t".join(cells)
+    return lines
+
+
+def test_nan_and_inf_are_refused_naming_file_line_and_column(tmp_path):
+    """A NaN coordinate would reach the filters and the dynamics; a NaN force would read as no load. Both are
+    refused with the file, line and column, unless the caller asks for gaps; inf is refused always."""
+    source = data_path("opencap/Subject4/IK/walking1_ik.mot").read_text().splitlines()
+    end = source.index("endheader")
+    labels = source[end + 1].split("\t")
+    path = tmp_path / "nan.mot"
+    path.write_text("\n".join(_with_cell(source, end, 3, 5, "nan")))
+    with pytest.raises(DataFormatError, match="NaN") as info:
+        read_motion(path)
+    assert str(info.value).startswith(f"{path}:{end + 6}: field '{labels[5]}': ")
+    assert (info.value.line, info.value.field) == (end + 6, labels[5])
+    gaps = read_motion(path, allow_gaps=True)
+    assert np.isnan(gaps.values[3, 4]) and np.isfinite(np.delete(gaps.values, 4, axis=1)).all()
+    assert np.isnan(read_storage(path).data[3, 4])                   # the raw table keeps NaN by default
+    with pytest.raises(DataFormatError, match="NaN"):
+        read_storage(path, allow_gaps=False)
+    others = [name for name in labels[1:] if name != labels[5]]
+    assert read_motion(path, columns=others).n_frames == gaps.n_frames  # only the columns read are checked
+    path.write_text("\n".join(_with_cell(source, end, 7, 2, "-inf")))
+    for read in (read_motion, read_storage, lambda p: read_motion(p, allow_gaps=True)):
+        with pytest.raises(DataFormatError, match="not a finite number") as info:
+            read(path)
+        assert f"{path}:{end + 10}: field '{labels[2]}'" in str(info.value)
+
+
+def test_nan_force_is_refused_in_a_ground_reaction_file(tmp_path):
+    source = data_path("opencap/Subject4/ID/walking1_grf.mot").read_text().splitlines()
+    end = next(i for i, line in enumerate(source) if line.strip().lower() == "endheader")
+    labels = source[end + 1].split("\t")
+    column = labels.index("ground_force_1_vy")
+    path = tmp_path / "grf.mot"
+    path.write_text("\n".join(_with_cell(source, end, 0, column, "NaN")))
+    with pytest.raises(DataFormatError, match="NaN") as info:
+        read_ground_reaction(path)
+    assert str(info.value).startswith(f"{path}:{end + 3}: field 'ground_force_1_vy': ")
+    assert np.isnan(read_ground_reaction(path, allow_gaps=True).force[0, 0, 1])
+
+
+def test_rows_of_the_wrong_width_empty_files_and_directories(tmp_path):
+    source = data_path("opencap/Subject4/IK/walking1_ik.mot").read_text().splitlines()
+    end = source.index("endheader")
+    width = len(source[end + 1].split("\t"))
+    short = source[:end + 4] + ["\t".join(source[end + 4].split("\t")[:-1])] + source[end + 5:]
+    path = tmp_path / "short.mot"
+    path.write_text("\n".join(short))
+    with pytest.raises(DataFormatError, match=f"{width - 1} values but {width} column labels") as info:
+        read_motion(path)
+    assert str(info.value).startswith(f"{path}:{end + 5}: ")
+    for bad, message in ((tmp_path, "is a directory"), (tmp_path / "absent.mot", "no such file")):
+        with pytest.raises(DataFormatError, match=message) as info:
+            read_motion(bad)
+        assert str(info.value).startswith(f"{bad}: ")

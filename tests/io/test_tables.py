@@ -76,3 +76,27 @@ def test_ansur_and_schreiber_source_tables():
     source = read_subject_table(data_path("SchreiberMoissenet2019/anthropometrics_source.csv"))
     assert len(source) == 50 and source["2014001"].height == pytest.approx(1.66)
     assert {p.sex for p in source.values()} == {"M", "F"}  # 'W' in the source means a woman
+
+
+def test_rows_of_another_width_missing_files_and_directories_are_refused(tmp_path):
+    """A cell left out of a row would move every later value under the wrong column: refused, naming the line
+    (blank lines counted, as an editor counts them)."""
+    table = tmp_path / "people.csv"
+    table.write_text("subject_id,sex,age_years,height_m,mass_kg\ns1,F,52,1.68,61\n\ns2,M,1.80,75\n")
+    with pytest.raises(DataFormatError, match="4 cells but 5 column names") as info:
+        read_subject_table(table)
+    assert str(info.value).startswith(f"{table}:4: ")
+    for bad, message in ((tmp_path, "is a directory"), (tmp_path / "absent.csv", "no such file")):
+        with pytest.raises(DataFormatError, match=message) as info:
+            read_subject_table(bad)
+        assert str(info.value).startswith(f"{bad}: ")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("\n")
+    with pytest.raises(DataFormatError, match="empty table"):
+        read_subject_table(empty)
+    from biomotion.io.formats import describe
+
+    table.write_text("subject_id,sex,age_years,height_m,mass_kg\ns1,F,52,1.68,61\ns2,M,1.80,75\n")
+    with pytest.raises(DataFormatError, match="4 cells but 5 column names") as info:
+        describe(table)                     # still recognised as a subject table, and the row named
+    assert str(info.value).startswith(f"{table}:3: ")

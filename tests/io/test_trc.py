@@ -80,19 +80,18 @@ def test_property_round_trip(tmp_path, frames, count, units, seed):
     np.testing.assert_allclose(back.positions, positions, rtol=1e-12, atol=1e-15)
 
 
-def test_short_rows_empty_fields_and_bad_tokens(tmp_path):
-    """Rows may leave trailing markers out or fields empty (gaps); such files take the field-by-field path and
-    must read the same numbers as full rows, and a bad token is named with its line."""
+def test_empty_fields_read_as_gaps_and_bad_tokens_name_their_line(tmp_path):
+    """Empty fields (gaps) take the field-by-field path and must read the same numbers as full rows, trailing
+    empty fields beyond the markers are ignored, and a bad token is named with its line."""
     source = data_path("opencap/Subject4/MarkerData/DJ1.trc")
     full = read_trc(source)
     lines = source.read_text().splitlines()
-    short = lines[:6] + ["\t".join(lines[6].split("\t")[:-3])] + lines[7:]   # frame 1 without its last marker
     empty = lines[:7] + [lines[7].replace("\t" + lines[7].split("\t")[2] + "\t", "\t\t", 1)] + lines[8:]
-    for name, content, frame, marker in (("short", short, 0, -1), ("empty", empty, 1, 0)):
+    blank_last = lines[:6] + ["\t".join(lines[6].split("\t")[:-3] + ["", "", "", ""])] + lines[7:]
+    for name, content, frame, marker in (("empty", empty, 1, 0), ("blank_last", blank_last, 0, -1)):
         path = tmp_path / f"{name}.trc"
         path.write_text("\n".join(content))
         markers = read_trc(path)
-        assert np.isnan(markers.positions[frame, marker, 0])
         expected = full.positions.copy()
         expected[frame, marker, 0 if name == "empty" else slice(None)] = np.nan
         np.testing.assert_array_equal(markers.positions, expected)
@@ -102,6 +101,52 @@ def test_short_rows_empty_fields_and_bad_tokens(tmp_path):
     with pytest.raises(DataFormatError, match="not a number: '1.0x'") as info:
         read_trc(path)
     assert ":10:" in str(info.value)
+
+
+@pytest.mark.parametrize("cut", ["first", "middle", "last_marker"])
+def test_a_short_row_is_refused_not_shifted(tmp_path, cut):
+    """A row with a value left out (not left empty) would put every later value under the wrong marker: refused,
+    naming the file, the line and the expected and found field counts."""
+    source = data_path("opencap/Subject4/MarkerData/DJ1.trc")
+    lines = source.read_text().splitlines()
+    fields = lines[8].split("\t")
+    width = len(fields)
+    if cut == "first":
+        del fields[2]
+    elif cut == "middle":
+        del fields[width // 2]
+    else:
+        fields = fields[:-3]            # a whole trailing marker left out, tabs and all
+    path = tmp_path / "short.trc"
+    path.write_text("\n".join(lines[:8] + ["\t".join(fields)] + lines[9:]))
+    with pytest.raises(DataFormatError, match=f"{len(fields)} fields, expected {width}") as info:
+        read_trc(path)
+    assert str(info.value).startswith(f"{path}:9: ") and "wrong columns" in str(info.value)
+    assert info.value.line == 9
+
+
+def test_infinite_values_empty_files_and_directories_are_refused(tmp_path):
+    source = data_path("opencap/Subject4/MarkerData/DJ1.trc")
+    lines = source.read_text().splitlines()
+    names = [n for n in lines[3].split("\t")[2:] if n.strip()]
+    fields = lines[10].split("\t")
+    fields[2 + 3 + 1] = "inf"                                        # second marker, Y
+    path = tmp_path / "inf.trc"
+    path.write_text("\n".join(lines[:10] + ["\t".join(fields)] + lines[11:]))
+    with pytest.raises(DataFormatError, match="infinite value") as info:
+        read_trc(path)
+    assert info.value.line == 11 and info.value.field == f"{names[1]}.Y"
+    assert str(info.value).startswith(f"{path}:11: field '{names[1]}.Y': ")
+    empty = tmp_path / "empty.trc"
+    empty.write_text("")
+    with pytest.raises(DataFormatError, match="empty file") as info:
+        read_trc(empty)
+    assert str(empty) in str(info.value)
+    with pytest.raises(DataFormatError, match="is a directory") as info:
+        read_trc(tmp_path)
+    assert str(tmp_path) in str(info.value)
+    with pytest.raises(DataFormatError, match="no such file"):
+        read_trc(tmp_path / "missing.trc")
 
 
 def test_time_range_parses_only_the_window(tmp_path):
@@ -128,3 +173,23 @@ def test_time_range_parses_only_the_window(tmp_path):
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataFormatError, match="time does not increase"):
         read_trc(path, (0.0, 0.05))
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(frames=st.integers(1, 8), count=st.integers(1, 4), row=st.integers(0, 10**6), column=st.integers(0, 10**6))
+def test_property_a_deleted_field_never_reads_silently(tmp_path, frames, count, row, column):
+    """Deleting any one field of any data row (gap or not) is refused: it can never read as a shifted frame."""
+    rng = np.random.default_rng(frames * 31 + count)
+    positions = rng.normal(size=(frames, count, 3))
+    positions[rng.random(size=(frames, count)) < 0.3] = np.nan
+    markers = Markers(times=np.arange(frames) / 50.0, names=tuple(f"M{i}" for i in range(count)),
+                      positions=positions)
+    lines = write_trc(tmp_path / "p.trc", markers, rate=50.0).read_text().splitlines()
+    line = 6 + row % frames
+    fields = lines[line].split("\t")
+    del fields[column % len(fields)]
+    lines[line] = "\t".join(fields)
+    (tmp_path / "p.trc").write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError) as info:
+        read_trc(tmp_path / "p.trc")
+    assert info.value.line == line + 1

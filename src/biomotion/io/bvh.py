@@ -310,12 +310,16 @@ def read_bvh(path: str | Path, *, units: str = "auto") -> BVHMotion:
 
 
 def _read_text(path: Path) -> str:
+    if path.is_dir():
+        raise DataFormatError(path, "is a directory, not a BVH file")
     try:
         raw = path.read_bytes()
         if path.name.endswith(".gz"):
             raw = gzip.decompress(raw)
+    except FileNotFoundError:
+        raise DataFormatError(path, "no such file") from None
     except (OSError, EOFError, zlib.error) as error:
-        raise DataFormatError(path, f"cannot read: {error}") from error
+        raise DataFormatError(path, f"cannot read: {getattr(error, 'strerror', None) or error}") from error
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as error:

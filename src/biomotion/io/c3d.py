@@ -13,6 +13,11 @@ Time: sample ``k`` of a trial whose first frame is ``f0`` (1-based, from ``TRIAL
 header) is at ``(f0 - 1) / POINT:RATE + k / rate``. For trials that start at frame 1 (all Fukuchi trials) these
 are the times OpenSim's C3DFileAdapter gives (``k / rate``); the adapter ignores a later first frame, this reader
 keeps it so that a cropped trial stays on the capture's clock.
+
+Gaps: a marker sample is occluded where its residual is negative (ezc3d then gives NaN), where it is NaN, and, with
+``zero_is_missing``, where it is exactly (0, 0, 0). An infinite coordinate is no gap but a broken file, and so is a
+NaN or infinite value in an analog channel a force platform uses: both are refused with a `DataFormatError` naming
+the file, frame and channel.
 """
 
 from __future__ import annotations
@@ -148,6 +153,8 @@ def read_c3d(path: str | Path, *, zero_is_missing: bool = True, units: str | Non
 
 def _load(path: str | Path) -> _Source:
     path = Path(path)
+    if path.is_dir():
+        raise DataFormatError(path, "is a directory, not a C3D file")
     if not path.is_file():
         raise DataFormatError(path, "no such file")
     try:
@@ -230,6 +237,12 @@ def _markers(source: _Source, *, zero_is_missing: bool, units: str | None, axes:
     not_markers = {str(label).strip() for kind in NON_MARKER_LISTS for label in source.param("POINT", kind, [])}
     keep = np.array([label not in not_markers for label in labels], dtype=bool)
     positions = np.transpose(source.points[:3], (2, 1, 0))[:, keep]  # [T, M, 3]
+    infinite = np.isinf(positions)
+    if infinite.any():
+        frame, marker, axis = (int(i) for i in np.argwhere(infinite)[0])
+        name = [label for label, kept in zip(labels, keep) if kept][marker]
+        raise DataFormatError(source.path, f"marker {name!r} has an infinite {'xyz'[axis]} coordinate",
+                              frame=frame, field="POINT:DATA")
     missing = ~np.isfinite(positions).all(axis=-1) | (source.residuals.T[:, keep] < 0)
     if zero_is_missing:
         missing |= (positions == 0.0).all(axis=-1)
@@ -271,6 +284,7 @@ def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: n
             raise DataFormatError(source.path, f"plate {plate + 1} names analog channels {index.tolist()} but the "
                                                f"file has {source.analogs.shape[0]}", field="FORCE_PLATFORM:CHANNEL")
         signals = source.analogs[index - 1]
+        _check_analogs(source, signals, index, plate, ratio)
         if kind == 4:
             signals = _calibration(source, plate) @ signals
         if kind == 3:
@@ -285,6 +299,21 @@ def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: n
     times = ((source.first_frame - 1) * ratio + np.arange(source.analogs.shape[1])) / analog_rate
     return GroundReaction(times=times, names=tuple(str(p + 1) for p in range(used)),
                           force=np.stack(force, axis=1), cop=np.stack(cop, axis=1), moment=np.stack(moment, axis=1))
+
+
+def _check_analogs(source: _Source, signals: np.ndarray, index: np.ndarray, plate: int, ratio: int) -> None:
+    """DataFormatError at the first NaN or infinite sample of a plate's analog channels (1-based ``index``),
+    naming the channel (``ANALOG:LABELS``) and the POINT frame it falls in."""
+    bad = ~np.isfinite(signals)
+    if not bad.any():
+        return
+    row, sample = (int(i) for i in np.argwhere(bad)[0])
+    channel = int(index[row])
+    labels = [str(label).strip() for label in source.param("ANALOG", "LABELS", [])]
+    name = labels[channel - 1] if channel <= len(labels) else f"channel {channel}"
+    raise DataFormatError(source.path, f"force platform {plate + 1}: analog channel {channel} ({name!r}) holds "
+                                       f"{signals[row, sample]} at analog sample {sample}, not a finite number",
+                          frame=sample // ratio, field="ANALOG:DATA")
 
 
 def _calibration(source: _Source, plate: int) -> np.ndarray:

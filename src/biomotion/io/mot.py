@@ -9,6 +9,11 @@ Ground reaction ``.mot`` files (OpenSim external loads) group their columns per 
 force, ``<prefix>_p{x,y,z}`` point, and the torque either as ``<prefix>_m{x,y,z}`` or as the prefix with
 ``force`` replaced by ``torque`` (``ground_torque_r_x``). `read_ground_reaction` and `write_ground_reaction`
 handle every naming found in the OpenSim example data.
+
+Values are checked before anything computes with them: every row holds one value per column label, an infinite
+value is refused, and so is NaN in a coordinate or ground reaction file unless the caller passes
+``allow_gaps=True`` (`read_motion`, `read_ground_reaction`); `read_storage`, the raw table, keeps NaN by default
+(result tables such as biomotion's balance output pad with it). Each refusal names the file, line and column.
 """
 
 from __future__ import annotations
@@ -42,6 +47,8 @@ class StorageTable:
     data: np.ndarray
     simm: bool = False
     header_lines: tuple[str, ...] = field(default=(), repr=False)
+    line_numbers: tuple[int, ...] = field(default=(), repr=False)
+    """1-based file line of each row (for error messages)."""
 
     @property
     def in_degrees(self) -> bool | None:
@@ -57,11 +64,20 @@ def _split_labels(line: str) -> list[str]:
     return [t.strip() for t in tokens if t.strip()]
 
 
-def read_storage(path: str | Path) -> StorageTable:
-    """Read any ``.mot``/``.sto`` file into a `StorageTable` (no unit conversion)."""
+def read_storage(path: str | Path, *, allow_gaps: bool = True) -> StorageTable:
+    """Read any ``.mot``/``.sto`` file into a `StorageTable` (no unit conversion).
+
+    Raises DataFormatError naming the line (and column) for a row whose value count differs from the labels', a
+    token that is not a number, a missing or non-increasing time, or an infinite value; with ``allow_gaps=False``
+    for a NaN value too (with the default True, NaN cells are kept as written).
+    """
     path = Path(path)
+    if path.is_dir():
+        raise DataFormatError(path, "is a directory, not a storage file")
     try:
         text = path.read_text(encoding="utf-8", errors="replace")
+    except FileNotFoundError:
+        raise DataFormatError(path, "no such file") from None
     except OSError as error:
         raise DataFormatError(path, f"cannot read: {error.strerror}") from None
     lines = text.splitlines()
@@ -122,14 +138,33 @@ def read_storage(path: str | Path) -> StorageTable:
                               line=int(line_numbers[-1]))
     bad_time = ~np.isfinite(values[:, 0])
     if bad_time.any():
-        raise DataFormatError(path, "time is NaN", line=int(line_numbers[bad_time][0]))
+        raise DataFormatError(path, f"time is {'NaN' if np.isnan(values[bad_time, 0][0]) else 'infinite'}",
+                              line=int(line_numbers[bad_time][0]), field=labels[0])
+    _check_finite(path, values[:, 1:], labels[1:], line_numbers, allow_gaps=allow_gaps)
     steps = np.diff(values[:, 0])
     if np.any(steps <= 0):
         row = int(np.flatnonzero(steps <= 0)[0]) + 1
         raise DataFormatError(path, f"time does not increase ({values[row - 1, 0]} then {values[row, 0]})",
                               line=int(line_numbers[row]))
     return StorageTable(path=path, name=name, header=header, labels=tuple(labels[1:]), times=values[:, 0],
-                        data=values[:, 1:], simm=simm, header_lines=tuple(lines[:end]))
+                        data=values[:, 1:], simm=simm, header_lines=tuple(lines[:end]),
+                        line_numbers=tuple(int(n) for n in line_numbers))
+
+
+def _check_finite(path: Path | None, data: np.ndarray, labels: Sequence[str], line_numbers: Sequence[int], *,
+                  allow_gaps: bool) -> None:
+    """DataFormatError at the first infinite value of ``data`` [rows, columns], or the first NaN unless
+    ``allow_gaps``, naming its line (``line_numbers[row]``) and column label."""
+    bad = np.isinf(data) if allow_gaps else ~np.isfinite(data)
+    if not bad.any():
+        return
+    row, column = (int(i) for i in np.argwhere(bad)[0])
+    line = int(line_numbers[row]) if len(line_numbers) > row else None
+    if np.isnan(data[row, column]):
+        raise DataFormatError(path, "value is NaN: every cell needs a number (a caller that handles gaps reads "
+                                    "the file with allow_gaps=True)", line=line, field=labels[column])
+    raise DataFormatError(path, f"value is {data[row, column]}: not a finite number", line=line,
+                          field=labels[column])
 
 
 def _angles_in_degrees(table: StorageTable, angles: Angles, rotational: np.ndarray) -> bool:
@@ -147,13 +182,16 @@ def _angles_in_degrees(table: StorageTable, angles: Angles, rotational: np.ndarr
     return declared
 
 
-def read_motion(path: str | Path, *, angles: Angles = "header", columns: Sequence[str] | None = None) -> Motion:
+def read_motion(path: str | Path, *, angles: Angles = "header", columns: Sequence[str] | None = None,
+                allow_gaps: bool = False) -> Motion:
     """Read a coordinate file (IK output, states) as a `Motion` in SI units.
 
     Args:
         angles: ``"header"`` trusts ``inDegrees`` (and warns when the values contradict it); ``"degrees"`` or
             ``"radians"`` overrides a header known to be wrong.
         columns: keep only these columns (error if one is absent); default all.
+        allow_gaps: keep NaN values (of the kept columns) as gaps in the `Motion`; by default a NaN is a
+            `DataFormatError` naming its line and column, since filtering and dynamics cannot use it.
     """
     table = read_storage(path)
     labels = table.labels
@@ -164,6 +202,7 @@ def read_motion(path: str | Path, *, angles: Angles = "header", columns: Sequenc
             raise DataFormatError(path, f"columns not in file: {', '.join(missing)}")
         index = [labels.index(c) for c in columns]
         labels, data = tuple(columns), data[:, index]
+    _check_finite(table.path, data, labels, table.line_numbers, allow_gaps=allow_gaps)
     if len(set(labels)) != len(labels):
         duplicate = next(label for label in labels if labels.count(label) > 1)
         raise DataFormatError(path, "duplicate column label", field=duplicate)
@@ -223,13 +262,15 @@ def torque_columns(prefix: str, labels: Sequence[str]) -> list[str] | None:
     return next((c for c in candidates if all(name in labels for name in c)), None)
 
 
-def read_ground_reaction(path: str | Path) -> GroundReaction:
+def read_ground_reaction(path: str | Path, *, allow_gaps: bool = False) -> GroundReaction:
     """Read an OpenSim external-loads ``.mot`` (GRF) into a `GroundReaction`; one channel per column prefix.
 
     Channel names are the column prefixes (``ground_force_r``, ``1_ground_force``, ``R_ground_force`` ...), which
-    is what an ExternalLoads XML refers to. Channels without torque columns get a zero moment.
+    is what an ExternalLoads XML refers to. Channels without torque columns get a zero moment. A NaN value is a
+    `DataFormatError` naming its line and column unless ``allow_gaps`` (then kept: NaN force, point or moment).
     """
     table = read_storage(path)
+    _check_finite(table.path, table.data, table.labels, table.line_numbers, allow_gaps=allow_gaps)
     labels = table.labels
     prefixes: list[str] = []
     for label in labels:

@@ -155,7 +155,14 @@ ANSUR_FEMALE = _ansur_mapping("SubjectId")    # ... the female file 'SubjectId'
 MAPPINGS = {m.name: m for m in (FUKUCHI, MOTUS, SIMPLE, SCHREIBER_SOURCE, ANSUR_MALE, ANSUR_FEMALE)}
 
 
-def _read_rows(path: Path) -> tuple[list[str], list[dict[str, Any]]]:
+def _read_rows(path: Path, *, check_widths: bool = True) -> tuple[list[str], list[dict[str, Any]]]:
+    """(header, one record per non-blank row with its ``__line__``); with ``check_widths`` a row with more or fewer
+    cells than the header has names is refused (a cell left out would move every later value under the wrong
+    column)."""
+    if path.is_dir():
+        raise DataFormatError(path, "is a directory, not a table")
+    if not path.is_file():
+        raise DataFormatError(path, "no such file")
     suffix = path.suffix.lower()
     if suffix in (".xlsx", ".xlsm"):
         import openpyxl
@@ -165,29 +172,31 @@ def _read_rows(path: Path) -> tuple[list[str], list[dict[str, Any]]]:
         except Exception as error:  # openpyxl raises many types for a bad workbook
             raise DataFormatError(path, f"not a readable .xlsx workbook ({error})") from None
         sheet = book.worksheets[0]
-        rows = [list(r) for r in sheet.iter_rows(values_only=True)]
+        rows = [(number, list(r)) for number, r in enumerate(sheet.iter_rows(values_only=True), start=1)]
         book.close()
-        rows = [r for r in rows if any(c is not None and str(c).strip() for c in r)]
+        rows = [(n, r) for n, r in rows if any(c is not None and str(c).strip() for c in r)]
         if not rows:
             raise DataFormatError(path, "empty sheet")
-        header = [str(c).strip() if c is not None else "" for c in rows[0]]
+        header = [str(c).strip() if c is not None else "" for c in rows[0][1]]
         body = rows[1:]
     elif suffix in (".csv", ".tsv", ".txt"):
         try:
             text = path.read_text(encoding="utf-8-sig")
         except UnicodeDecodeError:
             text = path.read_text(encoding="latin-1")
-        dialect = "excel-tab" if suffix == ".tsv" else "excel"
-        rows = [r for r in csv.reader(text.splitlines(), dialect=dialect) if any(c.strip() for c in r)]
+        except OSError as error:
+            raise DataFormatError(path, f"cannot read: {error.strerror}") from None
+        reader = csv.reader(text.splitlines(), dialect="excel-tab" if suffix == ".tsv" else "excel")
+        rows = [(reader.line_num, r) for r in reader if any(c.strip() for c in r)]
         if not rows:
-            raise DataFormatError(path, "empty table")
-        header = [c.strip() for c in rows[0]]
+            raise DataFormatError(path, "empty table", line=1)
+        header = [c.strip() for c in rows[0][1]]
         body = rows[1:]
     else:
         raise DataFormatError(path, f"unsupported table type {suffix!r} (use .csv or .xlsx)")
     records = []
-    for number, row in enumerate(body, start=2):
-        if len(row) > len(header):
+    for number, row in body:
+        if check_widths and len(row) != len(header) and not (suffix in (".xlsx", ".xlsm") and len(row) < len(header)):
             raise DataFormatError(path, f"{len(row)} cells but {len(header)} column names", line=number)
         record = dict(zip(header, row))
         record["__line__"] = number
@@ -207,7 +216,7 @@ def table_schema(path: str | Path) -> ColumnMapping | None:
     """The known subject-table schema of the table at ``path`` (.csv, .tsv, .txt, .xlsx), or None when its header
     matches none, or it is not a table."""
     try:
-        header, _ = _read_rows(Path(path))
+        header, _ = _read_rows(Path(path), check_widths=False)   # the header decides; reading checks the rows
         return detect_mapping(header)
     except DataFormatError:
         return None
@@ -265,8 +274,10 @@ def read_subject_table(path: str | Path, mapping: str | ColumnMapping = "auto") 
         extra = {k: v for k, v in record.items() if k not in used and _text(v) is not None}
         try:
             profiles[subject] = Profile(subject_id=subject, injuries=tuple(injuries), extra=extra, **values)
-        except ValueError as error:
-            raise DataFormatError(path, str(error), line=line) from None
+        except ValueError as error:   # a value outside its range (biomotion.profile.RANGES): name its column
+            name = getattr(error, "field", None)
+            column = mapping.fields[name][0] if name in mapping.fields else name
+            raise DataFormatError(path, str(error), line=line, field=column) from None
     if not profiles:
         raise DataFormatError(path, "no subject rows")
     return profiles

@@ -4,6 +4,11 @@ Layout: ``PathFileType`` line; a line of keys (``DataRate CameraRate NumFrames N
 their values; a line ``Frame# Time <marker> <tab> <tab> <marker> ...``; a line ``X1 Y1 Z1 X2 ...``; then one row
 per frame. Missing samples are empty fields or NaN. Units (``mm``, ``cm``, ``m``) are converted to metres here.
 
+Every data row must hold exactly ``2 + 3 x NumMarkers`` tab-separated fields (trailing empty fields beyond them
+are ignored): a row with fewer is refused, naming its line and both counts, since a value left out (rather than
+left empty) would shift every later value into the wrong marker. Infinite values are refused too (NaN and empty
+fields are the format's gaps).
+
 Parsing the numbers is most of the cost of reading (about 0.3 us a number with numpy's C parser: 0.13 s for a
 4500-frame, 32-marker Fukuchi trial), so a ``time_range`` reads only the times of every row and parses the rows
 inside the window: an IK setup's window of 1057 of those 4500 frames reads in 0.045 s instead of 0.14 s.
@@ -28,10 +33,16 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
     ``time_range`` (start, end) in seconds keeps the frames with ``start <= t <= end`` (as `Markers.slice` and
     OpenSim's ``time_range``), parsing only those rows; the header and every row's time are still checked."""
     path = Path(path)
+    if path.is_dir():
+        raise DataFormatError(path, "is a directory, not a TRC file")
     try:
         lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except FileNotFoundError:
+        raise DataFormatError(path, "no such file") from None
     except OSError as error:
         raise DataFormatError(path, f"cannot read: {error.strerror}") from None
+    if not "".join(lines).strip():
+        raise DataFormatError(path, "empty file", line=1)
     if len(lines) < 5:
         raise DataFormatError(path, f"only {len(lines)} lines: a TRC file has 5 header lines then data")
     if not lines[0].startswith("PathFileType"):
@@ -59,7 +70,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
     if len(names) != declared_markers:
         raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}",
                               line=4)
-    body = [text.rstrip() for text in lines[5:]]
+    body = lines[5:]
     numbers = [number + 6 for number, text in enumerate(body) if text.strip()]
     if not numbers:
         raise DataFormatError(path, "no data rows", line=6)
@@ -75,6 +86,11 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
                                         f"{times[0]}-{times[-1]} s)", field="time_range")
         numbers = [numbers[k] for k in keep]
     data = _data_rows(path, [body[number - 6] for number in numbers], numbers, 2 + 3 * len(names), len(names))
+    infinite = np.isinf(data[:, 2:])
+    if infinite.any():
+        row, column = (int(i) for i in np.argwhere(infinite)[0])
+        raise DataFormatError(path, f"infinite value {data[row, 2 + column]} (a missing sample is an empty field "
+                                    "or NaN)", line=numbers[row], field=f"{names[column // 3]}.{'XYZ'[column % 3]}")
     times = data[:, 1]
     if time_range is None:   # a window's times were checked, over the whole file, by `_times`
         _check_times(path, times, numbers)
@@ -113,30 +129,33 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
     """The data ``rows`` (text, from file lines ``numbers``) as floats [frames, width], NaN for empty fields.
 
     Full rows go through numpy's C parser at once (2.5x faster than field by field on a 4500-frame, 32-marker
-    file); a file with short rows (trailing markers left out), empty fields or a bad token takes the field-by-field
-    path, which pads the rows and names the line of a bad token."""
+    file); a file with empty fields, trailing tabs or a bad token takes the field-by-field path, which checks every
+    row's field count and names the line of a short row, a long one or a bad token."""
     try:
-        data = np.loadtxt(rows, delimiter="\t", dtype=float, ndmin=2)
-        if data.shape == (len(numbers), width):
+        data = np.loadtxt([text.rstrip() for text in rows], delimiter="\t", dtype=float, ndmin=2)
+        if data.shape == (len(numbers), width):   # a stripped row only loses empty fields: each has >= width
             return data
     except ValueError:
         pass
+    expected = f"expected {width} (frame, time and 3 x {markers} markers)"
     table_rows = []
     for text, number in zip(rows, numbers):
         fields = text.split("\t")
-        if len(fields) > width:
-            raise DataFormatError(path, f"{len(fields)} fields, expected {width} (2 + 3 x {markers} markers)",
-                                  line=number)
-        table_rows.append(fields + [""] * (width - len(fields)))
+        if len(fields) > width and any(field.strip() for field in fields[width:]):
+            raise DataFormatError(path, f"{len(fields)} fields, {expected}", line=number)
+        if len(fields) < width:
+            raise DataFormatError(path, f"{len(fields)} fields, {expected}: a value is missing, so the values "
+                                        "after it would land in the wrong columns (leave a missing sample as an "
+                                        "empty field, keeping its tab)", line=number)
+        table_rows.append([field.strip() or "nan" for field in fields[:width]])
     table = np.array(table_rows, dtype=object)
-    table[table == ""] = "nan"
     try:
         return table.astype(float)
     except ValueError:
         for fields, number in zip(table_rows, numbers):
             for token in fields:
                 try:
-                    float(token or "nan")
+                    float(token)
                 except ValueError:
                     raise DataFormatError(path, f"not a number: {token!r}", line=number) from None
         raise

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.errors import DataFormatError
+from biomotion.io.xml import parse_tree
 
 
 def read_vtp(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -27,14 +28,7 @@ def read_vtp(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     made of polygons: a file holding strips is refused; vertex and line cells are ignored.
     """
     path = Path(path)
-    try:
-        root = ET.parse(path).getroot()
-    except FileNotFoundError:
-        raise DataFormatError(path, "no such file") from None
-    except ET.ParseError as error:
-        raise DataFormatError(path, f"not well-formed XML ({error})", line=error.position[0]) from None
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read: {error}") from None
+    root = parse_tree(path).getroot()   # DataFormatError for a missing, malformed or DOCTYPE-bearing file
     if root.tag != "VTKFile" or root.get("type") != "PolyData":
         raise DataFormatError(path, f"not a VTK PolyData file (root <{root.tag} type={root.get('type')!r}>)",
                               field="VTKFile")

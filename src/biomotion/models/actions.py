@@ -16,6 +16,13 @@ a label the generator knows:
    ("sprint" is nearer "run" than any label text), and so are a few plain descriptions of the actions whose names are
    lab jargon (`ACTION_DESCRIPTIONS`: "static" is "standing still", "sit-to-stand" "getting up from a chair").
 
+A text that resembles no label is refused (`ConfigError` listing the closest known actions) rather than turned into
+whatever label scores highest: the best cosine similarity must reach `MIN_SIMILARITY`, and `UNKNOWN_WORD_SIMILARITY`
+where none of the text's words is a whole word of the encoder's vocabulary (keyboard mashing such as "asdfgh",
+whose sub-word pieces score up to 0.38 against the shipped labels). The floors guard against nonsense, not against
+every unrelated real word: a cosine similarity cannot tell "blah" (0.49 against the full-body vocabulary's "bye")
+from a loose paraphrase, so an inexact match is also reported with its score (`notes`).
+
 A speed the text states is kept even where the matched action has no speed in the vocabulary; a text without a
 speed gives ``speed=None`` (masked in the conditioning); `ActionVocabulary.resolve` fills in a training speed where
 a caller wants one: the lower or upper quartile of the label's training speeds for a text that says how fast
@@ -65,9 +72,16 @@ ACTION_DESCRIPTIONS: dict[str, tuple[str, ...]] = {
 }
 """Plain descriptions of actions whose names are lab jargon, compared with a request as the action names are
 (each standing for its action's plainest label) where the vocabulary has the action."""
-MIN_SIMILARITY = 0.3
-"""Cosine similarity below which no vocabulary label is taken to match a text (all-MiniLM-L6-v2 scores of
-unrelated short sentences are mostly below 0.2)."""
+MIN_SIMILARITY = 0.35
+"""Cosine similarity below which no vocabulary label is taken to match a text. Measured with all-MiniLM-L6-v2
+against the lab vocabulary and the shipped full-body one: keyboard strings score 0.17-0.31 against the lab labels
+("asdfgh" 0.30, "qwerty zxcv" 0.25) and up to 0.38 against the full-body ones; the least similar request the
+tests accept, "sprint", scores 0.37 (lab) and 0.40 (full body), "climb stairs" 0.47."""
+UNKNOWN_WORD_SIMILARITY = 0.45
+"""The floor for a text none of whose words (two letters or more) the encoder's vocabulary holds whole: its score
+comes from sub-word pieces ("aaaa" 0.38 against the full-body "respond"). Rare real words still pass where they
+match well ("jog" 0.62, "squatting" 0.93)."""
+_WORD = re.compile(r"[a-z]{2,}")
 
 
 @dataclass(frozen=True)
@@ -282,15 +296,40 @@ class ActionVocabulary:
 
         Raises:
             ConfigError: empty text, several speeds, a speed outside (0, 12.5] m/s, or no label with cosine
-                similarity at least ``min_similarity``.
+                similarity at least ``min_similarity`` (at least `UNKNOWN_WORD_SIMILARITY` for a text with no
+                word the encoder knows whole); that message lists the closest known actions with their scores.
         """
         mention, rest = self._split(text)
         speed = None if mention is None else round(mention.value, 6)
         entry, score = self._best(rest, with_speed=mention is not None)
-        if score < min_similarity:
-            raise ConfigError(f"no known action resembles {text!r} (best: {entry.prompt!r}, cosine similarity "
-                              f"{score:.2f} < {min_similarity}); known actions: {', '.join(self.actions)}")
+        floor = min_similarity
+        if min_similarity <= score < max(min_similarity, UNKNOWN_WORD_SIMILARITY) and not self._knows_a_word(rest):
+            floor = UNKNOWN_WORD_SIMILARITY
+        if score < floor:
+            why = "" if floor == min_similarity else ", a text with no word the encoder knows whole"
+            closest = ", ".join(f"{action} ({value:.2f})" for action, value in self.closest_actions(rest))
+            raise ConfigError(f"no known action resembles {text!r}: its best match, {entry.prompt!r}, has cosine "
+                              f"similarity {score:.2f}, below the floor {floor:g}{why}; closest known actions: "
+                              f"{closest} (`biomotion generate --list-actions` lists all {len(self.actions)})")
         return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
+
+    def closest_actions(self, text: str, count: int = 5) -> list[tuple[str, float]]:
+        """The ``count`` actions most similar to a speed-free ``text``, each with its best cosine similarity over
+        its label texts, its name and its `ACTION_DESCRIPTIONS`, most similar first."""
+        best: dict[str, float] = {}
+        for entry, value in zip(self._entries, self.similarities(text)):
+            best[entry.action] = max(best.get(entry.action, -1.0), float(value))
+        names = self._action_names()
+        if self._name_embeddings is None:
+            self._name_embeddings = _encode(sentence_encoder(), [name for _, name in names])
+        for (action, _), value in zip(names, self._name_embeddings @ _encode(sentence_encoder(), [text])[0]):
+            best[action] = max(best[action], float(value))
+        return sorted(best.items(), key=lambda item: -item[1])[:count]
+
+    @staticmethod
+    def _knows_a_word(text: str) -> bool:
+        """Whether a word of ``text`` (two letters or more) is a whole word of the encoder's vocabulary."""
+        return any(word in _encoder_words() for word in _WORD.findall(text.lower()))
 
     def resolve(self, text: str, *, min_similarity: float = MIN_SIMILARITY) -> ActionRequest:
         """`parse`, and where the text states no speed, a training speed of the label where it has any: the
@@ -383,6 +422,12 @@ def _label_text(entry: _Entry, speed: float | None) -> str:
 def _encode(encoder, texts: list[str]) -> np.ndarray:
     return np.asarray(encoder.encode(texts, normalize_embeddings=True, convert_to_numpy=True,
                                      show_progress_bar=False), dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=1)
+def _encoder_words() -> frozenset[str]:
+    """The whole words (no ``##`` continuation pieces) of the sentence encoder's WordPiece vocabulary."""
+    return frozenset(word for word in sentence_encoder().tokenizer.get_vocab() if not word.startswith("##"))
 
 
 @functools.lru_cache(maxsize=1)

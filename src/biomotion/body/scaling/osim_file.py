@@ -24,10 +24,12 @@ import torch
 
 from biomotion.body.functions import build_function
 from biomotion.body.kinematics import forward_kinematics
-from biomotion.body.model import BodyModel, body_fixed_xyz
+from biomotion.body.model import BodyModel
+from biomotion.body.spatial import body_fixed_xyz
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io import osim
 from biomotion.io.atomic import atomic_write
+from biomotion.io.xml import parse_tree
 
 _F64 = torch.float64
 
@@ -224,12 +226,7 @@ def write_scaled_osim(source: str | Path, destination: str | Path, result: Scale
     from) edited as OpenSim's scaling edits it (see the module docstring), with ``result``'s factors, inertial
     properties and placed markers."""
     source = Path(source)
-    try:
-        tree = ET.parse(source)
-    except ET.ParseError as error:
-        raise DataFormatError(source, f"not well-formed XML: {error}", line=error.position[0]) from None
-    except OSError as error:
-        raise DataFormatError(source, f"cannot read: {error.strerror}") from None
+    tree = parse_tree(source)   # DataFormatError for a missing, malformed or DOCTYPE-bearing file
     root = tree.getroot()
     model_elem = root.find("Model")
     if model_elem is None:
