@@ -26,7 +26,8 @@ from pathlib import Path
 import torch
 
 from biomotion.body.kinematics import torch_threads
-from biomotion.generation.command import GENERATION_THREADS, read_profile
+from biomotion.generation.request import GENERATION_THREADS
+from biomotion.io.profiles import read_profile
 from biomotion.generation.pipeline import Generator
 from biomotion.io.atomic import atomic_write
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from biomotion.body.kinematics import torch_threads
 from biomotion.evaluation.generation import muscle_violation_share, speed_errors
-from biomotion.generation.command import read_profile
+from biomotion.io.profiles import read_profile
 from biomotion.generation.outputs import physics_metrics
 from biomotion.generation.pipeline import Generator
 from biomotion.guidance.planting import LEG_COORDINATES, PlantingConfig

@@ -97,7 +97,7 @@ def main() -> None:
 
 def generated_figure(root: Path, out: Path, scratch: Path) -> None:
     """Joint angles of `biomotion generate` for the example profile running at 3.5 m/s (seed 0)."""
-    from biomotion.generation.command import generate_command
+    from biomotion.generation.request import generate as generate_command
 
     result = generate_command(action="running at 3.5 m/s", out=scratch / "generated", data_root=root,
                               profile_file=Path("examples/runner_52_acl.yaml"), seconds=3.0)

@@ -1,37 +1,55 @@
 """biomotion: personalized, biomechanically plausible human motion.
 
 Read captured motion, fit it to a subject-scaled OpenSim model, infer what the body did, and generate new motion
-for a given person and action. ``import biomotion as bm``; ``bm.read(path)`` reads any supported file,
-``bm.BodyModel.from_osim(path)`` loads a model and ``bm.analyze(motion, model, forces)`` runs the analysis.
-Heavy parts (torch, the body model) load on first use.
+for a given person and action::
+
+    import biomotion as bm
+
+    trial = bm.read_trial("walk.trc")                       # markers (.trc/.c3d), coordinates (.mot), BVH
+    model = bm.BodyModel.from_osim("subject_scaled.osim")
+    result = bm.analyze_trial(trial, model=model, forces=bm.read("walk_grf.mot"))
+    result.angles, result.torques, result.ground_reaction, result.dynamics.zmp
+
+Every name in ``__all__`` is the Python call behind a ``biomotion`` command; each is imported on first use, so
+``import biomotion`` stays light (no torch until something needs it).
 """
 
 from importlib import import_module
 from typing import Any
 
-from biomotion.errors import BiomotionError, ConfigError, DataFormatError, ModelError
-from biomotion.motion import GroundReaction, Markers, Motion
-from biomotion.profile import InjuryRecord, Profile
-from biomotion.trial import Labels, Trial
-
 __version__ = "0.1.0"
 
-_LAZY = {
-    "read": ("biomotion.io.formats", "read_any"),
-    "BodyModel": ("biomotion.body.model", "BodyModel"),
-    "analyze": ("biomotion.analysis", "analyze"),
-    "solve_ik": ("biomotion.ik.markers", "solve_ik"),
-    "DatasetCache": ("biomotion.data.registry", "DatasetCache"),
+_API = {
+    # value types and errors
+    "Motion": "biomotion.motion", "Markers": "biomotion.motion", "GroundReaction": "biomotion.motion",
+    "Trial": "biomotion.trial", "Labels": "biomotion.trial", "Profile": "biomotion.profile",
+    "InjuryRecord": "biomotion.profile", "BiomotionError": "biomotion.errors", "DataFormatError": "biomotion.errors",
+    "ModelError": "biomotion.errors", "ConfigError": "biomotion.errors",
+    # reading and writing (biomotion convert, inspect)
+    "read": "biomotion.io.formats", "read_trial": "biomotion.io.formats", "describe": "biomotion.io.formats",
+    "convert": "biomotion.analysis.convert", "read_profile": "biomotion.io.profiles",
+    # the body and the lab chain (biomotion scale, retarget, analyze)
+    "BodyModel": "biomotion.body.model", "read_ik_setup": "biomotion.io.setup", "solve_ik": "biomotion.ik.markers", "calibrate": "biomotion.ik.calibrate",
+    "retarget": "biomotion.ik.retarget", "analyze": "biomotion.analysis.chain",
+    "analyze_trial": "biomotion.analysis.trial", "TrialAnalysis": "biomotion.analysis.trial",
+    # data, generation, evaluation, validation, viewing
+    "DatasetCache": "biomotion.data.registry", "build_cache": "biomotion.data.registry",
+    "generate": "biomotion.generation.request", "evaluate": "biomotion.evaluation.harness",
+    "eval_generation": "biomotion.evaluation.generation", "run_validation": "biomotion.validation.run",
+    "view": "biomotion.viz.viewer",
 }
+_RENAMED = {"read": "read_any", "view": "view_command"}
 
-__all__ = [
-    "BiomotionError", "ConfigError", "DataFormatError", "ModelError",
-    "GroundReaction", "Markers", "Motion", "InjuryRecord", "Profile", "Labels", "Trial", "__version__", *_LAZY,
-]
+__all__ = ["__version__", *_API]
 
 
 def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        module, attribute = _LAZY[name]
-        return getattr(import_module(module), attribute)
+    if name in _API:
+        value = getattr(import_module(_API[name]), _RENAMED.get(name, name))
+        globals()[name] = value
+        return value
     raise AttributeError(f"module 'biomotion' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

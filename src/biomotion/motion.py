@@ -11,8 +11,6 @@ from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
-import scipy.interpolate
-import scipy.signal
 
 from biomotion.errors import DataFormatError
 
@@ -44,6 +42,8 @@ def lowpass(values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, a
     NaN gaps are bridged by linear interpolation for filtering and put back afterwards, so an occluded marker
     stays occluded.
     """
+    import scipy.signal
+
     if not 0 < cutoff_hz < rate / 2:
         raise ValueError(f"cutoff {cutoff_hz} Hz must lie in (0, {rate / 2}) for data sampled at {rate} Hz")
     values = np.asarray(values, dtype=float)
@@ -76,6 +76,8 @@ def _resample(times: np.ndarray, values: np.ndarray, new_times: np.ndarray, rate
 
     A sample of the result is NaN where its nearest source sample was NaN.
     """
+    import scipy.interpolate
+
     old_rate = _uniform_rate(times)
     flat = values.reshape(values.shape[0], -1).astype(float)
     gaps = ~np.isfinite(flat)
@@ -259,6 +261,8 @@ class Motion(_Series):
         OpenSim's tools differentiate coordinates the same way (quintic GCV splines, Woltring 1986) after their
         low-pass filter; call `filtered` first for noisy data.
         """
+        import scipy.interpolate
+
         degree = min(5, self.n_frames - 1)
         degree -= 1 - degree % 2  # odd degrees only (1, 3, 5)
         if self.n_frames < 2:
@@ -273,6 +277,8 @@ class Motion(_Series):
         Butterworth low-pass, quintic spline through the padded filtered signal, then drop the padding — so the
         derivatives have no spline end effects inside the trial (opensim-core InverseDynamicsTool::run,
         Signal::Pad, Signal::LowpassIIR)."""
+        import scipy.interpolate
+
         n = self.n_frames
         pad = n // 2
         if pad < 2:

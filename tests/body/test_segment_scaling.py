@@ -16,7 +16,8 @@ from tests.conftest import data_path
 
 from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.scaling.stature import scale_to_person, standing_height
-from biomotion.body.scaling.segments import (ANSUR_MEN, SEGMENTS, body_factors, fit_lines, segment_factors,
+from biomotion.training.fit_segments import fit_lines
+from biomotion.body.scaling.segments import (ANSUR_MEN, SEGMENTS, body_factors, segment_factors,
                                             shipped_lines)
 from biomotion.errors import ConfigError
 from biomotion.io.tables import read_subject_table

@@ -58,12 +58,12 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--profile", "no_such_profile.yaml"], "profile file not found: no_such_profile.yaml"),
+    (["--profile", "no_such_profile.yaml"], "no_such_profile.yaml: --profile is not a file"),
     (["--subject-table", "x.csv"], "--subject-table and --subject-id go together"),
-    (["--threads", "0"], "--threads must be at least 1, got 0"),
+    (["--threads", "0"], "argument --threads: 0: must be at least 1"),
     (["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
      "--reference-action given 2 times for 1 --reference clips"),
-    (["--seconds", "0.1"], "--seconds 0.1 is 3 frames at 30 Hz; the physics metrics need 4"),
+    (["--seconds", "0.1"], "argument --seconds: 0.1: must be at least 0.5"),
     (["--smooth", "20"], "--smooth 20 Hz: the cutoff must lie between 0 and 15 Hz"),
     (["--smooth", "6", "--no-guidance"], "--smooth filters the guided motion: it has no effect with --no-guidance"),
 ])

@@ -341,7 +341,7 @@ def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_ro
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
     cache_folder = tmp_path / "cache"
     build_cache(data_root, cache_folder, sources=["hamner"], progress=False)
-    assert main(["muscles", "label", "--cache", str(cache_folder), "--data-root", str(data_root), "--quiet"]) == 0
+    assert main(["train", "labels", "--cache", str(cache_folder), "--data-root", str(data_root), "--quiet"]) == 0
     assert "labelled 6 clips" in capsys.readouterr().out
     labels = SurrogateLabels.load(cache_folder / "surrogate_labels.safetensors")
     cache = DatasetCache(cache_folder)

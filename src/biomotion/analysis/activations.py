@@ -81,7 +81,7 @@ def check_paths(paths: MusclePaths, label: str, model_path: str | Path, coordina
     if recorded != hashlib.sha256(Path(model_path).read_bytes()).hexdigest():
         return PathCheck(label, source, False,
                          f"{label} was fitted on another model file ({source}); a differently scaled model has other "
-                         f"moment arms: fit paths for this one with `python -m biomotion.training.fit_paths --model "
+                         f"moment arms: fit paths for this one with `biomotion train paths --model "
                          f"{model_path} --out PATHS.safetensors`")
     return PathCheck(label, source, True, None)
 

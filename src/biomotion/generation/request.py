@@ -1,9 +1,7 @@
-"""`biomotion generate`: read the person and the request, generate, write the outputs.
+"""`generate`: one request end to end — the person (`biomotion.io.profiles.person`), the action in free text, the
+shipped bundle that knows it, sampling and guidance, and every output written (`biomotion.generation.outputs`).
 
-A profile file is YAML or JSON with `biomotion.profile.Profile` fields (``age``, ``sex``, ``height`` m,
-``mass`` kg, ``sport``, ``level``, ``experience_years``, ``injuries`` as a list of ``{location, diagnosis, date}``);
-absent fields are masked by the generator. A subject table is any table `biomotion.io.tables` reads (Fukuchi,
-Motus, Schreiber, simple CSV).
+This is ``biomotion generate`` without its argument parsing and printing.
 """
 
 from __future__ import annotations
@@ -13,8 +11,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from biomotion.errors import ConfigError, DataFormatError
-from biomotion.profile import Profile
+from biomotion.errors import ConfigError
+from biomotion.io.profiles import person
 
 #: torch threads for sampling and guidance: the decoder's and the surrogate's convolutions gain a little from a
 #: second core (3 s guided clip, example profile, this shared 2-core machine, `python benchmarks/generation.py`:
@@ -23,50 +21,7 @@ from biomotion.profile import Profile
 GENERATION_THREADS = 2
 
 
-def read_profile(path: str | Path) -> Profile:
-    """A `Profile` from a YAML or JSON file; errors name the file and the field."""
-    import yaml
-
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"profile file not found: {path}") from None
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
-                              line=None if mark is None else mark.line + 1) from None
-    if not isinstance(data, dict):
-        raise DataFormatError(path, "a profile file holds a mapping of profile fields (age, sex, height, ...)")
-    try:
-        return Profile.from_dict(data)
-    except (TypeError, ValueError) as error:
-        raise DataFormatError(path, f"invalid profile: {error}") from None
-
-
-def subject_profile(table: str | Path, subject_id: str) -> Profile:
-    """The row ``subject_id`` of a subject table."""
-    from biomotion.io.tables import read_subject_table
-
-    profiles = read_subject_table(table)
-    if subject_id not in profiles:
-        shown = ", ".join(sorted(profiles)[:10])
-        raise ConfigError(f"{table}: no subject {subject_id!r} (the table has {len(profiles)}: {shown} ...)")
-    return profiles[subject_id]
-
-
-def person(profile_file: Path | None, subject_table: Path | None, subject_id: str | None) -> Profile | None:
-    """The person the options name: ``--profile FILE``, or ``--subject-table CSV --subject-id ID``, or None."""
-    if profile_file is not None and subject_table is not None:
-        raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
-    if (subject_table is None) != (subject_id is None):
-        raise ConfigError("--subject-table and --subject-id go together")
-    if profile_file is not None:
-        return read_profile(profile_file)
-    return subject_profile(subject_table, subject_id) if subject_table is not None else None
-
-
-def generate_command(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
+def generate(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
                      profile_file: Path | None = None, subject_table: Path | None = None,
                      subject_id: str | None = None, references: Sequence[Path] = (),
                      reference_actions: Sequence[str] = (), seconds: float = 3.0,

@@ -29,7 +29,7 @@ from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion, write_motion
 from biomotion.io.tables import write_csv
 from biomotion.io.trc import read_trc
-from biomotion.motion import Markers
+from biomotion.motion import Markers, Motion
 
 MARKER_SUFFIXES = (".trc", ".c3d")
 SKELETON_SUFFIXES = (".bvh", ".bvh.gz")
@@ -97,8 +97,36 @@ def _summary(name: str, frames: int, errors: np.ndarray, output: str) -> TrialSu
                         int((~visible).sum()), output)
 
 
-def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
-                      filter_hz: float | None, setup: IKSetup | None) -> TrialSummary:
+@dataclass(frozen=True)
+class Retargeted:
+    """One trial's coordinates on a model and how well they fit its captured points.
+
+    Attributes:
+        motion: coordinates of ``model`` (markers: the IK solution; skeletons: filtered, in range, feet on y = 0).
+        model: the model solved on: the given one for markers, the generic one scaled to the skeleton otherwise.
+        errors: [T, P] distance of each tracked point from its model counterpart (m), NaN where not seen.
+        factors: body -> (sx, sy, sz) for a skeleton (the scaling it was fitted with); None for markers.
+    """
+    motion: Motion
+    model: BodyModel
+    errors: np.ndarray
+    factors: dict[str, tuple[float, float, float]] | None = None
+
+    @property
+    def point_kind(self) -> str:
+        """"marker" or "joint centre": what the errors measure."""
+        return "marker" if self.factors is None else "joint centre"
+
+    def summary(self, name: str, output: str) -> TrialSummary:
+        """The ``summary.csv`` row of this trial."""
+        return _summary(name, self.motion.n_frames, self.errors, output)
+
+
+def retarget_markers(markers: Markers, model: BodyModel, *, weights: Mapping[str, float] | None = None,
+                     filter_hz: float | None = None, setup: IKSetup | None = None) -> Retargeted:
+    """Inverse kinematics of ``markers`` on ``model`` (the subject's scaled model), after an optional
+    ``filter_hz`` low-pass of the markers; an OpenSim IK ``setup`` adds its coordinate tasks (``from_file`` values
+    from its coordinate file) and its time range, as OpenSim's InverseKinematicsTool does."""
     tasks, data, time_range = (), None, None
     if setup is not None:
         tasks, time_range = setup.coordinate_tasks, setup.time_range
@@ -108,23 +136,43 @@ def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weight
                 raise ConfigError(f"{setup.path}: its coordinate tasks read values from a coordinate file, and "
                                   f"{source or 'none'} is not there")
             data = read_motion(source)
-    # the filter runs over the whole capture (its edges are not the window's), so only unfiltered reads are cut
-    markers = read_markers(path, None if filter_hz else time_range)
     if filter_hz:
         markers = markers.filtered(filter_hz)
     result = solve_ik(model, markers, weights=dict(weights) if weights else None, coordinate_tasks=tasks,
                       coordinate_data=data, time_range=time_range)
+    return Retargeted(result.motion, model, result.errors)
+
+
+def retarget_joint_centres(source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *,
+                           filter_hz: float | None = None) -> Retargeted:
+    """``generic`` scaled to the skeleton whose joint centres ``source`` holds and fitted to them
+    (`biomotion.ik.skeleton.retarget_skeleton`); ``filter_hz`` (default 10) low-passes the coordinates."""
+    result = retarget_skeleton(source, generic, joint_map, cutoff_hz=FILTER_HZ if filter_hz is None else filter_hz)
+    return Retargeted(result.motion, result.model, result.errors, dict(result.factors))
+
+
+def read_capture(path: Path, time_range: tuple[float, float] | None = None) -> Markers:
+    """The captured points of a trial file: markers (``.trc``, ``.c3d``; only ``time_range`` when given) or a
+    skeleton's joint centres (``.bvh``, ``.bvh.gz``)."""
+    return joint_positions(read_bvh(path)) if is_skeleton(path) else read_markers(path, time_range)
+
+
+def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
+                      filter_hz: float | None, setup: IKSetup | None) -> TrialSummary:
+    # the filter runs over the whole capture (its edges are not the window's), so only unfiltered reads are cut
+    time_range = setup.time_range if setup is not None else None
+    markers = read_markers(path, None if filter_hz else time_range)
+    result = retarget_markers(markers, model, weights=weights, filter_hz=filter_hz, setup=setup)
     output = write_motion(out / f"{name}.mot", result.motion)
-    return _summary(name, result.motion.n_frames, result.errors, output.name)
+    return result.summary(name, output.name)
 
 
 def _retarget_skeleton(path: Path, model: BodyModel, model_path: Path, out: Path, name: str,
                        joint_map: JointMap | None, filter_hz: float | None) -> TrialSummary:
-    source = joint_positions(read_bvh(path)) if is_skeleton(path) else read_markers(path)
-    result = retarget_skeleton(source, model, joint_map, cutoff_hz=FILTER_HZ if filter_hz is None else filter_hz)
+    result = retarget_joint_centres(read_capture(path), model, joint_map, filter_hz=filter_hz)
     write_scaled_model(model_path, out / f"{name}.osim", model, result.factors, name=name)
     output = write_motion(out / f"{name}.mot", result.motion)
-    return _summary(name, result.motion.n_frames, result.errors, output.name)
+    return result.summary(name, output.name)
 
 
 def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: Mapping[str, float] | None = None,

@@ -11,8 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from biomotion.errors import ConfigError
+from biomotion.errors import ConfigError, DataFormatError
 from biomotion.motion import GroundReaction, Markers, Motion
+from biomotion.trial import Trial
 
 
 def suffix_of(path: Path) -> str:
@@ -49,16 +50,43 @@ def read_any(path: str | Path) -> Any:
     raise ConfigError(f"{path}: unsupported format {suffix!r} (supported: .mot .sto .trc .c3d .bvh .bvh.gz .csv)")
 
 
+SKELETON_SUFFIXES = (".bvh", ".bvh.gz")
+
+
+def is_skeleton(path: str | Path) -> bool:
+    """Whether the file is a skeleton (BVH): its points are joint centres, not markers."""
+    return suffix_of(Path(path)) in SKELETON_SUFFIXES
+
+
+def read_trial(path: str | Path, time_range: tuple[float, float] | None = None) -> Trial:
+    """Any motion file as a `Trial`: coordinates (``.mot``/``.sto``/``.csv``) as ``motion``; markers (``.trc``,
+    ``.c3d`` with its force plates) as ``markers``; a skeleton (``.bvh``/``.bvh.gz``) as its joint centres in
+    ``markers`` (End Sites left out). ``time_range`` (s) keeps only the frames inside it."""
+    path = Path(path)
+    data = read_any(path)
+    if isinstance(data, Trial):
+        trial = data
+    elif isinstance(data, Motion):
+        trial = Trial(motion=data, source=path)
+    elif isinstance(data, Markers):
+        trial = Trial(markers=data, source=path)
+    elif hasattr(data, "skeleton"):
+        trial = Trial(markers=data.to_markers(end_sites=False), source=path)
+    else:
+        raise DataFormatError(path, f"holds {type(data).__name__}, not a motion: nothing to analyse")
+    return trial if time_range is None else trial.slice(*time_range)
+
+
 def _describe_model(path: Path) -> dict[str, Any]:
     """`biomotion.io.osim.model_summary` and the model's muscles: how many of each class its ForceSet holds, and
     how many of them biomotion's static optimization can use (`biomotion.io.osim.MUSCLE_TYPES`)."""
     import collections
-    import xml.etree.ElementTree as ET
 
     from biomotion.io.osim import MUSCLE_TYPES, model_summary, read_osim
+    from biomotion.io.xml import parse_tree
 
     summary = model_summary(read_osim(path))
-    forces = [force for force_set in ET.parse(path).getroot().iter("ForceSet")
+    forces = [force for force_set in parse_tree(path).getroot().iter("ForceSet")
               for objects in force_set.findall("objects") for force in objects]
     kinds = collections.Counter(force.tag for force in forces if "Muscle" in force.tag)
     summary["muscles"] = sum(kinds.values())

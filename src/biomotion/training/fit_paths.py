@@ -1,16 +1,16 @@
 """Build step: fit polynomial path functions to OpenSim's muscle geometry and write them as .safetensors.
 
-    python -m biomotion.training.fit_paths --model MODEL.osim --out FILE.safetensors [--samples N] [--seed S]
-                                          [--range COORD=LO:HI ...]
+    biomotion train paths --model MODEL.osim --out FILE.safetensors [--samples N] [--seed S]
+                          [--range COORD=LO:HI ...]
 
 The shipped files were made with the defaults (``--samples 6000 --seed 0``) from the data root ``../shared/data``;
 Rajagopal2016 in its own coordinate ranges, gait2392 (whose model ranges are far wider than a person moves) in
 Rajagopal2016's ranges, rounded to 4 decimals::
 
-    OMP_NUM_THREADS=1 python -m biomotion.training.fit_paths \
+    OMP_NUM_THREADS=1 biomotion train paths \
         --model ../shared/data/opensim-models/Models/Rajagopal/Rajagopal2016.osim \
         --out src/biomotion/muscles/paths/rajagopal2016.safetensors
-    OMP_NUM_THREADS=1 python -m biomotion.training.fit_paths \
+    OMP_NUM_THREADS=1 biomotion train paths \
         --model ../shared/data/opensim-models/Pipelines/Gait2392_Simbody/OutputReference/subject01_simbody.osim \
         --out src/biomotion/muscles/paths/gait2392_subject01.safetensors \
         --range hip_flexion_r=-0.5236:2.0944 --range hip_adduction_r=-0.8727:0.5236 \
@@ -54,7 +54,6 @@ of the normalised range of a jump, where the gate can pick the wrong side: on Ra
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import math
 import time
@@ -439,7 +438,7 @@ def fit_paths(model_path: str | Path, samples: int = 6000, seed: int = 0,
                        torch.from_numpy(sampled), info)
 
 
-def _parse_range(text: str) -> tuple[str, tuple[float, float]]:
+def parse_range(text: str) -> tuple[str, tuple[float, float]]:
     try:
         name, bounds = text.split("=")
         low, high = (float(v) for v in bounds.split(":"))
@@ -448,24 +447,3 @@ def _parse_range(text: str) -> tuple[str, tuple[float, float]]:
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
         raise ConfigError(f"--range {text!r}: need finite LO < HI")
     return name, (low, high)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m biomotion.training.fit_paths", description=__doc__.split("\n")[0])
-    parser.add_argument("--model", required=True, help=".osim model")
-    parser.add_argument("--out", required=True, help="output .safetensors")
-    parser.add_argument("--samples", type=int, default=6000, help="training poses (plus 25%% held out)")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--range", action="append", default=[], metavar="COORD=LO:HI",
-                        help="sample COORD in [LO, HI] (rad or m) instead of its model range")
-    args = parser.parse_args(argv)
-    paths = fit_paths(args.model, args.samples, args.seed, dict(_parse_range(r) for r in args.range), log=tqdm.write)
-    paths.save(args.out)
-    info = paths.info
-    print(f"{paths.n_muscles} muscles, {len(paths.groups)} groups; worst held-out moment-arm RMSE "
-          f"{info['worst_held_out_moment_arm_rmse_m'] * 1000:.3f} mm ({info['fit_seconds']} s) -> {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,6 +1,6 @@
 """Train the profile-action prior (with its subject profiler) on tokenized dataset clips; ship weights + card.
 
-    python -m biomotion.training.train_generator --config configs/generator.yaml --cache build/dataset \\
+    biomotion train generator --config configs/generator.yaml --cache build/dataset \\
         --tokenizer checkpoints/tokenizer.safetensors --data-root ../shared/data \\
         --out checkpoints/generator.safetensors [--population] [--minutes N] [--seed N]
 
@@ -25,12 +25,10 @@ the same, proof that the cache and the clip selection are the training run's).
 
 from __future__ import annotations
 
-import argparse
 import copy
 import hashlib
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,13 +36,11 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-import yaml
 from tqdm import tqdm
 
 from biomotion.body.mirror import mirror_coordinates
 from biomotion.data.registry import DatasetCache
-from biomotion.settings import default_data_root
-from biomotion.errors import BiomotionError, ConfigError
+from biomotion.errors import ConfigError
 from biomotion.models.actions import ActionRequest, ActionVocabulary
 from biomotion.models.bundle import GeneratorBundle, action_bounds
 from biomotion.models.conditioning import (
@@ -385,40 +381,3 @@ def _markdown(card: dict) -> str:
             "(val + test splits, unseen subjects)\n\n"
             "| metric (first crop of every clip) | held-out, before | held-out, after | train, after |\n"
             "|---|---|---|---|\n" + rows)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", required=True, type=Path)
-    parser.add_argument("--cache", required=True, type=Path)
-    parser.add_argument("--tokenizer", required=True, type=Path)
-    parser.add_argument("--data-root", default=default_data_root(), type=Path)
-    parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--population", action="store_true", help="train the action-only baseline prior")
-    parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
-    parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--statistics-only", action="store_true",
-                        help="recompute the per-action statistics of the trained --out from --cache, keeping its "
-                             "weights (--tokenizer is then not read)")
-    args = parser.parse_args(argv)
-    try:
-        config = yaml.safe_load(args.config.read_text())
-        given = argv if argv is not None else sys.argv[1:]
-        command = " ".join(["python -m biomotion.training.train_generator", *given])
-        if args.statistics_only:
-            card = refresh_statistics(config, args.cache, args.data_root, args.out, command=command)
-            print(f"{args.out}: statistics recomputed, SHA-256 {card['sha256']}")
-            return 0
-        card = train(config, args.cache, args.tokenizer, args.data_root, args.out, population=args.population,
-                     minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command)
-    except BiomotionError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(json.dumps({"held_out": card["metrics_held_out"], "train": card["metrics_train"]}, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    torch.set_num_threads(1)
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Train the muscle-activation surrogate (`MuscleSurrogate`) on static-optimization labels; write weights + card.
 
-    python -m biomotion.training.train_surrogate --config configs/surrogate.yaml --cache build/dataset \\
+    biomotion train surrogate --config configs/surrogate.yaml --cache build/dataset \\
         --out checkpoints/surrogate.safetensors [--minutes N] [--labels FILE] [--data-root DIR] [--seed N]
 
 Labels come from `biomotion.training.surrogate_labels` (``--labels``, default ``<cache>/surrogate_labels.safetensors``;
@@ -30,11 +30,9 @@ CPU thread.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import math
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -42,12 +40,10 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-import yaml
 from tqdm import tqdm
 
 from biomotion.body.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 from biomotion.data.registry import DatasetCache
-from biomotion.settings import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.data.clips import body_model
 from biomotion.guidance.losses import activation
@@ -388,35 +384,3 @@ def _markdown(card: dict) -> str:
         f"{s['surrogate_forward_ms']} ms forward, {s['surrogate_forward_backward_ms']} ms forward + backward; "
         f"static-optimization solve {s['so_solve_ms']} ms ({s['speedup_vs_so_solve']}x the surrogate), inverse "
         f"dynamics + static optimization {s['inverse_dynamics_plus_so_ms']} ms ({s['speedup_vs_pipeline']}x).\n")
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", required=True, type=Path)
-    parser.add_argument("--cache", required=True, type=Path)
-    parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--labels", type=Path, default=None, help=f"default: <cache>/{DEFAULT_NAME}")
-    parser.add_argument("--data-root", type=Path, default=default_data_root(),
-                        help="holds opensim-models (the Rajagopal model, for labels and the timing)")
-    parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
-    parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads for training")
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
-    try:
-        config = yaml.safe_load(args.config.read_text())
-        given = argv if argv is not None else sys.argv[1:]
-        command = " ".join(["python -m biomotion.training.train_surrogate", *given])
-        card = train(config, args.cache, args.out, data_root=args.data_root, labels_path=args.labels,
-                     minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command)
-    except BiomotionError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(json.dumps({"val": {k: v for k, v in card["metrics_val"].items() if k != "per_muscle_r2"},
-                      "speed_3s_clip": card["speed_3s_clip"]}, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,6 +1,6 @@
 """Train the motion tokenizer (`MotionVQVAE`) on a dataset cache; write safetensors weights and a model card.
 
-    python -m biomotion.training.train_tokenizer --config configs/tokenizer.yaml --cache DIR \\
+    biomotion train tokenizer --config configs/tokenizer.yaml --cache DIR \\
         --out checkpoints/tokenizer.safetensors [--data-root ../shared/data] [--minutes N] [--iterations N] [--seed N]
 
 Optimisation follows PG-BIG Table 4 and the authors' code: AdamW, lr 2e-4 with linear warm-up, step decay
@@ -16,21 +16,16 @@ penetration term of Table 4 is the decoded windows' mean foot depth below the fl
 
 from __future__ import annotations
 
-import argparse
 import hashlib
-import json
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
-import yaml
 from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
-from biomotion.settings import default_data_root
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.training.cards import environment, write_card
 from biomotion.models.foot_contact import FootKinematics
@@ -195,31 +190,3 @@ def _markdown(card: dict) -> str:
             f"clips per split {card['data']['clips_per_split']}\n\n"
             "| val metric | before training | after |\n|---|---|---|\n"
             + "".join(f"| {k} | {card['metrics_val_before'][k]:.4g} | {v:.4g} |\n" for k, v in m.items()))
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", required=True, type=Path)
-    parser.add_argument("--cache", required=True, type=Path)
-    parser.add_argument("--out", required=True, type=Path)
-    parser.add_argument("--data-root", default=default_data_root(), type=Path,
-                        help="folder with opensim-models/ (the canonical body, for foot contact and penetration)")
-    parser.add_argument("--minutes", type=float, default=None, help="stop after this much training time")
-    parser.add_argument("--iterations", type=int, default=None, help="override train.iterations")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    try:
-        config = yaml.safe_load(args.config.read_text())
-        given = argv if argv is not None else sys.argv[1:]
-        command = " ".join(["python -m biomotion.training.train_tokenizer", *given])
-        card = train(config, args.cache, args.out, data_root=args.data_root, minutes=args.minutes,
-                     iterations=args.iterations, seed=args.seed, command=command)
-    except BiomotionError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    print(json.dumps({"before": card["metrics_val_before"], "after": card["metrics_val"]}, indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -83,7 +83,6 @@ from pathlib import Path
 
 import numpy as np
 
-from biomotion.settings import default_data_root
 from biomotion.errors import DataFormatError
 from biomotion.validation.ik import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
 
@@ -606,19 +605,3 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
     out["emg_predictions"] = predictions.info
     out["emg_seconds"] = round(time.perf_counter() - started, 2)
     return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m biomotion.validation.emg [--data-root DIR]``: print `emg_check`'s result as JSON."""
-    import argparse
-    import json
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data-root", type=Path, default=default_data_root())
-    args = parser.parse_args(argv)
-    print(json.dumps(emg_check(args.data_root), indent=1))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -18,24 +18,20 @@ at the model's stature needs no such correspondence. The factor applies to all t
 keep the stature ratio (`biomotion.body.scaling.stature`).
 
 The lines are fitted once from ``anthropometry/ANSUR_II_MALE_Public.csv`` and shipped as ``ansur_segments.json``
-beside this module (``python -m biomotion.body.scaling.segments --data-root ../shared/data`` writes it again; a
+beside this module (``biomotion train segments --data-root ../shared/data`` writes it again; a
 test checks the shipped file against a fresh fit).
 """
 
 from __future__ import annotations
 
-import argparse
-import csv
 import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import numpy as np
 
-from biomotion.errors import ConfigError, DataFormatError
-from biomotion.io.atomic import atomic_write
+from biomotion.errors import ConfigError
 
 LINES_FILE = Path(__file__).with_name("ansur_segments.json")
 ANSUR_MEN = "anthropometry/ANSUR_II_MALE_Public.csv"
@@ -70,29 +66,6 @@ SEGMENTS = (
     SegmentMeasure("hand", "handlength", None, ("hand",)),
 )
 MEASURES = tuple(sorted({m for s in SEGMENTS for m in (s.top, s.bottom) if m is not None}))
-
-
-def fit_lines(ansur_csv: str | Path) -> dict:
-    """Least-squares line ``length = intercept + slope * stature`` (mm) of every segment over the rows of an ANSUR
-    II file, with the residual standard deviation."""
-    path = Path(ansur_csv)
-    try:
-        with open(path, newline="", encoding="latin-1") as handle:
-            rows = list(csv.DictReader(handle))
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read: {error.strerror}") from None
-    missing = [m for m in ("stature", *MEASURES) if rows and m not in rows[0]]
-    if not rows or missing:
-        raise DataFormatError(path, f"not an ANSUR II table: no rows or no column {', '.join(missing)}", line=1)
-    stature = np.array([float(r["stature"]) for r in rows])
-    lines = {}
-    for segment in SEGMENTS:
-        length = np.array([segment.length({k: float(r[k]) for k in MEASURES}) for r in rows])
-        slope, intercept = np.polyfit(stature, length, 1)
-        residual = length - (intercept + slope * stature)
-        lines[segment.name] = {"top": segment.top, "bottom": segment.bottom, "intercept_mm": round(float(intercept), 4),
-                               "slope": round(float(slope), 6), "residual_sd_mm": round(float(residual.std()), 3)}
-    return {"source": ANSUR_MEN, "subjects": len(rows), "segments": lines}
 
 
 @lru_cache(maxsize=1)
@@ -143,19 +116,3 @@ def body_factors(body_names: tuple[str, ...], factors: Mapping[str, float], defa
                 for name in (body, f"{body}_r", f"{body}_l"):
                     of_body[name] = factors[segment.name]
     return {body: of_body.get(body, default) for body in body_names}
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Fit the ANSUR II segment lines and write " + LINES_FILE.name)
-    parser.add_argument("--data-root", type=Path, default=Path("../shared/data"))
-    parser.add_argument("--out", type=Path, default=LINES_FILE)
-    args = parser.parse_args(argv)
-    with atomic_write(args.out) as handle:
-        json.dump(fit_lines(args.data_root / ANSUR_MEN), handle, indent=1)
-        handle.write("\n")
-    print(f"wrote {args.out}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
