@@ -38,7 +38,11 @@ demo: $(STAMP)
 	    --geometry $(DATA)/opensim-models/Geometry --geometry $(DATA)/opensim-models/Models/Rajagopal/Geometry
 	@echo "demo outputs written to demo-output/walking1 (open viewer.html in a browser)"
 
+# Lint (ruff), format check, the layers contract (import-linter, DESIGN.md), then the suite on two workers.
 test: $(STAMP) browser
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -n 2 -q; status=$$?; \
 	if [ $$status -eq 5 ]; then echo "pytest collected no tests"; exit 0; fi; exit $$status
 

@@ -46,17 +46,17 @@ from biomotion.analysis.chain import loads_on_frames, model_motion, torque_label
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.model import BodyModel
 from biomotion.ik import solve_ik
-from biomotion.io.setup import IKSetup, read_ik_setup
 from biomotion.ik.markers import evaluate_ik
-from biomotion.validation.ik import opensim_ik
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mot import read_ground_reaction, read_storage, write_external_loads_xml, write_motion
+from biomotion.io.setup import IKSetup, read_ik_setup
 from biomotion.io.trc import read_trc
 from biomotion.motion import GroundReaction, Markers
-from biomotion.validation import emg
 from biomotion.muscles.geometry import MusclePaths, shipped_paths
 from biomotion.muscles.properties import MuscleParameters, read_muscles
 from biomotion.muscles.static_optimization import optimize_activations
+from biomotion.validation import emg
+from biomotion.validation.ik import opensim_ik
 from biomotion.validation.muscles import (
     GAIT,
     GAIT_MODEL,
@@ -78,19 +78,20 @@ NORTH_STAR_FPS = 300.0
 @dataclass
 class Case:
     """One trial's inputs for both chains (absolute paths; OpenSim resolves setup paths relative to the setup)."""
+
     name: str
     model_path: Path
     setup: IKSetup
     markers: Markers
-    external_loads: Path          # OpenSim ExternalLoads XML of the plates
-    forces: GroundReaction        # the same plates with the bodies they act on
-    force_set: Path               # OpenSim's actuators for its StaticOptimization
+    external_loads: Path  # OpenSim ExternalLoads XML of the plates
+    forces: GroundReaction  # the same plates with the bodies they act on
+    force_set: Path  # OpenSim's actuators for its StaticOptimization
     paths: MusclePaths
     muscles: MuscleParameters
-    balanced: tuple[str, ...]     # coordinates our optimization balances
-    reserves: dict[str, float]    # their actuators' optimal forces
+    balanced: tuple[str, ...]  # coordinates our optimization balances
+    reserves: dict[str, float]  # their actuators' optimal forces
     reserve_bound: float
-    ik_in_degrees: bool           # how OpenSim's IK result is written for its other tools
+    ik_in_degrees: bool  # how OpenSim's IK result is written for its other tools
 
 
 def gait2392_case(root: Path, folder: Path) -> Case:
@@ -98,13 +99,24 @@ def gait2392_case(root: Path, folder: Path) -> Case:
     model = BodyModel.from_osim(model_path)
     setup = read_ik_setup(root / GAIT / "subject01_Setup_IK.xml")
     forces = read_ground_reaction(root / GAIT / "subject01_walk1_grf.mot")
-    plates = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}   # subject01_walk1_grf.xml
+    plates = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}  # subject01_walk1_grf.xml
     forces = forces.assign([plates.get(name) for name in forces.names]).select(list(plates))
     balanced = tuple(n for n, locked in zip(model.coordinate_names, model.locked.tolist()) if not locked)
-    return Case("gait2392 subject01 walk", model_path, setup, read_trc(setup.file("marker_file")),
-                (root / GAIT / "subject01_walk1_grf.xml").resolve(), forces,
-                (root / GAIT / "gait2392_SO_Residual_Actuators.xml").resolve(), shipped_paths("gait2392_subject01"),
-                read_muscles(model_path), balanced, RESIDUALS, 1.0, True)
+    return Case(
+        "gait2392 subject01 walk",
+        model_path,
+        setup,
+        read_trc(setup.file("marker_file")),
+        (root / GAIT / "subject01_walk1_grf.xml").resolve(),
+        forces,
+        (root / GAIT / "gait2392_SO_Residual_Actuators.xml").resolve(),
+        shipped_paths("gait2392_subject01"),
+        read_muscles(model_path),
+        balanced,
+        RESIDUALS,
+        1.0,
+        True,
+    )
 
 
 def rajagopal_case(root: Path, folder: Path) -> Case:
@@ -115,61 +127,119 @@ def rajagopal_case(root: Path, folder: Path) -> Case:
     forces = forces.assign(emg.external_load_bodies(root / emg.GRF_LOADS, forces.names))
     loads = write_external_loads_xml(folder / "grf_walk.xml", forces, str((root / emg.GRF_FILE).resolve()))
     force_set, balanced = write_rajagopal_reserves(model, folder / "reserves.xml")
-    return Case("Rajagopal walk", model_path, setup, read_trc(root / emg.MARKER_FILE), loads.resolve(), forces,
-                force_set.resolve(), shipped_paths("rajagopal2016"), read_muscles(model_path), balanced,
-                {name: RAJAGOPAL_RESERVE for name in balanced}, RAJAGOPAL_RESERVE_BOUND, False)
+    return Case(
+        "Rajagopal walk",
+        model_path,
+        setup,
+        read_trc(root / emg.MARKER_FILE),
+        loads.resolve(),
+        forces,
+        force_set.resolve(),
+        shipped_paths("rajagopal2016"),
+        read_muscles(model_path),
+        balanced,
+        {name: RAJAGOPAL_RESERVE for name in balanced},
+        RAJAGOPAL_RESERVE_BOUND,
+        False,
+    )
 
 
 def opensim_chain(case: Case, folder: Path) -> dict:
     """OpenSim's three tools in sequence; seconds per tool, its q, torques and activations."""
     setup = case.setup
-    ik = opensim_ik(case.model_path, case.markers, weights=setup.marker_weights,
-                    coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range, accuracy=setup.accuracy)
+    ik = opensim_ik(
+        case.model_path,
+        case.markers,
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=setup.time_range,
+        accuracy=setup.accuracy,
+    )
     coordinates = write_motion(folder / "opensim_ik.mot", ik.motion, in_degrees=case.ik_in_degrees).resolve()
     start, end = float(ik.motion.times[0]), float(ik.motion.times[-1])
     began = time.perf_counter()
-    torques = read_storage(run_inverse_dynamics_tool(case.model_path, coordinates, case.external_loads,
-                                                     folder / "id", start, end))
+    torques = read_storage(
+        run_inverse_dynamics_tool(case.model_path, coordinates, case.external_loads, folder / "id", start, end)
+    )
     id_seconds = time.perf_counter() - began
-    so = opensim_static_optimization(case.model_path, coordinates, case.external_loads, case.force_set, start, end,
-                                     workdir=folder)
-    return {"ik": ik.motion, "torques": torques, "so": so,
-            "seconds": {"ik": ik.seconds, "id": id_seconds, "so": so.seconds}}
+    so = opensim_static_optimization(
+        case.model_path, coordinates, case.external_loads, case.force_set, start, end, workdir=folder
+    )
+    return {
+        "ik": ik.motion,
+        "torques": torques,
+        "so": so,
+        "seconds": {"ik": ik.seconds, "id": id_seconds, "so": so.seconds},
+    }
 
 
 def biomotion_chain(case: Case, model: BodyModel) -> dict:
     """Our three stages in sequence; seconds per stage and what each produced."""
     setup = case.setup
     began = time.perf_counter()
-    ik = solve_ik(model, case.markers, weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks,
-                  time_range=setup.time_range)
+    ik = solve_ik(
+        model,
+        case.markers,
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=setup.time_range,
+    )
     after_ik = time.perf_counter()
     coordinates, qd, qdd = unwrapped(model_motion(ik.motion, model), model).smoothed(CUTOFF_HZ)
     on_frames = loads_on_frames(case.forces, coordinates.times)
-    loads = [ExternalLoad(on_frames.bodies[j], torch.from_numpy(on_frames.force[:, j]),
-                          torch.from_numpy(np.nan_to_num(on_frames.cop[:, j])),
-                          torch.from_numpy(on_frames.moment[:, j])) for j in range(on_frames.n_channels)]
+    loads = [
+        ExternalLoad(
+            on_frames.bodies[j],
+            torch.from_numpy(on_frames.force[:, j]),
+            torch.from_numpy(np.nan_to_num(on_frames.cop[:, j])),
+            torch.from_numpy(on_frames.moment[:, j]),
+        )
+        for j in range(on_frames.n_channels)
+    ]
     q, qd_t, qdd_t = (torch.from_numpy(np.ascontiguousarray(a)) for a in (coordinates.values, qd, qdd))
     with torch.no_grad():
         tau = inverse_dynamics(model, q, qd_t, qdd_t, loads)
     after_id = time.perf_counter()
     order = [model.coordinate_names.index(n) for n in case.paths.coordinate_names]
-    result = optimize_activations(case.paths, case.muscles, q[:, order], qd_t[:, order],
-                                  tau[:, [model.coordinate_names.index(n) for n in case.balanced]], case.balanced,
-                                  case.reserves, reserve_bound=case.reserve_bound)
+    result = optimize_activations(
+        case.paths,
+        case.muscles,
+        q[:, order],
+        qd_t[:, order],
+        tau[:, [model.coordinate_names.index(n) for n in case.balanced]],
+        case.balanced,
+        case.reserves,
+        reserve_bound=case.reserve_bound,
+    )
     done = time.perf_counter()
-    return {"ik": ik.motion, "q": coordinates, "torques": tau.numpy(), "so": result,
-            "seconds": {"ik": after_ik - began, "id": after_id - after_ik, "so": done - after_id}}
+    return {
+        "ik": ik.motion,
+        "q": coordinates,
+        "torques": tau.numpy(),
+        "so": result,
+        "seconds": {"ik": after_ik - began, "id": after_id - after_ik, "so": done - after_id},
+    }
 
 
 def marker_fit(case: Case, model: BodyModel, ours: dict, theirs: dict) -> dict:
     """Marker RMS error (m) and mean IK objective of both IK results, with the same forward kinematics."""
     setup = case.setup
-    scored = {name: evaluate_ik(model, case.markers, motion, weights=setup.marker_weights,
-                                coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range)
-              for name, motion in (("ours", ours["ik"]), ("opensim", theirs["ik"]))}
-    return {f"{name}_{key}": value for name, result in scored.items()
-            for key, value in (("marker_rmse_m", result.rmse), ("objective", float(result.cost.mean())))}
+    scored = {
+        name: evaluate_ik(
+            model,
+            case.markers,
+            motion,
+            weights=setup.marker_weights,
+            coordinate_tasks=setup.coordinate_tasks,
+            time_range=setup.time_range,
+        )
+        for name, motion in (("ours", ours["ik"]), ("opensim", theirs["ik"]))
+    }
+    return {
+        f"{name}_{key}": value
+        for name, result in scored.items()
+        for key, value in (("marker_rmse_m", result.rmse), ("objective", float(result.cost.mean())))
+    }
 
 
 def accuracy(model: BodyModel, ours: dict, theirs: dict, trim: float = 0.0) -> dict:
@@ -179,14 +249,14 @@ def accuracy(model: BodyModel, ours: dict, theirs: dict, trim: float = 0.0) -> d
     so the first and last frames of the two chains are not the same computation."""
     first, last = ours["q"].times[0] + trim, ours["q"].times[-1] - trim
     reference = theirs["ik"].select(model.coordinate_names)
-    rotational = [c for c, kind in enumerate(model.motion_types)
-                  if kind == "rotational" and not bool(model.locked[c])]
+    rotational = [c for c, kind in enumerate(model.motion_types) if kind == "rotational" and not bool(model.locked[c])]
     frames = (reference.times >= first) & (reference.times <= last)
     ours_ik = ours["ik"].select(model.coordinate_names)
-    ours_q = np.stack([np.interp(reference.times[frames], ours_ik.times, ours_ik.values[:, c])
-                       for c in range(model.n_q)], 1)
+    ours_q = np.stack(
+        [np.interp(reference.times[frames], ours_ik.times, ours_ik.values[:, c]) for c in range(model.n_q)], 1
+    )
     difference = (ours_q - reference.values[frames])[:, rotational]
-    angle_rmse = np.degrees(np.sqrt(np.mean(difference ** 2, axis=0)))
+    angle_rmse = np.degrees(np.sqrt(np.mean(difference**2, axis=0)))
     torque_errors = {}
     table = theirs["torques"]
     frames = (table.times >= first) & (table.times <= last)
@@ -201,19 +271,33 @@ def accuracy(model: BodyModel, ours: dict, theirs: dict, trim: float = 0.0) -> d
     result = ours["so"]
     frames = (so.times >= first) & (so.times <= last)
     activations = result.activations.numpy()[:, [result.muscle_names.index(m) for m in so.muscle_names]]
-    ours_a = np.stack([np.interp(so.times[frames], ours["q"].times, activations[:, k])
-                       for k in range(activations.shape[1])], 1)
+    ours_a = np.stack(
+        [np.interp(so.times[frames], ours["q"].times, activations[:, k]) for k in range(activations.shape[1])], 1
+    )
     r2 = r_squared(ours_a, so.activations[frames])
-    return {"trim_s": trim, "frames": int(frames.sum()), "angle_rmse_deg_max": float(angle_rmse.max()),
-            "angle_worst": model.coordinate_names[rotational[int(angle_rmse.argmax())]],
-            "torque_rmse_rel_max": max(torque_errors.values()),
-            "torque_worst": max(torque_errors, key=torque_errors.get),
-            "activation_r2_mean": float(r2.mean()), "activation_r2_median": float(np.median(r2)),
-            "activation_r2_min": float(r2.min()), "activation_worst": so.muscle_names[int(r2.argmin())]}
+    return {
+        "trim_s": trim,
+        "frames": int(frames.sum()),
+        "angle_rmse_deg_max": float(angle_rmse.max()),
+        "angle_worst": model.coordinate_names[rotational[int(angle_rmse.argmax())]],
+        "torque_rmse_rel_max": max(torque_errors.values()),
+        "torque_worst": max(torque_errors, key=torque_errors.get),
+        "activation_r2_mean": float(r2.mean()),
+        "activation_r2_median": float(np.median(r2)),
+        "activation_r2_min": float(r2.min()),
+        "activation_worst": so.muscle_names[int(r2.argmin())],
+    }
 
 
-def case_section(case: Case, frames: int, theirs: dict, timings: dict[int, dict], figures: tuple[dict, dict],
-                 converged: str, fit: dict) -> tuple[list[str], float]:
+def case_section(
+    case: Case,
+    frames: int,
+    theirs: dict,
+    timings: dict[int, dict],
+    figures: tuple[dict, dict],
+    converged: str,
+    fit: dict,
+) -> tuple[list[str], float]:
     """The markdown section of one case and its best frames/s."""
     os_seconds = theirs["seconds"]
     os_total = sum(os_seconds.values())
@@ -226,20 +310,34 @@ def case_section(case: Case, frames: int, theirs: dict, timings: dict[int, dict]
         f"`{case.model_path.name}`, {len(case.paths.muscle_names)} muscles; our optimization balances "
         f"{len(case.balanced)} coordinates.",
         "",
-        "| stage | OpenSim 4.6 (ms/frame) | " + " | ".join(f"biomotion, {t} thread{'s' * (t > 1)} (ms/frame)"
-                                                          for t in timings) + " |",
+        "| stage | OpenSim 4.6 (ms/frame) | "
+        + " | ".join(f"biomotion, {t} thread{'s' * (t > 1)} (ms/frame)" for t in timings)
+        + " |",
         "|---|---|" + "---|" * len(timings),
     ]
-    for stage, label in (("ik", "inverse kinematics"), ("id", "inverse dynamics (6 Hz, plates)"),
-                         ("so", "static optimization")):
-        lines.append(f"| {label} | {1000 * os_seconds[stage] / frames:.2f} | "
-                     + " | ".join(f"{1000 * t[stage] / frames:.2f}" for t in timings.values()) + " |")
-    lines.append(f"| **whole chain** | {1000 * os_total / frames:.1f} | "
-                 + " | ".join(f"**{1000 * sum(t.values()) / frames:.2f}**" for t in timings.values()) + " |")
-    lines.append(f"| frames/s | {fps(os_total):.1f} | "
-                 + " | ".join(f"**{fps(sum(t.values())):.0f}**" for t in timings.values()) + " |")
-    lines.append("| ratio to OpenSim | 1 | "
-                 + " | ".join(f"{os_total / sum(t.values()):.0f}x" for t in timings.values()) + " |")
+    for stage, label in (
+        ("ik", "inverse kinematics"),
+        ("id", "inverse dynamics (6 Hz, plates)"),
+        ("so", "static optimization"),
+    ):
+        lines.append(
+            f"| {label} | {1000 * os_seconds[stage] / frames:.2f} | "
+            + " | ".join(f"{1000 * t[stage] / frames:.2f}" for t in timings.values())
+            + " |"
+        )
+    lines.append(
+        f"| **whole chain** | {1000 * os_total / frames:.1f} | "
+        + " | ".join(f"**{1000 * sum(t.values()) / frames:.2f}**" for t in timings.values())
+        + " |"
+    )
+    lines.append(
+        f"| frames/s | {fps(os_total):.1f} | "
+        + " | ".join(f"**{fps(sum(t.values())):.0f}**" for t in timings.values())
+        + " |"
+    )
+    lines.append(
+        "| ratio to OpenSim | 1 | " + " | ".join(f"{os_total / sum(t.values()):.0f}x" for t in timings.values()) + " |"
+    )
     whole, inner = figures
     lines += [
         "",
@@ -270,6 +368,7 @@ def case_section(case: Case, frames: int, theirs: dict, timings: dict[int, dict]
 def _load() -> tuple[float, ...]:
     try:
         import os
+
         return os.getloadavg()
     except OSError:
         return (float("nan"),) * 3
@@ -294,35 +393,44 @@ def main(argv: list[str] | None = None) -> int:
             timings, ours = {}, None
             for threads in args.threads:
                 torch.set_num_threads(threads)
-                biomotion_chain(case, model)   # warm-up
+                biomotion_chain(case, model)  # warm-up
                 runs = [biomotion_chain(case, model) for _ in range(args.repeats)]
                 fastest = min(runs, key=lambda run: sum(run["seconds"].values()))
                 timings[threads], ours = fastest["seconds"], fastest
             figures = accuracy(model, ours, theirs), accuracy(model, ours, theirs, trim=0.05)
             converged = f"{int(ours['so'].converged.sum())}/{len(ours['so'].converged)}"
-            lines, best[case.name] = case_section(case, int(ours["q"].n_frames), theirs, timings, figures, converged,
-                                                  marker_fit(case, model, ours, theirs))
+            lines, best[case.name] = case_section(
+                case,
+                int(ours["q"].n_frames),
+                theirs,
+                timings,
+                figures,
+                converged,
+                marker_fit(case, model, ours, theirs),
+            )
             sections += lines
     verdict = "; ".join(f"{name} {fps:.0f} frames/s" for name, fps in best.items())
     met = all(fps >= NORTH_STAR_FPS for fps in best.values())
-    text = "\n".join([
-        "# Whole analysis chain: IK + inverse dynamics + static optimization vs OpenSim 4.6",
-        "",
-        f"Produced by `python benchmarks/analysis_chain.py --repeats {args.repeats} --threads "
-        f"{' '.join(map(str, args.threads))}`; each chain runs from the same markers end to end (see the script's "
-        "docstring). OpenSim's tools are single-threaded and timed once; ours is the best of the repeats after a "
-        "warm-up run. Absolute times vary with the machine and its load; the ratios, measured in the same run, are "
-        "the result.",
-        "",
-        f"Machine: {platform.processor() or platform.machine()}, load average "
-        f"{', '.join(f'{x:.1f}' for x in _load())}; Python {platform.python_version()}, torch {torch.__version__}; "
-        f"{time.strftime('%Y-%m-%d')}.",
-        "",
-        f"North star: {NORTH_STAR_FPS:.0f} frames/s on 2 cores. Best measured here: {verdict} "
-        f"({'met on both' if met else 'not met on every case'}).",
-        "",
-        *sections,
-    ])
+    text = "\n".join(
+        [
+            "# Whole analysis chain: IK + inverse dynamics + static optimization vs OpenSim 4.6",
+            "",
+            f"Produced by `python benchmarks/analysis_chain.py --repeats {args.repeats} --threads "
+            f"{' '.join(map(str, args.threads))}`; each chain runs from the same markers end to end (see the script's "
+            "docstring). OpenSim's tools are single-threaded and timed once; ours is the best of the repeats after a "
+            "warm-up run. Absolute times vary with the machine and its load; the ratios, measured in the same run, are "
+            "the result.",
+            "",
+            f"Machine: {platform.processor() or platform.machine()}, load average "
+            f"{', '.join(f'{x:.1f}' for x in _load())}; Python {platform.python_version()}, torch {torch.__version__}; "
+            f"{time.strftime('%Y-%m-%d')}.",
+            "",
+            f"North star: {NORTH_STAR_FPS:.0f} frames/s on 2 cores. Best measured here: {verdict} "
+            f"({'met on both' if met else 'not met on every case'}).",
+            "",
+            *sections,
+        ]
+    )
     with atomic_write(args.out) as handle:
         handle.write(text)
     print(text)

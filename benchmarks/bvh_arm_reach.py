@@ -35,18 +35,18 @@ from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_model
 from biomotion.ik import skeleton
 from biomotion.ik.markers import solve_ik
-from biomotion.io.setup import CoordinateTask
 from biomotion.io.atomic import atomic_write
 from biomotion.io.bvh import read_bvh
+from biomotion.io.setup import CoordinateTask
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 DISTAL = ("elbow", "radius_hand")
 ARM_COORDINATES = ("arm_", "elbow_", "pro_sup_", "wrist_")
-HOLD_WEIGHT = 1e4   # coordinate-task weight that holds the trunk and legs where the first fit put them
+HOLD_WEIGHT = 1e4  # coordinate-task weight that holds the trunk and legs where the first fit put them
 DEFAULT_PATTERNS = ("dataset-1/*byebye*", "dataset-2/*raise-up-both-hands*")
 GAP_DEG = 10.0
-GRID_DEG = {"arm_flex": 2.0, "arm_add": 2.0, "arm_rot": 10.0}   # the humerus direction barely moves with arm_rot
+GRID_DEG = {"arm_flex": 2.0, "arm_add": 2.0, "arm_rot": 10.0}  # the humerus direction barely moves with arm_rot
 
 
 def _index(names: tuple[str, ...], name: str) -> int:
@@ -58,8 +58,10 @@ def humerus_directions(model: BodyModel, q: torch.Tensor, side: str) -> np.ndarr
     with torch.no_grad():
         poses = forward_kinematics(model, q)
         centres = joint_centers(model, q, poses)
-    vector = centres[..., _index(model.joint_names, f"elbow_{side}"), :] - \
-        centres[..., _index(model.joint_names, f"acromial_{side}"), :]
+    vector = (
+        centres[..., _index(model.joint_names, f"elbow_{side}"), :]
+        - centres[..., _index(model.joint_names, f"acromial_{side}"), :]
+    )
     torso = poses.rotations[..., _index(model.body_names, "torso"), :, :]
     local = torch.einsum("...ji,...j->...i", torso, vector).numpy()
     return local / np.linalg.norm(local, axis=-1, keepdims=True)
@@ -87,13 +89,17 @@ def clip_row(path: Path, generic: BodyModel, reach: dict[str, np.ndarray]) -> di
     tracked = faced.select([joint_map.centres.get(n) or joint_map.toes[n] for n in model.marker_names])
     tracked = dataclasses.replace(tracked, names=model.marker_names)
     fit = solve_ik(model, tracked, weights={n: 1.0 for n in model.marker_names if not n.startswith(DISTAL)})
-    hold = [CoordinateTask(n, HOLD_WEIGHT, "from_file") for n in model.coordinate_names
-            if not n.startswith(ARM_COORDINATES) and not model.locked[_index(model.coordinate_names, n)]]
-    start = fit.motion.values.copy()   # the arms start where the shipped retargeting put them
+    hold = [
+        CoordinateTask(n, HOLD_WEIGHT, "from_file")
+        for n in model.coordinate_names
+        if not n.startswith(ARM_COORDINATES) and not model.locked[_index(model.coordinate_names, n)]
+    ]
+    start = fit.motion.values.copy()  # the arms start where the shipped retargeting put them
     arm_columns = [i for i, n in enumerate(model.coordinate_names) if n.startswith(ARM_COORDINATES)]
     start[:, arm_columns] = shipped.ik_motion.values[:, arm_columns]
-    arms = solve_ik(model, tracked, coordinate_tasks=hold, coordinate_data=fit.motion,
-                    initial=fit.motion.with_values(start))
+    arms = solve_ik(
+        model, tracked, coordinate_tasks=hold, coordinate_data=fit.motion, initial=fit.motion.with_values(start)
+    )
     distal = np.array([n.startswith(DISTAL) for n in model.marker_names])
     errors = np.linalg.norm(skeleton._points(model, fit.motion.values) - tracked.positions, axis=-1)
     arm_errors = np.linalg.norm(skeleton._points(model, arms.motion.values) - tracked.positions, axis=-1)
@@ -108,18 +114,26 @@ def clip_row(path: Path, generic: BodyModel, reach: dict[str, np.ndarray]) -> di
         local /= np.linalg.norm(local, axis=-1, keepdims=True)
         gaps.append(np.degrees(np.arccos(np.clip((local @ reach[side].T).max(axis=1), -1.0, 1.0))))
     gap = np.maximum(*gaps)
-    return {"clip": path.name.removesuffix(".bvh.gz"), "frames": len(gap), "shipped_cm": 100 * shipped.mean_error,
-            "tracked_cm": 100 * float(np.nanmean(errors[:, ~distal])),
-            "distal_cm": 100 * float(np.nanmean(arm_errors[:, distal])),
-            "unreachable_share": float(np.mean(gap > GAP_DEG)), "max_gap_deg": float(gap.max())}
+    return {
+        "clip": path.name.removesuffix(".bvh.gz"),
+        "frames": len(gap),
+        "shipped_cm": 100 * shipped.mean_error,
+        "tracked_cm": 100 * float(np.nanmean(errors[:, ~distal])),
+        "distal_cm": 100 * float(np.nanmean(arm_errors[:, distal])),
+        "unreachable_share": float(np.mean(gap > GAP_DEG)),
+        "max_gap_deg": float(gap.max()),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--data-root", default=str(REPO.parent / "shared" / "data"))
-    parser.add_argument("--pattern", action="append",
-                        help="glob under bandai-namco/ (without .bvh.gz), repeatable; default: the dataset-1 byebye "
-                             "clips and the dataset-2 raise-up-both-hands ones, the clips nearest or over 2 cm")
+    parser.add_argument(
+        "--pattern",
+        action="append",
+        help="glob under bandai-namco/ (without .bvh.gz), repeatable; default: the dataset-1 byebye "
+        "clips and the dataset-2 raise-up-both-hands ones, the clips nearest or over 2 cm",
+    )
     parser.add_argument("--out", default=str(REPO / "docs" / "results" / "bvh_arm_reach.md"))
     args = parser.parse_args(argv)
     root = Path(args.data_root)
@@ -133,15 +147,22 @@ def main(argv: list[str] | None = None) -> int:
     # the grid on the generic model: scaling changes the humerus's length, not where the shoulder lets it point
     reach = {side: reachable_directions(generic, side) for side in "rl"}
     rows = [clip_row(path, generic, reach) for path in tqdm(clips, desc="clips", unit="clip")]
-    lines = ["# Bandai-Namco clips against the Rajagopal 2016 shoulder's reach", "",
-             "Produced by `python benchmarks/bvh_arm_reach.py" + "".join(f" --pattern '{p}'" for p in patterns) + "` "
-             "(see the script's docstring for each column).", "",
-             "| clip | frames | shipped mean error (cm) | IK without elbows and wrists: tracked joints (cm) | "
-             "then the arms alone: elbows and wrists (cm) | "
-             f"frames with the upper arm > {GAP_DEG:g}° from the model's reach | largest gap (°) |",
-             "|---|---|---|---|---|---|---|"]
-    lines += [f"| {r['clip']} | {r['frames']} | {r['shipped_cm']:.2f} | {r['tracked_cm']:.2f} | {r['distal_cm']:.1f} | "
-              f"{100 * r['unreachable_share']:.0f} % | {r['max_gap_deg']:.0f} |" for r in rows]
+    lines = [
+        "# Bandai-Namco clips against the Rajagopal 2016 shoulder's reach",
+        "",
+        "Produced by `python benchmarks/bvh_arm_reach.py" + "".join(f" --pattern '{p}'" for p in patterns) + "` "
+        "(see the script's docstring for each column).",
+        "",
+        "| clip | frames | shipped mean error (cm) | IK without elbows and wrists: tracked joints (cm) | "
+        "then the arms alone: elbows and wrists (cm) | "
+        f"frames with the upper arm > {GAP_DEG:g}° from the model's reach | largest gap (°) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['clip']} | {r['frames']} | {r['shipped_cm']:.2f} | {r['tracked_cm']:.2f} | {r['distal_cm']:.1f} | "
+        f"{100 * r['unreachable_share']:.0f} % | {r['max_gap_deg']:.0f} |"
+        for r in rows
+    ]
     with atomic_write(args.out) as handle:
         handle.write("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -32,8 +32,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from biomotion.body.kinematics import torch_threads
-from biomotion.data.registry import DatasetCache
 from biomotion.data.clips import body_model
+from biomotion.data.registry import DatasetCache
 from biomotion.evaluation.generation import (
     _motion,
     _request,
@@ -49,11 +49,18 @@ from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.atomic import atomic_write
 from biomotion.training.train_generator import dev_subject
 
-COLUMNS = (("foot_contact_velocity", "foot contact vel. (m/s)"), ("skate_ratio", "skate (%)"),
-           ("floating", "floating (cm)"), ("penetration", "penetration (cm)"), ("jerk", "jerk (m/s³)"),
-           ("muscle_violations", "muscle-limit violations (%)"), ("fidelity", "DTW fidelity (cm)"),
-           ("speed_error", "speed error (m/s)"), ("zmp_in_support", "ZMP in support (%)"),
-           ("zmp_in_support_measured_trunk", "ZMP in support, measured trunk (%)"))
+COLUMNS = (
+    ("foot_contact_velocity", "foot contact vel. (m/s)"),
+    ("skate_ratio", "skate (%)"),
+    ("floating", "floating (cm)"),
+    ("penetration", "penetration (cm)"),
+    ("jerk", "jerk (m/s³)"),
+    ("muscle_violations", "muscle-limit violations (%)"),
+    ("fidelity", "DTW fidelity (cm)"),
+    ("speed_error", "speed error (m/s)"),
+    ("zmp_in_support", "ZMP in support (%)"),
+    ("zmp_in_support_measured_trunk", "ZMP in support, measured trunk (%)"),
+)
 
 
 def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:
@@ -73,57 +80,96 @@ def guidance_variant(spec: str) -> tuple[str, GuidanceConfig | None]:
         if field not in kinds:
             raise SystemExit(f"--guidance {spec}: {owner.__name__} has no field {field!r}")
         kind = kinds[field]
-        parsed = (None if value == "none" else value.lower() in ("1", "true") if kind == "bool"
-                  else int(value) if kind.startswith("int") else float(value))
+        parsed = (
+            None
+            if value == "none"
+            else value.lower() in ("1", "true")
+            if kind == "bool"
+            else int(value)
+            if kind.startswith("int")
+            else float(value)
+        )
         (planting if owner is PlantingConfig else changes)[field] = parsed
     if planting:
         changes["planting"] = dataclasses.replace(PlantingConfig(), **planting)
     return name, dataclasses.replace(GuidanceConfig(), **changes)
 
 
-def dev_rows(bundle: Path, cache: DatasetCache, data_root: str, configs: dict[str, GuidanceConfig | None],
-             repeats: int = 1, sources: Sequence[str] = ()) -> tuple[list[str], dict]:
+def dev_rows(
+    bundle: Path,
+    cache: DatasetCache,
+    data_root: str,
+    configs: dict[str, GuidanceConfig | None],
+    repeats: int = 1,
+    sources: Sequence[str] = (),
+) -> tuple[list[str], dict]:
     """Per variant ("reference" and each named guidance config; None: unguided): the identity probe (mean over
     repeats) and the mean of each column over the clips of all repeats; only targets of ``sources`` when given."""
     generator = Generator.load(data_root, bundle)
     train = generator.bundle.train_subjects
     seen = [s for s in train if not dev_subject(s, 0.15)]
-    targets = [t for t in unseen_targets(cache, seen, 6.0)
-               if t.subject in train and (not sources or cache.records[t.index]["source"] in sources)]
+    targets = [
+        t
+        for t in unseen_targets(cache, seen, 6.0)
+        if t.subject in train and (not sources or cache.records[t.index]["source"] in sources)
+    ]
     tables, identities = [], []
     for r in range(repeats):
         variants = {"reference": [t.motion for t in targets]}
         for name, config in configs.items():
             variants[name] = [
-                _motion(generator.generate(_request(cache, t.index), profile=cache.profile(t.index),
-                                           references=t.references, reference_actions=t.reference_actions,
-                                           reference_speeds=t.reference_speeds,
-                                           seconds=t.motion.n_frames / generator.rate, seed=r * len(targets) + k,
-                                           guidance=config is not None, guidance_config=config).q[0],
-                        generator.rate)
-                for k, t in enumerate(targets)]
+                _motion(
+                    generator.generate(
+                        _request(cache, t.index),
+                        profile=cache.profile(t.index),
+                        references=t.references,
+                        reference_actions=t.reference_actions,
+                        reference_speeds=t.reference_speeds,
+                        seconds=t.motion.n_frames / generator.rate,
+                        seed=r * len(targets) + k,
+                        guidance=config is not None,
+                        guidance_config=config,
+                    ).q[0],
+                    generator.rate,
+                )
+                for k, t in enumerate(targets)
+            ]
         identities.append(identity_accuracy(generator.tokenizer, targets, variants))
         records = [cache.records[t.index] for t in targets]
-        tables.append(score_variants(variants, body_model(data_root), generator.surrogate, generator.rate,
-                                     [rec["clip_id"] for rec in records],
-                                     [rec["labels"].get("speed") for rec in records],
-                                     [rec["profile"].get("height") for rec in records]))
+        tables.append(
+            score_variants(
+                variants,
+                body_model(data_root),
+                generator.surrogate,
+                generator.rate,
+                [rec["clip_id"] for rec in records],
+                [rec["labels"].get("speed") for rec in records],
+                [rec["profile"].get("height") for rec in records],
+            )
+        )
     table, identity = combine_repeats(tables), combine_identity(identities)
-    rows = {v: {"identity": identity.get(v), **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]}}
-            for v in table}
+    rows = {
+        v: {"identity": identity.get(v), **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]}} for v in table
+    }
     subjects = sorted({t.subject for t in targets})
     repeated = f", {repeats} repeats" if repeats > 1 else ""
-    return [f"{tokenizer_summary(bundle)}; {len(targets)} clips of {len(subjects)} subjects{repeated} "
-            f"({', '.join(subjects)})"], rows
+    return [
+        f"{tokenizer_summary(bundle)}; {len(targets)} clips of {len(subjects)} subjects{repeated} "
+        f"({', '.join(subjects)})"
+    ], rows
 
 
 def tokenizer_summary(bundle: Path) -> str:
     """The bundle's tokenizer as its model card records it: contact settings and training iterations."""
     card = json.loads((bundle / "tokenizer.json").read_text())
     model = card["config"].get("model", {})
-    contact = ("contact channels (w_contact {w}), penetration weight {p}".format(
-        w=model.get("w_contact"), p=model.get("w_penetration", 0.0)) if model.get("foot_contact") else
-        "no contact channels")
+    contact = (
+        "contact channels (w_contact {w}), penetration weight {p}".format(
+            w=model.get("w_contact"), p=model.get("w_penetration", 0.0)
+        )
+        if model.get("foot_contact")
+        else "no contact channels"
+    )
     return f"tokenizer with {contact}, {card['iterations']} iterations"
 
 
@@ -132,11 +178,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--cache", default="build/dataset_lab")
     parser.add_argument("--bundle", action="append", type=Path, help="checkpoint folder (repeatable)")
     parser.add_argument("--contact", action="append", choices=("kinematic", "decoded"))
-    parser.add_argument("--guidance", action="append", default=[], metavar="NAME:KEY=VALUE,...",
-                        help="a variant: default guidance with these GuidanceConfig fields changed (repeatable)")
+    parser.add_argument(
+        "--guidance",
+        action="append",
+        default=[],
+        metavar="NAME:KEY=VALUE,...",
+        help="a variant: default guidance with these GuidanceConfig fields changed (repeatable)",
+    )
     parser.add_argument("--repeats", type=int, default=1)
-    parser.add_argument("--source", action="append", default=[],
-                        help="only the targets of this source, e.g. fukuchi (repeatable; default: every source)")
+    parser.add_argument(
+        "--source",
+        action="append",
+        default=[],
+        help="only the targets of this source, e.g. fukuchi (repeatable; default: every source)",
+    )
     parser.add_argument("--data-root", default="../shared/data")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", default="docs/results/dev_subjects.md")
@@ -146,8 +201,12 @@ def main(argv: list[str] | None = None) -> None:
     configs = {c: GuidanceConfig(decoded_contact=c == "decoded") for c in contacts}
     configs.update(guidance_variant(spec) for spec in args.guidance)
     cache = DatasetCache(args.cache)
-    lines = ["# Generation on the generator's dev subjects", "",
-             f"Command: `python {' '.join(['benchmarks/dev_subjects.py', *(argv or sys.argv[1:])])}`", ""]
+    lines = [
+        "# Generation on the generator's dev subjects",
+        "",
+        f"Command: `python {' '.join(['benchmarks/dev_subjects.py', *(argv or sys.argv[1:])])}`",
+        "",
+    ]
     header = "| bundle | variant | identity | " + " | ".join(label for _, label in COLUMNS) + " |"
     table = [header, "|" + "---|" * (3 + len(COLUMNS))]
     started = time.perf_counter()

@@ -45,8 +45,15 @@ import numpy as np
 import torch
 
 from biomotion.analysis.chain import analyze, model_motion
-from biomotion.body.contact import (ContactSettings, _friction_edges, _nonnegative_least_squares,
-                                    _point_kinematics, foot_points, infer_ground_reaction, root_coordinates)
+from biomotion.body.contact import (
+    ContactSettings,
+    _friction_edges,
+    _nonnegative_least_squares,
+    _point_kinematics,
+    foot_points,
+    infer_ground_reaction,
+    root_coordinates,
+)
 from biomotion.body.dynamics import inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, joint_transform, torch_threads
 from biomotion.body.model import BodyModel
@@ -73,6 +80,7 @@ def best_time(function, repeats: int) -> float:
 
 # ---- inputs ----------------------------------------------------------------------------------------------------
 
+
 def load_trial(root: Path, trial: str):
     model = BodyModel.from_osim(root / SUBJECT / MODEL)
     motion = read_motion(root / SUBJECT / "IK" / f"{trial}_ik.mot")
@@ -84,6 +92,7 @@ def load_trial(root: Path, trial: str):
 
 
 # ---- biomotion -------------------------------------------------------------------------------------------------
+
 
 def ours(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float]:
     """Frames/s of our inverse dynamics, in the current thread setting."""
@@ -129,7 +138,7 @@ def compile_inverse_dynamics(model: BodyModel, q, qd, qdd):
     seconds = time.perf_counter() - start
     if not torch.allclose(torques.detach(), inverse_dynamics(model, q, qd, qdd), atol=1e-8):
         raise RuntimeError("the compiled inverse dynamics differs from the eager one")
-    compiled[torch.float32](*(x.float().repeat(BATCH_TILES, 1) for x in (q, qd, qdd)))   # its own compile, untimed
+    compiled[torch.float32](*(x.float().repeat(BATCH_TILES, 1) for x in (q, qd, qdd)))  # its own compile, untimed
     return compiled, seconds
 
 
@@ -146,14 +155,20 @@ def compiled_speeds(compiled, q, qd, qdd, repeats: int) -> dict[str, float]:
     f64, f32 = compiled[torch.float64], compiled[torch.float32]
     q_grad = q.clone().requires_grad_()
     q32, qd32, qdd32 = q.float().requires_grad_(), qd.float(), qdd.float()
-    tiled = [q32.detach().repeat(BATCH_TILES, 1).requires_grad_(), qd32.repeat(BATCH_TILES, 1),
-             qdd32.repeat(BATCH_TILES, 1)]
-    return {"compiled, autograd on (forward)": frames / best_time(lambda: f64(q_grad, qd, qdd), repeats),
-            "compiled, forward + backward (d/dq)": frames / best_time(
-                lambda: f64(q_grad, qd, qdd).sum().backward(), repeats),
-            "compiled, autograd on, float32": frames / best_time(lambda: f32(q32, qd32, qdd32), repeats),
-            f"compiled, autograd on, float32, {BATCH_TILES}x frames in one batch": BATCH_TILES * frames / best_time(
-                lambda: f32(*tiled), repeats)}
+    tiled = [
+        q32.detach().repeat(BATCH_TILES, 1).requires_grad_(),
+        qd32.repeat(BATCH_TILES, 1),
+        qdd32.repeat(BATCH_TILES, 1),
+    ]
+    return {
+        "compiled, autograd on (forward)": frames / best_time(lambda: f64(q_grad, qd, qdd), repeats),
+        "compiled, forward + backward (d/dq)": frames
+        / best_time(lambda: f64(q_grad, qd, qdd).sum().backward(), repeats),
+        "compiled, autograd on, float32": frames / best_time(lambda: f32(q32, qd32, qdd32), repeats),
+        f"compiled, autograd on, float32, {BATCH_TILES}x frames in one batch": BATCH_TILES
+        * frames
+        / best_time(lambda: f32(*tiled), repeats),
+    }
 
 
 def whole_chain(motion, model: BodyModel, plates, repeats: int) -> float:
@@ -162,6 +177,7 @@ def whole_chain(motion, model: BodyModel, plates, repeats: int) -> float:
 
 
 # ---- Pinocchio -------------------------------------------------------------------------------------------------
+
 
 def pinocchio_model(model: BodyModel):
     """(pin.Model, {pin joint id: our coordinates}) of the same size as ``model`` (see the module docstring)."""
@@ -172,13 +188,14 @@ def pinocchio_model(model: BodyModel):
 
     pm = pin.Model()
     pm.gravity = pin.Motion(np.concatenate([model.gravity.numpy(), np.zeros(3)]))
-    carrier = {-1: (0, pin.SE3.Identity())}   # body -> (pin joint that moves it, body frame in that joint frame)
+    carrier = {-1: (0, pin.SE3.Identity())}  # body -> (pin joint that moves it, body frame in that joint frame)
     coordinates_of: dict[int, list[int]] = {}
     for j in model.joint_order:
         joint = model.joints[j]
         parent, in_parent = carrier[joint.parent]
-        inertia = pin.Inertia(float(model.masses[joint.child]), model.coms[joint.child].numpy(),
-                              model.inertias[joint.child].numpy())
+        inertia = pin.Inertia(
+            float(model.masses[joint.child]), model.coms[joint.child].numpy(), model.inertias[joint.child].numpy()
+        )
         if not joint.coordinates:
             carrier[joint.child] = (parent, in_parent * se3(*joint_transform(joint, model.defaults)))
             pm.appendBodyToJoint(parent, inertia, carrier[joint.child][1])
@@ -192,8 +209,11 @@ def pinocchio_model(model: BodyModel):
             dofs.sort(key=lambda d: 0 if d[1] is not None and not d[1].rotation else 1)  # translations are in F
             for c, axis in dofs:
                 unit = axis.axis.numpy() if axis is not None else np.array([1.0, 0.0, 0.0])
-                kind = pin.JointModelPrismaticUnaligned if axis is not None and not axis.rotation \
+                kind = (
+                    pin.JointModelPrismaticUnaligned
+                    if axis is not None and not axis.rotation
                     else pin.JointModelRevoluteUnaligned
+                )
                 current = pm.addJoint(current, kind(unit), placement, model.coordinate_names[c])
                 coordinates_of[current] = [c]
                 placement = pin.SE3.Identity()
@@ -208,20 +228,24 @@ def pinocchio(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float | i
     pm, coordinates_of = pinocchio_model(model)
     data = pm.createData()
     frames = q.shape[0]
-    configuration, velocity, acceleration = np.zeros((frames, pm.nq)), np.zeros((frames, pm.nv)), np.zeros(
-        (frames, pm.nv))
+    configuration, velocity, acceleration = (
+        np.zeros((frames, pm.nq)),
+        np.zeros((frames, pm.nv)),
+        np.zeros((frames, pm.nv)),
+    )
     root = model.joints[model.joint_order[0]].child
     poses = forward_kinematics(model, q)
     for joint, columns in coordinates_of.items():
         jm = pm.joints[joint]
         if len(columns) == 6:  # free flyer: position and quaternion of the pelvis, its six rates as given
-            configuration[:, jm.idx_q:jm.idx_q + 3] = poses.positions[:, root].numpy()
-            configuration[:, jm.idx_q + 3:jm.idx_q + 7] = [pin.Quaternion(r).coeffs() for r in
-                                                            poses.rotations[:, root].numpy()]
+            configuration[:, jm.idx_q : jm.idx_q + 3] = poses.positions[:, root].numpy()
+            configuration[:, jm.idx_q + 3 : jm.idx_q + 7] = [
+                pin.Quaternion(r).coeffs() for r in poses.rotations[:, root].numpy()
+            ]
         else:
             configuration[:, jm.idx_q] = q[:, columns[0]].numpy()
-        velocity[:, jm.idx_v:jm.idx_v + len(columns)] = qd[:, columns].numpy()
-        acceleration[:, jm.idx_v:jm.idx_v + len(columns)] = qdd[:, columns].numpy()
+        velocity[:, jm.idx_v : jm.idx_v + len(columns)] = qd[:, columns].numpy()
+        acceleration[:, jm.idx_v : jm.idx_v + len(columns)] = qdd[:, columns].numpy()
 
     def rnea() -> None:
         for t in range(frames):
@@ -231,8 +255,14 @@ def pinocchio(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float | i
         for t in range(frames):
             pin.computeRNEADerivatives(pm, data, configuration[t], velocity[t], acceleration[t])
 
-    return {"rnea": frames / best_time(rnea, repeats), "derivatives": frames / best_time(derivatives, repeats),
-            "nq": pm.nq, "nv": pm.nv, "joints": pm.njoints - 1, "mass": float(sum(i.mass for i in pm.inertias))}
+    return {
+        "rnea": frames / best_time(rnea, repeats),
+        "derivatives": frames / best_time(derivatives, repeats),
+        "nq": pm.nq,
+        "nv": pm.nv,
+        "joints": pm.njoints - 1,
+        "mass": float(sum(i.mass for i in pm.inertias)),
+    }
 
 
 # ---- OpenSim ---------------------------------------------------------------------------------------------------
@@ -249,7 +279,10 @@ EXTERNAL_FORCE = """<ExternalForce name="{body}_plate"><applied_to_body>{body}</
 
 def opensim_inverse_dynamics(root: Path, trial: str, coordinates) -> dict[str, float]:
     """Frames/s of OpenSim's InverseDynamicsTool on ``coordinates`` with the plates on the feet."""
-    import opensim as osim
+    from biomotion.settings import opensim_oracle
+
+    osim = opensim_oracle()
+
     osim.Logger.setLevelString("error")
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
@@ -257,8 +290,9 @@ def opensim_inverse_dynamics(root: Path, trial: str, coordinates) -> dict[str, f
         # (biomotion.validation.muscles.rajagopal_walk_inputs)
         write_motion(folder / "coordinates.mot", coordinates, in_degrees=False)
         forces = "".join(EXTERNAL_FORCE.format(body=body, k=k) for k, body in ((1, "calcn_r"), (2, "calcn_l")))
-        (folder / "loads.xml").write_text(EXTERNAL_LOADS.format(
-            forces=forces, datafile=(root / SUBJECT / "ID" / f"{trial}_grf.mot").resolve()))
+        (folder / "loads.xml").write_text(
+            EXTERNAL_LOADS.format(forces=forces, datafile=(root / SUBJECT / "ID" / f"{trial}_grf.mot").resolve())
+        )
         tool = osim.InverseDynamicsTool()
         tool.setModelFileName(str((root / SUBJECT / MODEL).resolve()))
         tool.setCoordinatesFileName(str(folder / "coordinates.mot"))
@@ -283,6 +317,7 @@ def opensim_inverse_dynamics(root: Path, trial: str, coordinates) -> dict[str, f
 
 # ---- force inference -------------------------------------------------------------------------------------------
 
+
 def contact_problem(model: BodyModel, q, qd, qdd, settings: ContactSettings):
     """The batched QP of `infer_ground_reaction` (same construction): P [T, n, n], b [T, n] (minimise
     ½xᵀPx − bᵀx, x >= 0), the weighted root force r_w [T, 6], edge map a_w [T, 6, n] and prior diagonal d [T, n]
@@ -292,8 +327,9 @@ def contact_problem(model: BodyModel, q, qd, qdd, settings: ContactSettings):
         free = inverse_dynamics(model, q, qd, qdd)[..., roots]
         positions, velocities, jacobian = _point_kinematics(model, q, qd, points, roots)
         rest = torch.quantile(positions[..., 1], settings.rest_percentile / 100.0, dim=0)
-        gate = torch.sigmoid(-(positions[..., 1] - rest - settings.height_offset) / settings.height_scale) * \
-            torch.sigmoid(-(velocities[..., 1].abs() - settings.speed_offset) / settings.speed_scale)
+        gate = torch.sigmoid(
+            -(positions[..., 1] - rest - settings.height_offset) / settings.height_scale
+        ) * torch.sigmoid(-(velocities[..., 1].abs() - settings.speed_offset) / settings.speed_scale)
         per_edge = torch.einsum("tkcd,ec->tdke", jacobian, _friction_edges(settings.friction, q.dtype))
         a = per_edge.reshape(*per_edge.shape[:2], -1)
         scale = torch.ones(6, dtype=q.dtype)
@@ -302,19 +338,24 @@ def contact_problem(model: BodyModel, q, qd, qdd, settings: ContactSettings):
         weight = model.total_mass * 9.80665
         penalty = settings.prior_weight * (1.0 / gate.clamp(min=1e-6) - 1.0)
         d = penalty.repeat_interleave(4, dim=-1) + 1e-9
-        p = (a_w.transpose(-1, -2) @ a_w + torch.diag_embed(d)) / weight ** 2
-        b = (a_w.transpose(-1, -2) @ r_w[..., None]).squeeze(-1) / weight ** 2
+        p = (a_w.transpose(-1, -2) @ a_w + torch.diag_embed(d)) / weight**2
+        b = (a_w.transpose(-1, -2) @ r_w[..., None]).squeeze(-1) / weight**2
     return p, b, r_w, a_w.contiguous(), d
 
 
 def cvxopt_solve(p: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Frame by frame: min ½xᵀPx − bᵀx s.t. x >= 0 with cvxopt's interior-point QP (default tolerances)."""
     import cvxopt
+
     cvxopt.solvers.options["show_progress"] = False
     n = p.shape[-1]
     g, h = cvxopt.matrix(-np.eye(n)), cvxopt.matrix(np.zeros(n))
-    return np.stack([np.array(cvxopt.solvers.qp(cvxopt.matrix(p[t]), cvxopt.matrix(-b[t]), g, h)["x"]).ravel()
-                     for t in range(p.shape[0])])
+    return np.stack(
+        [
+            np.array(cvxopt.solvers.qp(cvxopt.matrix(p[t]), cvxopt.matrix(-b[t]), g, h)["x"]).ravel()
+            for t in range(p.shape[0])
+        ]
+    )
 
 
 def force_inference(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, float]:
@@ -324,8 +365,7 @@ def force_inference(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, flo
     with torch.no_grad():
         ours_x = _nonnegative_least_squares(a_w, r_w, d, settings.iterations)
         ours_seconds = best_time(lambda: _nonnegative_least_squares(a_w, r_w, d, settings.iterations), repeats)
-        inference = frames / best_time(lambda: infer_ground_reaction(model, q, qd, qdd, settings),
-                                       max(1, repeats // 3))
+        inference = frames / best_time(lambda: infer_ground_reaction(model, q, qd, qdd, settings), max(1, repeats // 3))
     p_np, b_np = p.numpy(), b.numpy()
     theirs_x = cvxopt_solve(p_np, b_np)
     cvxopt_seconds = best_time(lambda: cvxopt_solve(p_np, b_np), repeats)  # best of repeats, as ours
@@ -335,24 +375,34 @@ def force_inference(model: BodyModel, q, qd, qdd, repeats: int) -> dict[str, flo
 
     def residual(x: np.ndarray) -> float:  # RMS over frames of the unexplained weighted root force (N)
         left = r_w.numpy() - np.einsum("tdn,tn->td", a_w.numpy(), x)
-        return float(np.sqrt(np.mean(np.sum(left ** 2, -1))))
+        return float(np.sqrt(np.mean(np.sum(left**2, -1))))
 
     # objective + ½|r|²/W² = ½|A x - r|²/W² + prior >= 0: the per-frame cost each solver reached
     offset = 0.5 * (r_w.numpy() ** 2).sum(-1) / float(model.total_mass * 9.80665) ** 2
     mine, theirs = objective(ours_x.numpy()) + offset, objective(theirs_x) + offset
-    return {"ours_solver": frames / ours_seconds, "cvxopt": frames / cvxopt_seconds, "ours_inference": inference,
-            "ours_residual": residual(ours_x.numpy()), "cvxopt_residual": residual(theirs_x),
-            "cost_ratio": float(mine.sum() / theirs.sum()),
-            "worst_frame": float(np.max((mine - theirs) / theirs.sum() * frames)), "variables": p.shape[-1]}
+    return {
+        "ours_solver": frames / ours_seconds,
+        "cvxopt": frames / cvxopt_seconds,
+        "ours_inference": inference,
+        "ours_residual": residual(ours_x.numpy()),
+        "cvxopt_residual": residual(theirs_x),
+        "cost_ratio": float(mine.sum() / theirs.sum()),
+        "worst_frame": float(np.max((mine - theirs) / theirs.sum() * frames)),
+        "variables": p.shape[-1],
+    }
 
 
 # ---- report ----------------------------------------------------------------------------------------------------
 
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
-        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                   if line.startswith("model name"))
+        cpu = next(
+            line.split(":", 1)[1].strip()
+            for line in Path("/proc/cpuinfo").read_text().splitlines()
+            if line.startswith("model name")
+        )
     except (OSError, StopIteration):
         pass
     versions = [f"torch {torch.__version__}"]
@@ -362,13 +412,25 @@ def machine() -> str:
         except ImportError:
             pass
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    return f"{cpu}, {os.cpu_count()} cores, load average {load} (shared machine); Python " \
-           f"{platform.python_version()}, " + ", ".join(versions)
+    return (
+        f"{cpu}, {os.cpu_count()} cores, load average {load} (shared machine); Python "
+        f"{platform.python_version()}, " + ", ".join(versions)
+    )
 
 
-def report(args, trial: str, model: BodyModel, frames: int, speeds: dict[int, dict[str, float]],
-           chain: dict[int, float], pin_result, opensim_result, grf, compile_note: str, float32_error_nm: float
-           ) -> str:
+def report(
+    args,
+    trial: str,
+    model: BodyModel,
+    frames: int,
+    speeds: dict[int, dict[str, float]],
+    chain: dict[int, float],
+    pin_result,
+    opensim_result,
+    grf,
+    compile_note: str,
+    float32_error_nm: float,
+) -> str:
     base = pin_result["rnea"] if pin_result else None
 
     def ratio(value: float) -> str:
@@ -390,29 +452,43 @@ def report(args, trial: str, model: BodyModel, frames: int, speeds: dict[int, di
         "",
         "## Inverse dynamics",
         "",
-        "| method | " + " | ".join(f"frames/s, {t} thread{'s' * (t > 1)}" for t in threads) +
-        f" | vs Pinocchio `rnea` ({1 if 1 in speeds else threads[0]} thread) |",
+        "| method | "
+        + " | ".join(f"frames/s, {t} thread{'s' * (t > 1)}" for t in threads)
+        + f" | vs Pinocchio `rnea` ({1 if 1 in speeds else threads[0]} thread) |",
         "|---|" + "---|" * len(threads) + "---|",
     ]
     for name in single:
-        lines.append(f"| biomotion `inverse_dynamics`, {name} | " +
-                     " | ".join(f"{speeds[t][name]:,.0f}" for t in threads) + f" | {ratio(single[name])} |")
+        lines.append(
+            f"| biomotion `inverse_dynamics`, {name} | "
+            + " | ".join(f"{speeds[t][name]:,.0f}" for t in threads)
+            + f" | {ratio(single[name])} |"
+        )
     if pin_result:
-        lines += [f"| Pinocchio `pin.rnea`, Python loop over frames | {pin_result['rnea']:,.0f}{pad} | 1 |",
-                  f"| Pinocchio `pin.computeRNEADerivatives`, Python loop | {pin_result['derivatives']:,.0f}{pad} | "
-                  f"{ratio(pin_result['derivatives'])} |"]
+        lines += [
+            f"| Pinocchio `pin.rnea`, Python loop over frames | {pin_result['rnea']:,.0f}{pad} | 1 |",
+            f"| Pinocchio `pin.computeRNEADerivatives`, Python loop | {pin_result['derivatives']:,.0f}{pad} | "
+            f"{ratio(pin_result['derivatives'])} |",
+        ]
     if opensim_result:
-        lines.append(f"| OpenSim 4.6 `InverseDynamicsTool` (whole tool run) | {opensim_result['frames_per_s']:,.0f}"
-                     f"{pad} | {ratio(opensim_result['frames_per_s'])} |")
+        lines.append(
+            f"| OpenSim 4.6 `InverseDynamicsTool` (whole tool run) | {opensim_result['frames_per_s']:,.0f}"
+            f"{pad} | {ratio(opensim_result['frames_per_s'])} |"
+        )
     lines += [""]
     if pin_result:
-        lines += [f"Pinocchio model built from the BodyModel: nq {pin_result['nq']}, nv {pin_result['nv']} "
-                  f"(= our {model.n_q} coordinates), {pin_result['joints']} joints, {pin_result['mass']:.2f} kg "
-                  "(see the benchmark's docstring for the approximation). Pinocchio runs single-threaded.", ""]
+        lines += [
+            f"Pinocchio model built from the BodyModel: nq {pin_result['nq']}, nv {pin_result['nv']} "
+            f"(= our {model.n_q} coordinates), {pin_result['joints']} joints, {pin_result['mass']:.2f} kg "
+            "(see the benchmark's docstring for the approximation). Pinocchio runs single-threaded.",
+            "",
+        ]
     lines += [compile_note, ""]
-    lines += ["Accuracy: tests/body checks every model against OpenSim's inverse dynamics solver to 1e-4 N·m in "
-              "float64 (measured about 1e-12). The float32 rows differ from float64 on this trial by at most "
-              f"{float32_error_nm:.1e} N·m.", ""]
+    lines += [
+        "Accuracy: tests/body checks every model against OpenSim's inverse dynamics solver to 1e-4 N·m in "
+        "float64 (measured about 1e-12). The float32 rows differ from float64 on this trial by at most "
+        f"{float32_error_nm:.1e} N·m.",
+        "",
+    ]
     lines += [
         "## Force inference (PhysPT Eq. 5: non-negative friction-cone forces at 10 foot points)",
         "",
@@ -464,9 +540,12 @@ def main(argv: list[str] | None = None) -> int:
     speeds, chain = {}, {}
     with torch_threads(1):
         compiled, compile_seconds = compile_inverse_dynamics(model, q, qd, qdd)
-    compile_note = (f"`torch.compile` rows: the first call compiled for {compile_seconds:.1f} s (once per model and "
-                    "frame count; the result equals the eager function to 1e-8 N·m)." if compiled is not None else
-                    f"`torch.compile` rows left out: it failed here ({compile_seconds}).")
+    compile_note = (
+        f"`torch.compile` rows: the first call compiled for {compile_seconds:.1f} s (once per model and "
+        "frame count; the result equals the eager function to 1e-8 N·m)."
+        if compiled is not None
+        else f"`torch.compile` rows left out: it failed here ({compile_seconds})."
+    )
     for threads in args.threads:
         with torch_threads(threads):
             speeds[threads] = ours(model, q, qd, qdd, args.repeats)
@@ -484,8 +563,19 @@ def main(argv: list[str] | None = None) -> int:
         except ImportError:
             opensim_result = None
         grf = force_inference(model, q, qd, qdd, args.repeats)
-    text = report(args, args.trial, model, q.shape[0], speeds, chain, pin_result, opensim_result, grf,
-                  compile_note, float32_error(model, q, qd, qdd))
+    text = report(
+        args,
+        args.trial,
+        model,
+        q.shape[0],
+        speeds,
+        chain,
+        pin_result,
+        opensim_result,
+        grf,
+        compile_note,
+        float32_error(model, q, qd, qdd),
+    )
     with atomic_write(args.out) as handle:
         handle.write(text)
     print(text)

@@ -1,15 +1,16 @@
 """Speed of the evaluation harness: 1000 clips of 3 s scored against 1000 reference clips; writes
 docs/results/eval_benchmark.md.
 
-    python benchmarks/eval.py [--data-root ../shared/data] [--clips 1000] [--seconds 3] [--out docs/results/eval_benchmark.md]
+    python benchmarks/eval.py [--data-root ../shared/data] [--clips 1000] [--seconds 3] [--out
+    docs/results/eval_benchmark.md]
 
 Clips are 3 s windows (90 frames at 30 Hz) cut with a stride of 1/6 s, round-robin over every clip of the dataset
 cache (built from the data root in a temporary folder), so they are real motion; the reference of window i is
-window i + 1 (another clip, or the same clip 1/6 s later). Timed stages (wall clock, one process, `torch_threads(1)` inside the harness): loading the clips through the
-body model (one forward-kinematics call for all frames), the per-set metrics of both sets (contact family, jerk,
-COM energy, joint ranges, entropy, diversity), the paired metrics (MJE, P-MJE, ACCL, VEL, DTW fidelity, W2
-fidelity) and writing JSON + Markdown. The optional full-body energy and ZMP (``physics=True``) are timed on
-``--physics-clips`` clips.
+window i + 1 (another clip, or the same clip 1/6 s later). Timed stages (wall clock, one process, `torch_threads(1)`
+inside the harness): loading the clips through the body model (one forward-kinematics call for all frames), the per-set
+metrics of both sets (contact family, jerk, COM energy, joint ranges, entropy, diversity), the paired metrics (MJE,
+P-MJE, ACCL, VEL, DTW fidelity, W2 fidelity) and writing JSON + Markdown. The optional full-body energy and ZMP
+(``physics=True``) are timed on ``--physics-clips`` clips.
 """
 
 from __future__ import annotations
@@ -31,8 +32,8 @@ from biomotion.data.clips import (
     coordinate_set,
 )
 from biomotion.evaluation.harness import evaluate, evaluation_markdown, write_json, write_text
-from biomotion.metrics.registry import score_set
 from biomotion.io.atomic import atomic_write
+from biomotion.metrics.registry import score_set
 
 
 def windows(cache, count: int, frames: int) -> list[CoordinateClip]:
@@ -98,11 +99,16 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Evaluation harness speed",
         "",
-        (f"Written by `python benchmarks/eval.py` ({args.clips} clips of {args.seconds:g} s = {frames} frames at "
-        f"{cache.rate:g} Hz, real windows of the dataset cache, each scored against the next window as its reference)."),
+        (
+            f"Written by `python benchmarks/eval.py` ({args.clips} clips of {args.seconds:g} s = {frames} frames at "
+            f"{cache.rate:g} Hz, real windows of the dataset cache, each scored against the next window as its "
+            "reference)."
+        ),
         "",
-        (f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, Python "
-        f"{sys.version.split()[0]}, torch {torch.__version__} (CPU), one process."),
+        (
+            f"Machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores, Python "
+            f"{sys.version.split()[0]}, torch {torch.__version__} (CPU), one process."
+        ),
         "",
         "| stage | seconds |",
         "|---|---:|",
@@ -111,10 +117,13 @@ def main(argv: list[str] | None = None) -> None:
         "",
         f"Target: under 60 s for 1000 clips of 3 s: {'met' if total < 60 else 'NOT met'}.",
         "",
-        (f"Optional physics (`physics=True`: full-body energy with segment rotation and ZMP inside the support, "
-        f"spline derivatives, body velocities and accelerations by forward-mode derivatives of the kinematics): {physics:.1f} s for {len(physics_clips)} clips "
-        f"(including loading), about {physics / len(physics_clips) * args.clips:.0f} s per {args.clips}; off by "
-        "default for that reason."),
+        (
+            f"Optional physics (`physics=True`: full-body energy with segment rotation and ZMP inside the support, "
+            "spline derivatives, body velocities and accelerations by forward-mode derivatives of the kinematics): "
+            f"{physics:.1f} s for {len(physics_clips)} clips "
+            f"(including loading), about {physics / len(physics_clips) * args.clips:.0f} s per {args.clips}; off by "
+            "default for that reason."
+        ),
         "",
     ]
     with atomic_write(Path(args.out)) as out:

@@ -26,10 +26,10 @@ from pathlib import Path
 import torch
 
 from biomotion.body.kinematics import torch_threads
-from biomotion.generation.request import GENERATION_THREADS
-from biomotion.io.profiles import read_profile
 from biomotion.generation.pipeline import Generator
+from biomotion.generation.request import GENERATION_THREADS
 from biomotion.io.atomic import atomic_write
+from biomotion.io.profiles import read_profile
 
 
 def timed(fn, repeats: int) -> float:
@@ -59,13 +59,14 @@ def alternating(fns: dict[int, object], repeats: int) -> dict[int, float]:
 
 def static_optimization_seconds(data_root: str, q: torch.Tensor, rate: float) -> float:
     """One static-optimization labelling of the clip (inverse dynamics + SO, the surrogate's teacher)."""
+    from biomotion.analysis.activation_labels import Labeler
     from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.motion import Motion
-    from biomotion.analysis.activation_labels import Labeler
 
     labeler = Labeler.from_data_root(data_root)
-    motion = Motion(times=torch.arange(len(q)).double().numpy() / rate, values=q.double().numpy(),
-                    names=CANONICAL_COORDINATES)
+    motion = Motion(
+        times=torch.arange(len(q)).double().numpy() / rate, values=q.double().numpy(), names=CANONICAL_COORDINATES
+    )
     return timed(lambda: labeler(motion), 1)
 
 
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     profile = read_profile(Path("examples/runner_52_acl.yaml"))
     action = generator.bundle.vocabulary.parse("run at 3.5 m/s")
     run = lambda guidance: generator.generate(action, profile=profile, seconds=args.seconds, guidance=guidance)
-    with torch_threads(GENERATION_THREADS):   # what a `biomotion generate` process pays: no warm-up
+    with torch_threads(GENERATION_THREADS):  # what a `biomotion generate` process pays: no warm-up
         start = time.perf_counter()
         run(True)
         first = time.perf_counter() - start
@@ -96,24 +97,30 @@ def main(argv: list[str] | None = None) -> None:
             surrogate = timed(lambda: generator.surrogate(q), args.repeats)
         so = static_optimization_seconds(args.data_root, q[0].detach(), generator.rate)
     plural = lambda t: f"{t} thread{'s' * (t > 1)}"
-    rows = [("load tokenizer, prior, surrogate, body model (once, 1 thread)", load),
-            *((f"sample + decode a {args.seconds:g} s clip, no guidance, {plural(t)}", v) for t, v in unguided.items()),
-            *((f"sample + decode + guidance (40 iterations) + foot planting, {args.seconds:g} s clip, {plural(t)}", v)
-              for t, v in guided.items()),
-            (f"the first guided {args.seconds:g} s clip after loading, no warm-up, {plural(GENERATION_THREADS)}",
-             first),
-            ("muscle term: surrogate activations, one evaluation, 1 thread", surrogate),
-            ("muscle term: static optimization (ID + SO), one evaluation, 1 thread", so)]
+    rows = [
+        ("load tokenizer, prior, surrogate, body model (once, 1 thread)", load),
+        *((f"sample + decode a {args.seconds:g} s clip, no guidance, {plural(t)}", v) for t, v in unguided.items()),
+        *(
+            (f"sample + decode + guidance (40 iterations) + foot planting, {args.seconds:g} s clip, {plural(t)}", v)
+            for t, v in guided.items()
+        ),
+        (f"the first guided {args.seconds:g} s clip after loading, no warm-up, {plural(GENERATION_THREADS)}", first),
+        ("muscle term: surrogate activations, one evaluation, 1 thread", surrogate),
+        ("muscle term: static optimization (ID + SO), one evaluation, 1 thread", so),
+    ]
     used = guided.get(GENERATION_THREADS, min(guided.values()))
-    text = (f"# Generation speed\n\nCommand: `python benchmarks/generation.py --seconds {args.seconds:g} "
-            f"--repeats {args.repeats} --threads {' '.join(map(str, args.threads))}`; median of {args.repeats} "
-            f"runs after a warm-up, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load "
-            f"average {os.getloadavg()[0]:.1f}, torch {torch.__version__}, {time.strftime('%Y-%m-%d')}.\n\n"
-            "| stage | seconds |\n|---|---|\n" + "".join(f"| {name} | {value:.3f} |\n" for name, value in rows)
-            + f"\nGuided generation of a {args.seconds:g} s clip as `biomotion generate` runs it "
-            f"({plural(GENERATION_THREADS)}): {used:.2f} s, {used / 1.0:.2f}x the 1 s budget of issue 7. The "
-            f"surrogate evaluates the muscle term {so / surrogate:.0f}x faster than the static optimization it "
-            "replaces, which is what makes 40 guidance iterations affordable (PG-BIG A.8).\n")
+    text = (
+        f"# Generation speed\n\nCommand: `python benchmarks/generation.py --seconds {args.seconds:g} "
+        f"--repeats {args.repeats} --threads {' '.join(map(str, args.threads))}`; median of {args.repeats} "
+        f"runs after a warm-up, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load "
+        f"average {os.getloadavg()[0]:.1f}, torch {torch.__version__}, {time.strftime('%Y-%m-%d')}.\n\n"
+        "| stage | seconds |\n|---|---|\n"
+        + "".join(f"| {name} | {value:.3f} |\n" for name, value in rows)
+        + f"\nGuided generation of a {args.seconds:g} s clip as `biomotion generate` runs it "
+        f"({plural(GENERATION_THREADS)}): {used:.2f} s, {used / 1.0:.2f}x the 1 s budget of issue 7. The "
+        f"surrogate evaluates the muscle term {so / surrogate:.0f}x faster than the static optimization it "
+        "replaces, which is what makes 40 guidance iterations affordable (PG-BIG A.8).\n"
+    )
     with atomic_write(args.out) as handle:
         handle.write(text)
     print(text)

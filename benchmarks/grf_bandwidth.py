@@ -51,9 +51,11 @@ def vertical(result: Analysis, model: BodyModel) -> dict[str, np.ndarray]:
     """Plates, ours and the whole-body estimate (body weights) on the compared frames."""
     keep = plate_frames(result)
     weight = result.body_weight
-    return {"plates": result.measured.force[keep, :, 1].sum(1) / weight,
-            "ours": result.inferred.force[keep, :, 1].sum(1) / weight,
-            "base": float(model.total_mass) * (GRAVITY + result.com_acceleration[keep, 1]) / weight}
+    return {
+        "plates": result.measured.force[keep, :, 1].sum(1) / weight,
+        "ours": result.inferred.force[keep, :, 1].sum(1) / weight,
+        "base": float(model.total_mass) * (GRAVITY + result.com_acceleration[keep, 1]) / weight,
+    }
 
 
 def rmse(predicted: np.ndarray, plates: np.ndarray) -> float:
@@ -79,11 +81,13 @@ def phase_rows(series: dict[str, np.ndarray]) -> list[tuple[str, float, float]]:
     """(phase group, share of the squared error, mean signed error) of ours against the plates."""
     error = series["ours"] - series["plates"]
     tenth = stance_tenths(series["plates"])
-    total = float(np.sum(error ** 2))
+    total = float(np.sum(error**2))
     groups = [("flight", series["plates"] <= STANCE_BW)]
     groups += [(label, (tenth >= lo) & (tenth <= hi)) for label, lo, hi in GROUPS]
-    return [(label, float(np.sum(error[mask] ** 2)) / total, float(np.mean(error[mask])) if mask.any() else np.nan)
-            for label, mask in groups]
+    return [
+        (label, float(np.sum(error[mask] ** 2)) / total, float(np.mean(error[mask])) if mask.any() else np.nan)
+        for label, mask in groups
+    ]
 
 
 def analysed(motion: Motion, model: BodyModel, c3d: Path, cutoff: float) -> dict[str, np.ndarray]:
@@ -96,8 +100,10 @@ def runners(base: Path) -> list[str]:
     for c3d in sorted(base.glob("c3d/*runT35.c3d")):
         runner = c3d.name.removesuffix("runT35.c3d")
         files = runner_files(base, runner)
-        if all(files[k].exists() for k in ("generic", "scale_setup", "ik_setup", "static", "reference")) and \
-                (base / runner / f"{runner}_simple.osim").exists():
+        if (
+            all(files[k].exists() for k in ("generic", "scale_setup", "ik_setup", "static", "reference"))
+            and (base / runner / f"{runner}_simple.osim").exists()
+        ):
             found.append(runner)
     return found
 
@@ -129,8 +135,9 @@ def main(argv: list[str] | None = None) -> int:
         for cutoff in MARKER_CUTOFFS:
             motion = as_simple(solve_trial(base, runner, "T35", marker_cutoff_hz=cutoff)[0].motion)
             cells[f"chain IK, markers {cutoff:g} Hz"] = analysed(motion, model, c3d, cutoff)
-        bandwidth[runner] = {name: (rmse(s["ours"], s["plates"]), rmse(s["base"], s["plates"]))
-                             for name, s in cells.items()}
+        bandwidth[runner] = {
+            name: (rmse(s["ours"], s["plates"]), rmse(s["base"], s["plates"])) for name, s in cells.items()
+        }
         for name, s in cells.items():
             for key, value in s.items():
                 pooled.setdefault(name, {}).setdefault(key, []).append(value)
@@ -152,8 +159,9 @@ def main(argv: list[str] | None = None) -> int:
         "|---|" + "---|" * len(PHASES),
     ]
     for runner, rows in phases.items():
-        lines.append(f"| {runner} | " + " | ".join(f"{100 * share:.0f} % ({mean:+.2f})" for _, share, mean in rows)
-                     + " |")
+        lines.append(
+            f"| {runner} | " + " | ".join(f"{100 * share:.0f} % ({mean:+.2f})" for _, share, mean in rows) + " |"
+        )
     lines += [
         "",
         "## Bandwidth: RMSE (BW), ours / m(g + a_COM,y) on the same frames and filtering",

@@ -36,10 +36,16 @@ from biomotion.io.mot import read_ground_reaction, read_motion
 REPO = Path(__file__).resolve().parents[1]
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
 TRIALS = {
-    "Hamner subject01 run 5 m/s": ("Hamner2013/subject01/subject01_adjusted_scaled.osim",
-                                   "Hamner2013/subject01/Run_5.mot", "Hamner2013/subject01/Run_5_grf.mot"),
-    "gait2392 subject01 walk": (f"{GAIT}/OutputReference/subject01_simbody.osim", f"{GAIT}/subject01_walk1_ik.mot",
-                                f"{GAIT}/subject01_walk1_grf.mot"),
+    "Hamner subject01 run 5 m/s": (
+        "Hamner2013/subject01/subject01_adjusted_scaled.osim",
+        "Hamner2013/subject01/Run_5.mot",
+        "Hamner2013/subject01/Run_5_grf.mot",
+    ),
+    "gait2392 subject01 walk": (
+        f"{GAIT}/OutputReference/subject01_simbody.osim",
+        f"{GAIT}/subject01_walk1_ik.mot",
+        f"{GAIT}/subject01_walk1_grf.mot",
+    ),
 }
 CUTOFFS = (4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 20.0)
 EVALUATION_CUTOFF = 10.0
@@ -58,6 +64,7 @@ SWEEP = {
 @dataclasses.dataclass
 class Trial:
     """One tuning trial filtered at one cutoff: what the force solve needs and the plates to score against."""
+
     model: BodyModel
     q: torch.Tensor
     qd: torch.Tensor
@@ -115,8 +122,9 @@ def main(argv: list[str] | None = None) -> int:
         score = float(np.mean(ours))
         if score < best_score:
             best_cutoff, best_score = cutoff, score
-        lines.append(f"| {cutoff:g} | " + " | ".join(f"{o:.3f} / {b:.3f}" for o, b in zip(ours, base))
-                     + f" | {score:.3f} |")
+        lines.append(
+            f"| {cutoff:g} | " + " | ".join(f"{o:.3f} / {b:.3f}" for o, b in zip(ours, base)) + f" | {score:.3f} |"
+        )
     lines += [
         "",
         f"Lowest mean: {best_cutoff:g} Hz. `biomotion validate dynamics` keeps the issue's {EVALUATION_CUTOFF:g} Hz "
@@ -139,7 +147,9 @@ def main(argv: list[str] | None = None) -> int:
         for value, (rmse, mean) in scores.items():
             mark = " (default)" if value == getattr(default, field) else ""
             mark += " **lowest**" if value == best else ""
-            lines.append(f"| `{field}` | {value:g}{mark} | " + " | ".join(f"{r:.4f}" for r in rmse) + f" | {mean:.4f} |")
+            lines.append(
+                f"| `{field}` | {value:g}{mark} | " + " | ".join(f"{r:.4f}" for r in rmse) + f" | {mean:.4f} |"
+            )
     lines += [
         "",
         "Where another value lowers the mean by more than 2 %, the default moves to it. The 2026-12-03 "

@@ -26,12 +26,12 @@ from pathlib import Path
 import torch
 
 from biomotion.body.model import BodyModel
-from biomotion.validation import ik as validate
-from biomotion.ik.scaling import scale_static
 from biomotion.body.scaling.osim_file import write_scaled_osim
-from biomotion.io.setup import read_scale_setup
+from biomotion.ik.scaling import scale_static
 from biomotion.io.atomic import atomic_write
+from biomotion.io.setup import read_scale_setup
 from biomotion.io.trc import read_trc, write_trc
+from biomotion.validation import ik as validate
 
 REPO = Path(__file__).resolve().parents[1]
 OPENCAP_TRIALS = ("walking1", "DJ1", "squats1", "STS1")
@@ -50,16 +50,29 @@ def _cases(root: Path, repeats: int) -> dict[str, dict]:
 
 def _opensim_scaletool(root: Path, runner: str, folder: Path) -> float:
     """OpenSim's ScaleTool on the runner's setup, pointed at the same static markers; seconds of ``run()``."""
-    import opensim
+    from biomotion.settings import opensim_oracle
+
+    opensim = opensim_oracle()
 
     setup_path = root / validate.FUKUCHI / runner / f"{runner}_scaleSetup_simple.xml"
-    write_trc(folder / "static.trc", validate.fukuchi_markers(root / validate.FUKUCHI / "c3d" / f"{runner}static.c3d"),
-              units="mm")
-    text = setup_path.read_text().replace(f"{runner}\\{runner}static.trc", "static.trc").replace(
-        "..\\model\\Denton2023_LowerLimb_Fukuchi2017.osim",
-        str(root / validate.FUKUCHI / "generic-models" / "Denton2023_LowerLimb_Fukuchi2017.osim"))
-    text = re.sub(r"<output_(model|scale|motion)_file>[^<]*</output_\1_file>",
-                  lambda m: f"<output_{m.group(1)}_file>out_{m.group(1)}_{m.start()}</output_{m.group(1)}_file>", text)
+    write_trc(
+        folder / "static.trc",
+        validate.fukuchi_markers(root / validate.FUKUCHI / "c3d" / f"{runner}static.c3d"),
+        units="mm",
+    )
+    text = (
+        setup_path.read_text()
+        .replace(f"{runner}\\{runner}static.trc", "static.trc")
+        .replace(
+            "..\\model\\Denton2023_LowerLimb_Fukuchi2017.osim",
+            str(root / validate.FUKUCHI / "generic-models" / "Denton2023_LowerLimb_Fukuchi2017.osim"),
+        )
+    )
+    text = re.sub(
+        r"<output_(model|scale|motion)_file>[^<]*</output_\1_file>",
+        lambda m: f"<output_{m.group(1)}_file>out_{m.group(1)}_{m.start()}</output_{m.group(1)}_file>",
+        text,
+    )
     (folder / "setup.xml").write_text(text)
     tool = opensim.ScaleTool(str(folder / "setup.xml"))
     began = time.perf_counter()
@@ -70,8 +83,11 @@ def _opensim_scaletool(root: Path, runner: str, folder: Path) -> float:
 
 def _scaling(root: Path, repeats: int) -> dict:
     base = root / validate.FUKUCHI
-    runners = sorted(p.name for p in base.iterdir() if (p / f"{p.name}_scaleSetup_simple.xml").exists()
-                     and (base / "c3d" / f"{p.name}static.c3d").exists())
+    runners = sorted(
+        p.name
+        for p in base.iterdir()
+        if (p / f"{p.name}_scaleSetup_simple.xml").exists() and (base / "c3d" / f"{p.name}static.c3d").exists()
+    )
     errors = validate.scaling_errors(root, runners)
     runner = "RBDS001"
     generic_path = base / "generic-models" / "Denton2023_LowerLimb_Fukuchi2017.osim"
@@ -86,9 +102,14 @@ def _scaling(root: Path, repeats: int) -> dict:
             result = scale_static(BodyModel.from_osim(generic_path), static, setup)
             write_scaled_osim(generic_path, Path(folder) / "ours.osim", result)
             seconds = min(seconds, time.perf_counter() - began)
-    return {"runners": len(errors), "max_rel_err": max(errors.values()), "worst": max(errors, key=errors.get),
-            "seconds": seconds, "opensim_seconds": opensim_seconds,
-            "placement_rms": result.placement.ik.rmse}
+    return {
+        "runners": len(errors),
+        "max_rel_err": max(errors.values()),
+        "worst": max(errors, key=errors.get),
+        "seconds": seconds,
+        "opensim_seconds": opensim_seconds,
+        "placement_rms": result.placement.ik.rmse,
+    }
 
 
 def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> str:
@@ -113,11 +134,13 @@ def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> s
     ]
     for name, c in cases.items():
         over = ", ".join(f"{k} {v['rmse']:.1f}" for k, v in c["over_bar"].items()) or "-"
-        lines.append(f"| {name} | {c['frames']} | {c['coordinates']} | {c['opensim_seconds']:.2f} | "
-                     f"{c['seconds']:.3f} ({c['solve_seconds']:.3f}) | {c['ik_speedup_vs_opensim']:.0f}x "
-                     f"({c['solve_speedup_vs_opensim']:.0f}x) | {c['ik_rmse_deg']:.2f} | "
-                     f"{c['ik_rmse_m']:.5f} | {c['ik_marker_rmse_m']:.5f} / {c['opensim_marker_rmse_m']:.5f} | "
-                     f"{c['frames_opensim_objective_lower']} | {over} |")
+        lines.append(
+            f"| {name} | {c['frames']} | {c['coordinates']} | {c['opensim_seconds']:.2f} | "
+            f"{c['seconds']:.3f} ({c['solve_seconds']:.3f}) | {c['ik_speedup_vs_opensim']:.0f}x "
+            f"({c['solve_speedup_vs_opensim']:.0f}x) | {c['ik_rmse_deg']:.2f} | "
+            f"{c['ik_rmse_m']:.5f} | {c['ik_marker_rmse_m']:.5f} / {c['opensim_marker_rmse_m']:.5f} | "
+            f"{c['frames_opensim_objective_lower']} | {over} |"
+        )
     unscored = sorted({n for c in cases.values() for n in c["no_marker_moves"]})
     over_bar = any(c["over_bar"] for c in cases.values())
     lines += [
@@ -127,9 +150,13 @@ def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> s
         "",
         f"The agreement columns compare with OpenSim run again to accuracy {validate.ORACLE_ACCURACY:g} (at the "
         "setups' 1e-5 its assembler stops short of the minimum where the objective is flat, forearm pronation "
-        "above all); " + ("coordinates over 2 deg are listed, and the column 'frames OpenSim objective lower' "
-                          "counts the frames where OpenSim found a lower objective than ours." if over_bar else
-                          "no coordinate of these trials differs by more than 2 deg."),
+        "above all); "
+        + (
+            "coordinates over 2 deg are listed, and the column 'frames OpenSim objective lower' "
+            "counts the frames where OpenSim found a lower objective than ours."
+            if over_bar
+            else "no coordinate of these trials differs by more than 2 deg."
+        ),
         "",
         "## Static scaling (Fukuchi runners, Denton 2023 generic model)",
         "",

@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         f"| converged frames | - | {int(result.converged.sum())}/{frames} |",
         "",
         f"Activations vs OpenSim: mean R^2 over the 92 muscles **{r2.mean():.4f}** (min {r2.min():.4f}, "
-        f"{reference.muscle_names[order[0]]}); RMSE {np.sqrt((rmse ** 2).mean()):.4f} overall, max per muscle "
+        f"{reference.muscle_names[order[0]]}); RMSE {np.sqrt((rmse**2).mean()):.4f} overall, max per muscle "
         f"{rmse.max():.4f} ({reference.muscle_names[int(rmse.argmax())]}).",
         "",
         "Lowest R^2: " + ", ".join(f"{reference.muscle_names[i]} {r2[i]:.3f}" for i in order[:5]) + ".",

@@ -25,11 +25,11 @@ from pathlib import Path
 import torch
 import yaml
 
-from biomotion.data.registry import DatasetCache
 from biomotion.data.clips import body_model
+from biomotion.data.registry import DatasetCache
 from biomotion.muscles.surrogate import MuscleSurrogate
-from biomotion.training.train_surrogate import clip_arrays, labels_for_cache, train
 from biomotion.muscles.surrogate_scores import evaluate
+from biomotion.training.train_surrogate import clip_arrays, labels_for_cache, train
 from biomotion.validation.muscles import surrogate_figures
 
 CLIP_FRAMES = 90
@@ -100,28 +100,52 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for name, changes in variants:
         weights = args.work / f"{name}.safetensors"
-        card = train(configured(base, changes), args.cache, weights, data_root=args.data_root,
-                     iterations=args.iterations, progress=True)
+        card = train(
+            configured(base, changes),
+            args.cache,
+            weights,
+            data_root=args.data_root,
+            iterations=args.iterations,
+            progress=True,
+        )
         model = MuscleSurrogate.load(weights, body=body).eval()
         val = evaluate(model, val_clips, symmetric=True)
         skipped: list[str] = []
         held_out = surrogate_figures(args.data_root, weights, skipped)
-        rows.append((name, changes, card["iterations"], card["train_seconds"], val["r2_mean_per_muscle"],
-                     held_out["surrogate_r2"], held_out["surrogate_r2_pooled"], held_out["surrogate_rmse"],
-                     held_out["surrogate_held_out_clips"], clip_ms(model, long_clip)))
+        rows.append(
+            (
+                name,
+                changes,
+                card["iterations"],
+                card["train_seconds"],
+                val["r2_mean_per_muscle"],
+                held_out["surrogate_r2"],
+                held_out["surrogate_r2_pooled"],
+                held_out["surrogate_rmse"],
+                held_out["surrogate_held_out_clips"],
+                clip_ms(model, long_clip),
+            )
+        )
         print(f"{name}: val {val['r2_mean_per_muscle']:.4f}, held out {held_out['surrogate_r2']}", skipped, flush=True)
     given = argv if argv is not None else sys.argv[1:]
-    lines = ["# Muscle-surrogate variants", "",
-             f"Command: `python benchmarks/surrogate_variants.py {' '.join(given)}`", "",
-             f"Config `{args.config}`, cache `{args.cache}`, {args.iterations} iterations each, seed 0, "
-             f"{args.threads} threads; mean R² over muscles, mirror-averaged.", "",
-             "| variant | changes | iterations | train (s) | val mean R² | held-out mean R² | held-out pooled R² "
-             "| held-out RMSE | held-out clips | ms per 3 s clip (1 thread) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# Muscle-surrogate variants",
+        "",
+        f"Command: `python benchmarks/surrogate_variants.py {' '.join(given)}`",
+        "",
+        f"Config `{args.config}`, cache `{args.cache}`, {args.iterations} iterations each, seed 0, "
+        f"{args.threads} threads; mean R² over muscles, mirror-averaged.",
+        "",
+        "| variant | changes | iterations | train (s) | val mean R² | held-out mean R² | held-out pooled R² "
+        "| held-out RMSE | held-out clips | ms per 3 s clip (1 thread) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for name, changes, its, seconds, val_r2, r2, pooled, rmse, clips, ms in rows:
         shown = ", ".join(f"{k}={v}" for k, v in changes.items()) or "(config)"
-        lines.append(f"| {name} | {shown} | {its} | {seconds:.0f} | {val_r2:.4f} | {r2:.4f} | {pooled:.4f} "
-                     f"| {rmse:.4f} | {clips} | {ms:.2f} |")
+        lines.append(
+            f"| {name} | {shown} | {its} | {seconds:.0f} | {val_r2:.4f} | {r2:.4f} | {pooled:.4f} "
+            f"| {rmse:.4f} | {clips} | {ms:.2f} |"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out}")

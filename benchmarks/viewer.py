@@ -92,14 +92,19 @@ def measure(path: Path, screenshot: Path | None = None) -> dict:
                 frames = page.evaluate(
                     f"(async () => {{ const v = window.viewer, out = []; for (let k = 1; k <= {FRAMES}; k++) {{ "
                     f"const t0 = performance.now(); await v.setFrame(Math.floor(k * (v.nFrames - 1) / {FRAMES})); "
-                    "out.push(performance.now() - t0); } return out; })()")
+                    "out.push(performance.now() - t0); } return out; })()"
+                )
                 if screenshot is not None:
                     page.evaluate("window.viewer.setFrame(Math.floor(window.viewer.nFrames * 0.37))")
                     screenshot.parent.mkdir(parents=True, exist_ok=True)
                     with atomic_write(screenshot, "wb") as handle:
                         handle.write(page.screenshot())
-    return {"load_median": statistics.median(loads), "load_max": max(loads), "plotly": statistics.median(plotly_ready),
-            "frame_ms": statistics.median(frames)}
+    return {
+        "load_median": statistics.median(loads),
+        "load_max": max(loads),
+        "plotly": statistics.median(plotly_ready),
+        "frame_ms": statistics.median(frames),
+    }
 
 
 def chromium_version() -> str:
@@ -126,9 +131,12 @@ def main() -> None:
             result = measure(path, args.screenshot if name == "bvh" else None)
             what = _describe(scene) + ("" if compare is None else f"; compare: {_describe(compare)}")
             rows.append((name, what, path.stat().st_size / 1e6, build, result))
-            print(f"{name}: {rows[-1][2]:.2f} MB, built in {build:.2f} s, loads in {result['load_median']:.2f} s "
-                  f"(max {result['load_max']:.2f}; plotly.js ready at {result['plotly']:.2f} s), "
-                  f"frame {result['frame_ms']:.0f} ms", flush=True)
+            print(
+                f"{name}: {rows[-1][2]:.2f} MB, built in {build:.2f} s, loads in {result['load_median']:.2f} s "
+                f"(max {result['load_max']:.2f}; plotly.js ready at {result['plotly']:.2f} s), "
+                f"frame {result['frame_ms']:.0f} ms",
+                flush=True,
+            )
     lines = [
         "# Viewer: file size and load time",
         "",
@@ -143,11 +151,17 @@ def main() -> None:
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, what, size, build, result in rows:
-        lines.append(f"| {name} | {what} | {size:.2f} | {build:.2f} | {result['load_median']:.2f} | "
-                     f"{result['load_max']:.2f} | {result['plotly']:.2f} | {result['frame_ms']:.0f} |")
-    lines += ["", f"Machine: {platform.machine()}, {os.cpu_count()} cores, load average {load_before:.2f} at the "
-                  f"start (other work shares the cores); {chromium_version()} with software WebGL (SwiftShader); "
-                  f"plotly.js from plotly {plotly.__version__}.", ""]
+        lines.append(
+            f"| {name} | {what} | {size:.2f} | {build:.2f} | {result['load_median']:.2f} | "
+            f"{result['load_max']:.2f} | {result['plotly']:.2f} | {result['frame_ms']:.0f} |"
+        )
+    lines += [
+        "",
+        f"Machine: {platform.machine()}, {os.cpu_count()} cores, load average {load_before:.2f} at the "
+        f"start (other work shares the cores); {chromium_version()} with software WebGL (SwiftShader); "
+        f"plotly.js from plotly {plotly.__version__}.",
+        "",
+    ]
     with atomic_write(args.out) as handle:
         handle.write("\n".join(lines))
     print(f"wrote {args.out} and {args.screenshot}")

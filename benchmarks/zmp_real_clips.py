@@ -36,8 +36,8 @@ import torch
 
 from biomotion.body.balance import zero_moment_point
 from biomotion.body.kinematics import torch_threads
-from biomotion.errors import BiomotionError
 from biomotion.data.clips import CoordinateClip, body_model, build_temporary_cache, coordinate_set
+from biomotion.errors import BiomotionError
 from biomotion.evaluation.generation import TRUNK_COORDINATES
 from biomotion.io.atomic import atomic_write
 from biomotion.metrics.contact import CONTACT_HEIGHT
@@ -86,13 +86,19 @@ def trunk_variants(motion: Motion, defaults: np.ndarray) -> dict[str, Motion]:
     rigid, steady = motion.values.copy(), motion.values.copy()
     rigid[:, lumbar] = defaults[lumbar]
     steady[:, lumbar] = defaults[lumbar] - (motion.values[:, pelvis] - motion.values[:, pelvis].mean(0))
-    return {"as captured": motion, "trunk rigid to the pelvis": motion.with_values(rigid),
-            "trunk held steady in the ground": motion.with_values(steady)}
+    return {
+        "as captured": motion,
+        "trunk rigid to the pelvis": motion.with_values(rigid),
+        "trunk held steady in the ground": motion.with_values(steady),
+    }
 
 
 def table(groups: dict[str, list[dict[str, np.ndarray]]]) -> list[str]:
-    lines = ["| clips | n | supported frames | ZMP in support (%) | median ZMP distance to support (cm) | airborne "
-             "frames | COM acceleration when airborne, forward / vertical (m/s²) |", "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| clips | n | supported frames | ZMP in support (%) | median ZMP distance to support (cm) | airborne "
+        "frames | COM acceleration when airborne, forward / vertical (m/s²) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for name in sorted(groups):
         figures = groups[name]
         margin = np.concatenate([f["margin"] for f in figures])
@@ -100,9 +106,10 @@ def table(groups: dict[str, list[dict[str, np.ndarray]]]) -> list[str]:
         airborne = np.concatenate([f["acceleration"][f["airborne"]] for f in figures])
         share = f"{100 * np.mean(supported >= 0):.1f}" if supported.size else "–"
         median = f"{100 * np.median(supported):+.1f}" if supported.size else "–"
-        flight = (f"{np.mean(airborne[:, 0]):+.2f} / {np.mean(airborne[:, 1]):+.2f}" if len(airborne) else "–")
-        lines.append(f"| {name} | {len(figures)} | {supported.size} | {share} | {median} | {len(airborne)} | "
-                     f"{flight} |")
+        flight = f"{np.mean(airborne[:, 0]):+.2f} / {np.mean(airborne[:, 1]):+.2f}" if len(airborne) else "–"
+        lines.append(
+            f"| {name} | {len(figures)} | {supported.size} | {share} | {median} | {len(airborne)} | {flight} |"
+        )
     return lines
 
 
@@ -115,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         model = body_model(args.data_root)
         handle, cache = build_temporary_cache(args.data_root, sources=SOURCES)
-    except BiomotionError as error:   # no canonical model or no clip of these sources under the data root
+    except BiomotionError as error:  # no canonical model or no clip of these sources under the data root
         print(f"zmp_real_clips: {error}", file=sys.stderr)
         return 1
     with handle:
@@ -126,8 +133,11 @@ def main(argv: list[str] | None = None) -> int:
         groups.setdefault(clip.group, []).append(figures)
     defaults = model.defaults.numpy()
     measured_trunk = [c for c, r in zip(clips, records) if r["source"] == "hamner" and r["labels"]["action"] == "run"]
-    trunk = [CoordinateClip(c.name, name, variant) for c in measured_trunk
-             for name, variant in trunk_variants(c.motion, defaults).items()]
+    trunk = [
+        CoordinateClip(c.name, name, variant)
+        for c in measured_trunk
+        for name, variant in trunk_variants(c.motion, defaults).items()
+    ]
     trunk_groups: dict[str, list[dict[str, np.ndarray]]] = {}
     for clip, figures in zip(trunk, clip_figures(model, trunk) if trunk else []):
         trunk_groups.setdefault(f"hamner runs, {clip.group}", []).append(figures)

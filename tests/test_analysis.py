@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 import torch
 
-from biomotion.analysis.chain import analyze, model_motion, plate_feet, plate_frames, summary, unwrapped, zmp_to_plate_cop
+from biomotion.analysis.chain import (
+    analyze,
+    model_motion,
+    plate_feet,
+    plate_frames,
+    summary,
+    unwrapped,
+    zmp_to_plate_cop,
+)
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.errors import ModelError
@@ -25,9 +33,18 @@ def subject4():
 def test_walking_torques_with_plates_assigned_to_feet(tmp_path, subject4):
     """opencap/SOURCE.md: OpenSim 4.6 ID on walking1 with plate 1 -> right, 2 -> left gives ankle moments peaking
     at -85 N·m (r) and -84 N·m (l). Our automatic plate-to-foot assignment must reproduce that."""
-    code = main(["analyze", str(data_path(SUBJECT4 + "IK/walking1_ik.mot")),
-                 "--model", str(data_path(SUBJECT4 + "Models/optimized_scale_and_markers.osim")),
-                 "--grf", str(data_path(SUBJECT4 + "ID/walking1_grf.mot")), "--out", str(tmp_path)])
+    code = main(
+        [
+            "analyze",
+            str(data_path(SUBJECT4 + "IK/walking1_ik.mot")),
+            "--model",
+            str(data_path(SUBJECT4 + "Models/optimized_scale_and_markers.osim")),
+            "--grf",
+            str(data_path(SUBJECT4 + "ID/walking1_grf.mot")),
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert code == 0
     torques = read_storage(tmp_path / "torques.sto")
     right = torques.data[:, torques.labels.index("ankle_angle_r_moment")]
@@ -53,18 +70,18 @@ def test_drop_jump_grf_from_kinematics_beats_the_com_estimate(subject4):
     plates = read_ground_reaction(data_path(SUBJECT4 + "ID/DJ1_grf.mot"))
     result = analyze(motion, subject4, plates)
     keep = plate_frames(result)
-    assert result.motion.times[~keep].max() < 1.05 and (~keep).sum() >= 90   # measured: 0-1.01 s, 102 frames
+    assert result.motion.times[~keep].max() < 1.05 and (~keep).sum() >= 90  # measured: 0-1.01 s, 102 frames
     figures = summary(result)
     ours, baseline = figures["inferred_vs_measured_vertical"], figures["com_baseline_vs_measured_vertical"]
-    assert ours["r2"] > 0.88 and ours["rmse_bw"] < 0.30            # measured here: R2 0.91, RMSE 0.27 BW
-    assert ours["rmse_bw"] < baseline["rmse_bw"]                     # baseline: R2 0.87, RMSE 0.33 BW
+    assert ours["r2"] > 0.88 and ours["rmse_bw"] < 0.30  # measured here: R2 0.91, RMSE 0.27 BW
+    assert ours["rmse_bw"] < baseline["rmse_bw"]  # baseline: R2 0.87, RMSE 0.33 BW
 
 
 def test_angles_wrapped_by_ik_are_unwrapped(subject4):
     """OpenCap's DJAsym1 IK wraps arm_flex_r from 170° to −176° between two frames at landing; taken as motion
     that jump put 3.4 BW of spurious ground force into the inferred GRF (7.7 BW at a 10 Hz cutoff)."""
     times = np.arange(50) / 100.0
-    swing = np.deg2rad(150.0 + 60.0 * times)                          # passes 180° at t = 0.5 s
+    swing = np.deg2rad(150.0 + 60.0 * times)  # passes 180° at t = 0.5 s
     wrapped = np.angle(np.exp(1j * swing))
     names = list(subject4.coordinate_names)
     values = np.tile(subject4.defaults.numpy(), (len(times), 1))
@@ -72,11 +89,18 @@ def test_angles_wrapped_by_ik_are_unwrapped(subject4):
     values[:, names.index("pelvis_ty")] = 0.9 + 2.0 * np.pi * times  # a translation is never unwrapped
     motion = unwrapped(Motion(times=times, names=tuple(names), values=values), subject4)
     assert np.allclose(motion.values[:, names.index("arm_flex_r")], swing)
-    assert np.array_equal(np.delete(motion.values, names.index("arm_flex_r"), axis=1),
-                          np.delete(values, names.index("arm_flex_r"), axis=1))
-    figures = summary(analyze(read_motion(data_path(SUBJECT4 + "IK/DJAsym1_ik.mot")), subject4,
-                              read_ground_reaction(data_path(SUBJECT4 + "ID/DJAsym1_grf.mot"))))
-    assert figures["peak_inferred_vertical_grf_bw"] < 2.6             # measured 2.33 BW (plates: 3.0 BW)
+    assert np.array_equal(
+        np.delete(motion.values, names.index("arm_flex_r"), axis=1),
+        np.delete(values, names.index("arm_flex_r"), axis=1),
+    )
+    figures = summary(
+        analyze(
+            read_motion(data_path(SUBJECT4 + "IK/DJAsym1_ik.mot")),
+            subject4,
+            read_ground_reaction(data_path(SUBJECT4 + "ID/DJAsym1_grf.mot")),
+        )
+    )
+    assert figures["peak_inferred_vertical_grf_bw"] < 2.6  # measured 2.33 BW (plates: 3.0 BW)
     assert figures["inferred_vs_measured_vertical"]["rmse_bw"] < 0.3  # measured 0.27 BW (0.32 wrapped)
 
 
@@ -112,4 +136,6 @@ def test_plate_feet_finds_the_foot_on_each_plate(trial, subject4):
     motion = model_motion(read_motion(data_path(SUBJECT4 + f"IK/{trial}_ik.mot")), model)
     forces = read_ground_reaction(data_path(SUBJECT4 + f"ID/{trial}_grf.mot"))
     assert plate_feet(forces, model, torch.tensor(motion.values), motion.times) == {
-        "ground_force_1": "calcn_r", "ground_force_2": "calcn_l"}
+        "ground_force_1": "calcn_r",
+        "ground_force_2": "calcn_l",
+    }

@@ -18,7 +18,7 @@ def test_every_public_name_resolves_and_dir_lists_them():
     for name in bm.__all__:
         assert getattr(bm, name) is not None, name
     with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
-        bm.nothing_here
+        bm.nothing_here  # noqa: B018 - the access itself is the test
 
 
 def test_import_is_light():
@@ -48,8 +48,11 @@ def test_analyze_trial_from_markers_matches_the_labs_ik_and_writes_nothing(tmp_p
     ours = bm.analyze_trial(trial, model=model, forces=forces, setup=setup)
     assert list(tmp_path.iterdir()) == []
     lab = bm.read(data_path(f"{SUBJECT4}/IK/walking1_ik.mot"))
-    names = [n for n in model.coordinate_names if n in lab.names and not n.startswith("pelvis_t")
-             and not bool(model.locked[model.coordinate_index(n)])]
+    names = [
+        n
+        for n in model.coordinate_names
+        if n in lab.names and not n.startswith("pelvis_t") and not bool(model.locked[model.coordinate_index(n)])
+    ]
     ik = ours.fit.motion
     frames = np.searchsorted(lab.times, ik.times).clip(0, lab.n_frames - 1)
     rms = np.sqrt(np.mean((ik.select(names).values - lab.select(names).values[frames]) ** 2, axis=0))
@@ -58,7 +61,7 @@ def test_analyze_trial_from_markers_matches_the_labs_ik_and_writes_nothing(tmp_p
     fz_ours = ours.ground_reaction.force[..., 1].sum(-1)
     fz_lab = reference.ground_reaction.force[..., 1].sum(-1)
     n = min(len(fz_ours), len(fz_lab))
-    assert np.abs(fz_ours[:n] - fz_lab[:n]).max() < 1.0      # N: the same plates on the same frames
+    assert np.abs(fz_ours[:n] - fz_lab[:n]).max() < 1.0  # N: the same plates on the same frames
     assert ours.torques.shape == (ours.angles.n_frames, model.n_q) and np.isfinite(ours.torques).all()
     assert ours.dynamics.zmp.shape == (ours.angles.n_frames, 3)
 

@@ -42,7 +42,7 @@ def test_the_data_root_defaults_to_the_environment_variable(monkeypatch, tmp_pat
     parser = build_parser()
     assert parser.parse_args(["validate", "kinematics", "--json", "k.json"]).data_root == tmp_path
     assert parser.parse_args(["eval", "reference", "--data-root", "elsewhere"]).data_root == Path("elsewhere")
-    assert main(["validate", "kinematics", "--json", str(tmp_path / "k.json")]) == 0   # an empty root: all skipped
+    assert main(["validate", "kinematics", "--json", str(tmp_path / "k.json")]) == 0  # an empty root: all skipped
     assert json.loads((tmp_path / "k.json").read_text())["fk_max_err_m"] is None
 
 
@@ -90,11 +90,14 @@ def test_inspect_summarises_a_model_as_opensim_counts_it(capsys):
     assert summary["markers"] == model.getMarkerSet().getSize()
     assert summary["total_mass_kg"] == pytest.approx(model.getTotalMass(state), abs=1e-3)
     assert len(summary["coordinates"]) == model.getCoordinateSet().getSize()
-    locked = {model.getCoordinateSet().get(i).getName() for i in range(model.getCoordinateSet().getSize())
-              if model.getCoordinateSet().get(i).getDefaultLocked()}
+    locked = {
+        model.getCoordinateSet().get(i).getName()
+        for i in range(model.getCoordinateSet().getSize())
+        if model.getCoordinateSet().get(i).getDefaultLocked()
+    }
     assert {name for name, text in summary["coordinates"].items() if "locked" in text} == locked
     assert summary["coordinates"]["knee_angle_r"] == "0 to 120 deg"
-    fukuchi = data_path("fukuchi-running/RBDS001/RBDS001_simple.osim")   # DeGrooteFregly2016 muscles
+    fukuchi = data_path("fukuchi-running/RBDS001/RBDS001_simple.osim")  # DeGrooteFregly2016 muscles
     assert main(["inspect", str(fukuchi)]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["muscles"] == osim.Model(str(fukuchi)).getMuscles().getSize() > 0
@@ -110,8 +113,11 @@ def test_inspect_summarises_setups_and_marks_missing_files(capsys):
     setup = data_path("opencap/Subject4/IK/walking1_ik_setup.xml")
     assert main(["inspect", str(setup)]) == 0
     summary = json.loads(capsys.readouterr().out)
-    applied = [t for t in ET.parse(setup).getroot().iter("IKMarkerTask")
-               if (t.findtext("apply") or "true").strip().lower() == "true"]
+    applied = [
+        t
+        for t in ET.parse(setup).getroot().iter("IKMarkerTask")
+        if (t.findtext("apply") or "true").strip().lower() == "true"
+    ]
     assert summary["kind"] == "IKSetup" and summary["marker_tasks"] == len(applied) > 20
     assert summary["marker_file"] == "../MarkerData/walking1.trc"
     scale = data_path("fukuchi-running/RBDS001/RBDS001_scaleSetup_simple.xml")
@@ -162,9 +168,11 @@ def test_convert_coordinates_on_their_model_to_markers_and_bvh(tmp_path, capsys)
     captured = read_trc(data_path("opencap/Subject4/MarkerData/walking1.trc"))
     common = [n for n in markers.names if n in captured.names]
     assert len(common) >= 40 and np.allclose(captured.times, markers.times)
-    error = markers.positions[:, [markers.index(n) for n in common]] - \
-        captured.positions[:, [captured.index(n) for n in common]]
-    assert np.sqrt(np.nanmean(np.sum(error ** 2, axis=-1))) < 0.02
+    error = (
+        markers.positions[:, [markers.index(n) for n in common]]
+        - captured.positions[:, [captured.index(n) for n in common]]
+    )
+    assert np.sqrt(np.nanmean(np.sum(error**2, axis=-1))) < 0.02
     assert main(["convert", str(source), str(tmp_path / "walk.bvh"), "--model", str(model)]) == 0
     clip = read_bvh(tmp_path / "walk.bvh")
     assert clip.n_frames == markers.n_frames and "pelvis" in clip.skeleton.names
@@ -188,33 +196,54 @@ def test_analyze_runs_the_whole_chain_from_markers_as_opensim_does(tmp_path, cap
     (measured 3.0 %, pelvis_tx_force; the whole 3.5 s walk reads 1.4 % in `biomotion validate dynamics`). The IK
     result is kept in OUT/ik and summarised in summary.json."""
     pytest.importorskip("opensim")
+    from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_ground_reaction, write_motion
     from biomotion.io.setup import read_ik_setup
     from biomotion.validation.ik import ORACLE_ACCURACY, opensim_ik
-    from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_ground_reaction, write_motion
     from biomotion.validation.oracle import run_inverse_dynamics_tool
 
     folder = data_path("opensim-models/Pipelines/Gait2392_Simbody")
     model, grf = folder / "OutputReference/subject01_simbody.osim", folder / "subject01_walk1_grf.mot"
     setup = folder / "subject01_Setup_IK.xml"
-    assert main(["analyze", str(folder / "subject01_walk1.trc"), "--setup", str(setup), "--model", str(model),
-                 "--grf", str(grf), "--out", str(tmp_path / "ours"), "--no-figures"]) == 0
+    assert (
+        main(
+            [
+                "analyze",
+                str(folder / "subject01_walk1.trc"),
+                "--setup",
+                str(setup),
+                "--model",
+                str(model),
+                "--grf",
+                str(grf),
+                "--out",
+                str(tmp_path / "ours"),
+                "--no-figures",
+            ]
+        )
+        == 0
+    )
     assert "inverse kinematics: 121 frames, RMS marker error" in capsys.readouterr().out
     ik = json.loads((tmp_path / "ours/summary.json").read_text())["inverse_kinematics"]
     assert ik["frames"] == 121 and ik["coordinates"] == "ik/subject01_walk1.mot"
     assert read_motion(tmp_path / "ours/ik/subject01_walk1.mot").n_frames == 121
 
     ik_setup = read_ik_setup(setup)
-    reference_ik = opensim_ik(model, ik_setup.file("marker_file"), weights=ik_setup.marker_weights,
-                              coordinate_tasks=ik_setup.coordinate_tasks, time_range=ik_setup.time_range,
-                              accuracy=ORACLE_ACCURACY).motion
+    reference_ik = opensim_ik(
+        model,
+        ik_setup.file("marker_file"),
+        weights=ik_setup.marker_weights,
+        coordinate_tasks=ik_setup.coordinate_tasks,
+        time_range=ik_setup.time_range,
+        accuracy=ORACLE_ACCURACY,
+    ).motion
     coordinates = write_motion(tmp_path / "opensim_ik.mot", reference_ik)
-    feet = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}   # as the pipeline's subject01_walk1_grf.xml
+    feet = {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}  # as the pipeline's subject01_walk1_grf.xml
     forces = read_ground_reaction(grf)
     forces = forces.assign([feet.get(name) for name in forces.names]).select(list(feet))
-    loads = write_external_loads_xml(tmp_path / "loads.xml", forces,
-                                     str(write_ground_reaction(tmp_path / "grf.mot", forces)))
-    reference = read_storage(run_inverse_dynamics_tool(model, coordinates, loads, tmp_path / "opensim",
-                                                       0.5, 2.5))
+    loads = write_external_loads_xml(
+        tmp_path / "loads.xml", forces, str(write_ground_reaction(tmp_path / "grf.mot", forces))
+    )
+    reference = read_storage(run_inverse_dynamics_tool(model, coordinates, loads, tmp_path / "opensim", 0.5, 2.5))
     ours = read_storage(tmp_path / "ours/torques.sto")
     inside = (reference.times >= 0.6) & (reference.times <= 2.4)
     errors = {}
@@ -245,8 +274,18 @@ def test_analyze_retargets_a_skeleton_onto_the_scaled_generic_model(tmp_path, ca
 
 def test_analyze_refuses_ik_options_for_coordinates(tmp_path, capsys):
     folder = data_path("opensim-models/Pipelines/Gait2392_Simbody")
-    code = main(["analyze", str(folder / "subject01_walk1_ik.mot"), "--setup", str(folder / "subject01_Setup_IK.xml"),
-                 "--model", str(folder / "OutputReference/subject01_simbody.osim"), "--out", str(tmp_path)])
+    code = main(
+        [
+            "analyze",
+            str(folder / "subject01_walk1_ik.mot"),
+            "--setup",
+            str(folder / "subject01_Setup_IK.xml"),
+            "--model",
+            str(folder / "OutputReference/subject01_simbody.osim"),
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert code == 2 and "--static and --scale-setup are for captured motion" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 

@@ -25,7 +25,7 @@ def test_resample_keeps_a_slow_signal_and_hits_the_new_rate():
 
 def test_resample_removes_content_above_the_new_nyquist():
     t = np.arange(1001) / 1000.0
-    noisy = np.sin(2 * np.pi * 2 * t) + 0.5 * np.sin(2 * np.pi * 140 * t)   # 140 Hz would alias at 30 Hz
+    noisy = np.sin(2 * np.pi * 2 * t) + 0.5 * np.sin(2 * np.pi * 140 * t)  # 140 Hz would alias at 30 Hz
     motion = Motion(times=t, names=("hip_flexion_r",), values=noisy[:, None])
     down = motion.resample(30.0)
     residual = down["hip_flexion_r"] - np.sin(2 * np.pi * 2 * down.times)
@@ -72,7 +72,6 @@ def test_markers_and_forces_resample_and_select():
     assert up.n_frames == 21 and np.isnan(up["B"][8]).all() and np.isfinite(up["A"]).all()
     force = np.zeros((11, 2, 3))
     force[:, 0, 1] = 700.0
-    grf = GroundReaction(times=t, names=("r", "l"), force=force, cop=np.zeros((11, 2, 3)),
-                         moment=np.zeros((11, 2, 3)))
+    grf = GroundReaction(times=t, names=("r", "l"), force=force, cop=np.zeros((11, 2, 3)), moment=np.zeros((11, 2, 3)))
     assert grf.total_force()[:, 1] == pytest.approx(np.full(11, 700.0))
     assert grf.assign(["calcn_r", "calcn_l"]).select(["l"]).bodies == ("calcn_l",)

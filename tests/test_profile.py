@@ -18,10 +18,18 @@ def _refused(data) -> ProfileError:
     return info.value
 
 
-@pytest.mark.parametrize("key, closest", [("agee", "age"), ("hieght", "height"), ("Mass", "mass"),
-                                          ("weight", "mass"), ("gender", "sex"), ("experiance_years",
-                                                                                   "experience_years"),
-                                          ("injury", "injuries")])
+@pytest.mark.parametrize(
+    "key, closest",
+    [
+        ("agee", "age"),
+        ("hieght", "height"),
+        ("Mass", "mass"),
+        ("weight", "mass"),
+        ("gender", "sex"),
+        ("experiance_years", "experience_years"),
+        ("injury", "injuries"),
+    ],
+)
 def test_an_unknown_key_is_named_with_the_closest_field(key, closest):
     error = _refused({"age": 30, key: 1})
     assert error.field == key
@@ -34,9 +42,21 @@ def test_several_unknown_keys_are_all_named_and_a_far_one_gets_no_guess():
     assert "'agee' (did you mean 'age'?), 'hieght' (did you mean 'height'?), 'zzzz';" in str(error)
 
 
-@pytest.mark.parametrize("name, value", [("height", 175), ("height", -1.7), ("mass", -70.0), ("mass", 0.5),
-                                         ("age", -1), ("age", 200), ("age", math.nan), ("height", math.inf),
-                                         ("experience_years", 150), ("experience_years", -2)])
+@pytest.mark.parametrize(
+    "name, value",
+    [
+        ("height", 175),
+        ("height", -1.7),
+        ("mass", -70.0),
+        ("mass", 0.5),
+        ("age", -1),
+        ("age", 200),
+        ("age", math.nan),
+        ("height", math.inf),
+        ("experience_years", 150),
+        ("experience_years", -2),
+    ],
+)
 def test_numbers_outside_their_documented_range_are_refused(name, value):
     error = _refused({name: value})
     low, high, unit = RANGES[name]
@@ -60,10 +80,18 @@ def test_injuries_and_extra_are_checked():
 
 
 def test_valid_profiles_round_trip_and_the_example_reads():
-    profile = Profile(subject_id="x", age=52, sex="M", height=1.76, mass=74.0, experience_years=15,
-                      injuries=(InjuryRecord("Left knee", "ACL"),), extra={"shoe": "neutral"})
+    profile = Profile(
+        subject_id="x",
+        age=52,
+        sex="M",
+        height=1.76,
+        mass=74.0,
+        experience_years=15,
+        injuries=(InjuryRecord("Left knee", "ACL"),),
+        extra={"shoe": "neutral"},
+    )
     assert Profile.from_dict(profile.to_dict()) == profile
-    for name, (low, high, _) in RANGES.items():       # the bounds themselves are valid
+    for name, (low, high, _) in RANGES.items():  # the bounds themselves are valid
         assert getattr(Profile.from_dict({name: low}), name) == low
         assert getattr(Profile.from_dict({name: high}), name) == high
     example = REPO / "examples" / "runner_52_acl.yaml"

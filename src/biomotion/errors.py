@@ -20,8 +20,15 @@ class DataFormatError(BiomotionError):
     meaningless), so editors and terminals can jump to it.
     """
 
-    def __init__(self, path: str | Path | None, message: str, *, line: int | None = None,
-                 frame: int | None = None, field: str | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path | None,
+        message: str,
+        *,
+        line: int | None = None,
+        frame: int | None = None,
+        field: str | None = None,
+    ) -> None:
         self.path = None if path is None else Path(path)
         self.line = line
         self.frame = frame

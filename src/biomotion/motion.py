@@ -7,8 +7,8 @@ are methods, so no stage needs its own helper for them. Tensors are made on requ
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 
@@ -33,8 +33,9 @@ def _uniform_rate(times: np.ndarray) -> float:
     return float((times.size - 1) / (times[-1] - times[0]))
 
 
-def lowpass(values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, axis: int = 0,
-            padlen: int | None = None) -> np.ndarray:
+def lowpass(
+    values: np.ndarray, rate: float, cutoff_hz: float, order: int = 4, axis: int = 0, padlen: int | None = None
+) -> np.ndarray:
     """Zero-lag Butterworth low-pass (``filtfilt``), the filter biomechanics labs use (Winter 2009, ch. 3).
 
     ``order`` is the order of the single pass; the zero-lag double pass doubles it. The ends are extended by odd
@@ -136,12 +137,15 @@ class _Series:
         if self.times.size == 0:
             raise DataFormatError(source, "no frames")
         if not np.all(np.isfinite(self.times)):
-            raise DataFormatError(source, "time column holds NaN or inf", frame=int(np.flatnonzero(~np.isfinite(self.times))[0]))
+            raise DataFormatError(
+                source, "time column holds NaN or inf", frame=int(np.flatnonzero(~np.isfinite(self.times))[0])
+            )
         steps = np.diff(self.times)
         if np.any(steps <= 0):
             bad = int(np.flatnonzero(steps <= 0)[0]) + 1
-            raise DataFormatError(source, f"time does not increase ({self.times[bad - 1]} then {self.times[bad]})",
-                                  frame=bad)
+            raise DataFormatError(
+                source, f"time does not increase ({self.times[bad - 1]} then {self.times[bad]})", frame=bad
+            )
         for name in self._timed:
             array = getattr(self, name)
             if array.shape[0] != self.times.shape[0]:
@@ -167,8 +171,9 @@ class _Series:
         t1 = self.times[-1] if stop is None else stop
         count = int(np.floor((t1 - t0) * rate + 1e-6)) + 1
         new_times = t0 + np.arange(count) / rate
-        return replace(self, times=new_times,
-                       **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed})
+        return replace(
+            self, times=new_times, **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed}
+        )
 
     def at(self, new_times: np.ndarray):
         """Copy sampled at ``new_times`` (uniform), with the same anti-alias rule as `resample`; NaN outside the
@@ -185,8 +190,9 @@ class _Series:
 
     def filtered(self, cutoff_hz: float, order: int = 4, padlen: int | None = None):
         """Zero-lag Butterworth low-pass of every channel (see `lowpass`)."""
-        return replace(self, **{n: lowpass(getattr(self, n), self.rate, cutoff_hz, order, padlen=padlen)
-                                for n in self._timed})
+        return replace(
+            self, **{n: lowpass(getattr(self, n), self.rate, cutoff_hz, order, padlen=padlen) for n in self._timed}
+        )
 
 
 @dataclass(frozen=True)
@@ -232,7 +238,7 @@ class Motion(_Series):
     def __getitem__(self, name: str) -> np.ndarray:
         return self.values[:, self.index(name)]
 
-    def select(self, names: Sequence[str], fill: float = 0.0) -> "Motion":
+    def select(self, names: Sequence[str], fill: float = 0.0) -> Motion:
         """Columns in the order of ``names``; names this motion lacks are added with ``fill`` and mask False."""
         columns, mask = [], []
         for name in names:
@@ -245,10 +251,10 @@ class Motion(_Series):
         values = np.stack(columns, axis=1) if columns else np.zeros((self.n_frames, 0))
         return Motion(times=self.times, names=tuple(names), values=values, mask=np.array(mask, dtype=bool))
 
-    def rename(self, mapping: dict[str, str]) -> "Motion":
+    def rename(self, mapping: dict[str, str]) -> Motion:
         return replace(self, names=tuple(mapping.get(n, n) for n in self.names))
 
-    def with_values(self, values: np.ndarray) -> "Motion":
+    def with_values(self, values: np.ndarray) -> Motion:
         return replace(self, values=np.asarray(values, dtype=float))
 
     def rotational(self) -> np.ndarray:
@@ -268,10 +274,11 @@ class Motion(_Series):
         if self.n_frames < 2:
             raise DataFormatError(None, "need at least two frames to differentiate")
         spline = scipy.interpolate.make_interp_spline(self.times, self.values, k=degree, axis=0)
-        return spline.derivative(1)(self.times), spline.derivative(2)(self.times) if degree > 1 else \
-            np.zeros_like(self.values)
+        return spline.derivative(1)(self.times), spline.derivative(2)(self.times) if degree > 1 else np.zeros_like(
+            self.values
+        )
 
-    def smoothed(self, cutoff_hz: float, order: int = 3) -> tuple["Motion", np.ndarray, np.ndarray]:
+    def smoothed(self, cutoff_hz: float, order: int = 3) -> tuple[Motion, np.ndarray, np.ndarray]:
         """(filtered motion, velocities, accelerations) the way OpenSim's inverse dynamics tool prepares
         coordinates: pad half the signal at each end by odd reflection (value and slope kept), zero-lag
         Butterworth low-pass, quintic spline through the padded filtered signal, then drop the padding — so the
@@ -285,15 +292,18 @@ class Motion(_Series):
             return self, *self.derivatives()
         x = self.values
         head = 2.0 * x[0] - x[pad:0:-1]
-        tail = 2.0 * x[-1] - x[-2:-pad - 2:-1]
+        tail = 2.0 * x[-1] - x[-2 : -pad - 2 : -1]
         padded = np.concatenate([head, x, tail])
         step = (self.times[-1] - self.times[0]) / (n - 1)
         times = self.times[0] + step * np.arange(-pad, n + pad)
         filtered = lowpass(padded, 1.0 / step, cutoff_hz, order)
         spline = scipy.interpolate.make_interp_spline(times, filtered, k=5, axis=0)
         inner = slice(pad, pad + n)
-        return (self.with_values(filtered[inner]), spline.derivative(1)(times[inner]),
-                spline.derivative(2)(times[inner]))
+        return (
+            self.with_values(filtered[inner]),
+            spline.derivative(1)(times[inner]),
+            spline.derivative(2)(times[inner]),
+        )
 
     def to_torch(self, dtype=None, device=None):
         """Values as a ``torch.Tensor`` [T, n]."""
@@ -316,8 +326,9 @@ class Markers(_Series):
         object.__setattr__(self, "positions", np.ascontiguousarray(self.positions, dtype=float))
         object.__setattr__(self, "names", tuple(self.names))
         if self.positions.ndim != 3 or self.positions.shape[1:] != (len(self.names), 3):
-            raise DataFormatError(None, f"positions shape {self.positions.shape} does not match "
-                                        f"[T, {len(self.names)}, 3]")
+            raise DataFormatError(
+                None, f"positions shape {self.positions.shape} does not match [T, {len(self.names)}, 3]"
+            )
         self._check_times()
 
     def index(self, name: str) -> int:
@@ -329,7 +340,7 @@ class Markers(_Series):
     def __getitem__(self, name: str) -> np.ndarray:
         return self.positions[:, self.index(name)]
 
-    def select(self, names: Sequence[str]) -> "Markers":
+    def select(self, names: Sequence[str]) -> Markers:
         """Markers in the order of ``names``; absent ones are all-NaN (occluded throughout)."""
         out = np.full((self.n_frames, len(names), 3), np.nan)
         for j, name in enumerate(names):
@@ -337,7 +348,7 @@ class Markers(_Series):
                 out[:, j] = self.positions[:, self.index(name)]
         return Markers(times=self.times, names=tuple(names), positions=out)
 
-    def rename(self, mapping: dict[str, str]) -> "Markers":
+    def rename(self, mapping: dict[str, str]) -> Markers:
         return replace(self, names=tuple(mapping.get(n, n) for n in self.names))
 
     def occluded(self) -> np.ndarray:
@@ -390,12 +401,17 @@ class GroundReaction(_Series):
         """[T, 3] sum over channels."""
         return self.force.sum(axis=1)
 
-    def select(self, names: Sequence[str]) -> "GroundReaction":
+    def select(self, names: Sequence[str]) -> GroundReaction:
         index = [self.names.index(n) for n in names]
-        return GroundReaction(times=self.times, names=tuple(names), force=self.force[:, index],
-                              cop=self.cop[:, index], moment=self.moment[:, index],
-                              bodies=tuple(self.bodies[i] for i in index))
+        return GroundReaction(
+            times=self.times,
+            names=tuple(names),
+            force=self.force[:, index],
+            cop=self.cop[:, index],
+            moment=self.moment[:, index],
+            bodies=tuple(self.bodies[i] for i in index),
+        )
 
-    def assign(self, bodies: Sequence[str | None]) -> "GroundReaction":
+    def assign(self, bodies: Sequence[str | None]) -> GroundReaction:
         """Copy with each channel applied to the given body."""
         return replace(self, bodies=tuple(bodies))

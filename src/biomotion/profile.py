@@ -29,12 +29,23 @@ class InjuryRecord:
 
 SEXES = ("F", "M")
 RANGES: dict[str, tuple[float, float, str]] = {
-    "height": (0.3, 2.8, "m"), "mass": (2.0, 400.0, "kg"), "age": (0.0, 130.0, "years"),
-    "experience_years": (0.0, 100.0, "years")}
+    "height": (0.3, 2.8, "m"),
+    "mass": (2.0, 400.0, "kg"),
+    "age": (0.0, 130.0, "years"),
+    "experience_years": (0.0, 100.0, "years"),
+}
 """Documented range (inclusive) and unit of each numeric field: values outside are a unit mistake or a typo."""
 INJURY_FIELDS = ("location", "diagnosis", "date")
-SYNONYMS = {"weight": "mass", "body_mass": "mass", "stature": "height", "gender": "sex", "id": "subject_id",
-            "subject": "subject_id", "experience": "experience_years", "dominant_side": "dominance"}
+SYNONYMS = {
+    "weight": "mass",
+    "body_mass": "mass",
+    "stature": "height",
+    "gender": "sex",
+    "id": "subject_id",
+    "subject": "subject_id",
+    "experience": "experience_years",
+    "dominant_side": "dominance",
+}
 """Names people use for a field, suggested when a profile uses them (difflib would not find most)."""
 
 
@@ -42,11 +53,15 @@ def _unknown(keys: list[str], known: tuple[str, ...], what: str) -> ProfileError
     """The error for unknown field names: each with the closest known one, then the known ones."""
     named = []
     for key in keys:
-        close = [SYNONYMS[key.lower()]] if SYNONYMS.get(key.lower()) in known else \
-            difflib.get_close_matches(key.lower(), known, n=1, cutoff=0.5)
+        close = (
+            [SYNONYMS[key.lower()]]
+            if SYNONYMS.get(key.lower()) in known
+            else difflib.get_close_matches(key.lower(), known, n=1, cutoff=0.5)
+        )
         named.append(f"{key!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
-    return ProfileError(f"unknown {what}{'s' if len(keys) > 1 else ''} {', '.join(named)}; known: "
-                        f"{', '.join(known)}", field=keys[0])
+    return ProfileError(
+        f"unknown {what}{'s' if len(keys) > 1 else ''} {', '.join(named)}; known: {', '.join(known)}", field=keys[0]
+    )
 
 
 @dataclass(frozen=True)
@@ -85,16 +100,18 @@ class Profile:
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
                 raise ProfileError(f"{name} must be a number (SI units: m, kg, years), got {value!r}", field=name)
             if not (math.isfinite(value) and low <= value <= high):
-                hint = f": in metres, {value / 100:g} for {value:g} cm" if name == "height" and 30 <= value <= 280 \
-                    else ""
+                hint = (
+                    f": in metres, {value / 100:g} for {value:g} cm" if name == "height" and 30 <= value <= 280 else ""
+                )
                 raise ProfileError(f"{name}={value} is outside [{low:g}, {high:g}] {unit}{hint}", field=name)
         if not isinstance(self.extra, Mapping):
             raise ProfileError(f"extra must be a mapping of other fields, got {self.extra!r}", field="extra")
         object.__setattr__(self, "injuries", tuple(self.injuries))
         for number, injury in enumerate(self.injuries):
             if not isinstance(injury, InjuryRecord):
-                raise ProfileError(f"injuries[{number}] must be an InjuryRecord, got {injury!r}",
-                                   field=f"injuries[{number}]")
+                raise ProfileError(
+                    f"injuries[{number}] must be an InjuryRecord, got {injury!r}", field=f"injuries[{number}]"
+                )
 
     @property
     def weight(self) -> float | None:
@@ -107,7 +124,7 @@ class Profile:
         return data
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "Profile":
+    def from_dict(cls, data: Mapping[str, Any]) -> Profile:
         """The inverse of `to_dict`, and how profile files are read: the keys must be `Profile` fields (other
         information goes under ``extra``), ``injuries`` a list of mappings with keys among `INJURY_FIELDS`.
 
@@ -123,16 +140,19 @@ class Profile:
             raise _unknown(unknown, names, "profile field")
         listed = data.get("injuries") or ()
         if isinstance(listed, (str, Mapping)) or not isinstance(listed, (list, tuple)):
-            raise ProfileError(f"injuries must be a list of {{{', '.join(INJURY_FIELDS)}}} mappings, got "
-                               f"{listed!r}", field="injuries")
+            raise ProfileError(
+                f"injuries must be a list of {{{', '.join(INJURY_FIELDS)}}} mappings, got {listed!r}", field="injuries"
+            )
         injuries = []
         for number, injury in enumerate(listed):
             if isinstance(injury, InjuryRecord):
                 injuries.append(injury)
                 continue
             if not isinstance(injury, Mapping):
-                raise ProfileError(f"injuries[{number}] must be a mapping with keys among {', '.join(INJURY_FIELDS)}, "
-                                   f"got {injury!r}", field=f"injuries[{number}]")
+                raise ProfileError(
+                    f"injuries[{number}] must be a mapping with keys among {', '.join(INJURY_FIELDS)}, got {injury!r}",
+                    field=f"injuries[{number}]",
+                )
             unknown = [str(key) for key in injury if key not in INJURY_FIELDS]
             if unknown:
                 error = _unknown(unknown, INJURY_FIELDS, f"injuries[{number}] field")

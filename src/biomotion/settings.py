@@ -32,3 +32,18 @@ def default_data_root() -> Path:
     ``../shared/data`` from the working directory (the project's layout, `../shared/data/README.md`). Every command
     that reads them also takes ``--data-root DIR``, which wins."""
     return Path(os.environ.get(DATA_ROOT_VARIABLE) or DATA_ROOT_FALLBACK)
+
+
+def opensim_oracle() -> Any:
+    """The ``opensim`` module (the ``validate`` extra), with its log written to the temporary folder.
+
+    OpenSim's tools change the working directory to their setup's folder while they run, and its logger opens
+    ``opensim.log`` in the working directory at its first message: left alone, it writes into whatever data folder
+    a setup lives in, which must stay read-only. Every use of OpenSim in biomotion goes through this function."""
+    import tempfile
+
+    import opensim
+
+    opensim.Logger.removeFileSink()
+    opensim.Logger.addFileSink(str(Path(tempfile.gettempdir()) / "biomotion-opensim.log"))
+    return opensim

@@ -30,16 +30,28 @@ class Trial:
     labels: Labels = field(default_factory=Labels)
     source: Path | None = None
 
-    def slice(self, start: float | None = None, stop: float | None = None) -> "Trial":
+    def slice(self, start: float | None = None, stop: float | None = None) -> Trial:
         """Every time series cut to ``start <= t <= stop``."""
-        return replace(self, **{name: getattr(self, name).slice(start, stop)
-                                for name in ("motion", "markers", "forces") if getattr(self, name) is not None})
+        return replace(
+            self,
+            **{
+                name: getattr(self, name).slice(start, stop)
+                for name in ("motion", "markers", "forces")
+                if getattr(self, name) is not None
+            },
+        )
 
-    def resample(self, rate: float) -> "Trial":
+    def resample(self, rate: float) -> Trial:
         """Every time series resampled to ``rate`` Hz on the motion's span (see `Motion.resample`)."""
         span = self.motion or self.markers or self.forces
         if span is None:
             return self
         start, stop = float(span.times[0]), float(span.times[-1])
-        return replace(self, **{name: getattr(self, name).resample(rate, start, stop)
-                                for name in ("motion", "markers", "forces") if getattr(self, name) is not None})
+        return replace(
+            self,
+            **{
+                name: getattr(self, name).resample(rate, start, stop)
+                for name in ("motion", "markers", "forces")
+                if getattr(self, name) is not None
+            },
+        )

@@ -9,8 +9,8 @@ from tests.conftest import DATA_ROOT
 
 osim = pytest.importorskip("opensim", reason="the opensim package (validate extra) is the oracle here")
 
-from biomotion.validation.oracle import Oracle, random_poses, vec3  # noqa: E402
 from biomotion.validation.dynamics import MODEL_GLOBS  # noqa: E402
+from biomotion.validation.oracle import Oracle, random_poses, vec3  # noqa: E402
 
 __all__ = ["Oracle", "osim", "random_poses", "vec3", "MODEL_GLOBS", "model_paths"]
 

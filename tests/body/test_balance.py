@@ -97,8 +97,8 @@ def test_zmp_is_undefined_near_free_fall(model):
     qdd[:, model.coordinate_index("pelvis_ty")] = torch.tensor([-0.79, -0.81, -1.0], dtype=q.dtype) * g
     zmp = zero_moment_point(model, q, qd, qdd)
     com = center_of_mass(model, q)
-    assert float(zmp[0, 0]) == pytest.approx(float(com[0, 0]), abs=1e-9)       # 0.21 body weights: loaded
-    assert torch.isnan(zmp[1:, [0, 2]]).all()                                   # 0.19 and 0: in flight
+    assert float(zmp[0, 0]) == pytest.approx(float(com[0, 0]), abs=1e-9)  # 0.21 body weights: loaded
+    assert torch.isnan(zmp[1:, [0, 2]]).all()  # 0.19 and 0: in flight
     assert torch.isfinite(zero_moment_point(model, q, qd, qdd, min_load_bw=0.1)[1]).all()
 
 
@@ -125,13 +125,13 @@ def test_sampled_body_motion_and_its_zmp_match_the_exact_ones(model):
     amplitude = 0.2 * torch.rand(model.n_q, generator=g, dtype=torch.float64)
     w = 2 * np.pi
     q = centre + amplitude * torch.sin(w * t)
-    qd, qdd = amplitude * w * torch.cos(w * t), -amplitude * w ** 2 * torch.sin(w * t)
+    qd, qdd = amplitude * w * torch.cos(w * t), -amplitude * w**2 * torch.sin(w * t)
     exact = body_motion(model, q, qd, qdd)
     poses = forward_kinematics(model, q)
     sampled = sampled_body_motion(body_coms(model, q, poses), poses.rotations, rate)
     inner = slice(3, -3)
-    assert torch.allclose(sampled.com_acceleration[inner], exact.com_acceleration[inner], atol=1e-2)   # m/s²
-    assert torch.allclose(sampled.angular_velocity[inner], exact.angular_velocity[inner], atol=1e-3)   # rad/s
+    assert torch.allclose(sampled.com_acceleration[inner], exact.com_acceleration[inner], atol=1e-2)  # m/s²
+    assert torch.allclose(sampled.angular_velocity[inner], exact.angular_velocity[inner], atol=1e-3)  # rad/s
     reference = zero_moment_point(model, q, qd, qdd)
     zmp, loaded = loaded_zero_moment_point(model, sampled)
     assert torch.isfinite(zmp).all()

@@ -10,18 +10,24 @@ import numpy as np
 import pytest
 import torch
 
+from biomotion.body.dynamics import _tree_motion, inverse_dynamics, joint_velocity, mass_matrix
+from biomotion.body.functions import FunctionStack
+from biomotion.body.kinematics import (
+    KinematicTree,
+    forward_kinematics,
+    joint_terms,
+    motion_subspace,
+    to_frames_first,
+    to_frames_last,
+    torch_threads,
+)
+from biomotion.body.model import BodyModel
+from biomotion.errors import ModelError
 from tests.body.oracle import random_poses
 from tests.conftest import data_path
 
-from biomotion.body.dynamics import _tree_motion, inverse_dynamics, joint_velocity, mass_matrix
-from biomotion.body.functions import FunctionStack
-from biomotion.body.kinematics import (KinematicTree, forward_kinematics, joint_terms, motion_subspace,
-                                       to_frames_first, to_frames_last, torch_threads)
-from biomotion.body.model import BodyModel
-from biomotion.errors import ModelError
-
-RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"       # splines, a knee of three rotations
-OPENCAP = "opencap/Subject4/Models/optimized_scale_and_markers.osim"   # polynomials, multipliers, welds
+RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"  # splines, a knee of three rotations
+OPENCAP = "opencap/Subject4/Models/optimized_scale_and_markers.osim"  # polynomials, multipliers, welds
 
 
 @pytest.mark.parametrize("relative", [RAJAGOPAL, OPENCAP])
@@ -29,12 +35,13 @@ def test_function_stack_matches_each_function(relative: str) -> None:
     model = BodyModel.from_osim(data_path(relative))
     axes = [axis for joint in model.joints for axis in joint.axes]
     stack = FunctionStack([a.function for a in axes], [a.scale for a in axes])
-    line = torch.linspace(-2.5, 2.5, 41, dtype=torch.float64)                    # inside and past the knots
-    q = line[:, None].expand(-1, model.n_q)                                      # every coordinate at x
+    line = torch.linspace(-2.5, 2.5, 41, dtype=torch.float64)  # inside and past the knots
+    q = line[:, None].expand(-1, model.n_q)  # every coordinate at x
     x = torch.stack([line if a.coordinate is not None else torch.zeros_like(line) for a in axes])
     batched = stack.derivatives(x)
-    assert {type(a.function).__name__ for a in axes} >= {"Linear", "Constant", "PiecewiseCubic"} or \
-        {type(a.function).__name__ for a in axes} >= {"Linear", "Multiplier", "Polynomial"}
+    assert {type(a.function).__name__ for a in axes} >= {"Linear", "Constant", "PiecewiseCubic"} or {
+        type(a.function).__name__ for a in axes
+    } >= {"Linear", "Multiplier", "Polynomial"}
     for k, axis in enumerate(axes):
         for mine, theirs in zip(batched, axis.derivatives(q)):
             assert torch.allclose(mine[k], theirs, atol=1e-12, rtol=1e-12)
@@ -49,13 +56,12 @@ def test_tree_terms_match_the_per_joint_formulas(hdot: str) -> None:
     q = torch.tensor(random_poses(model, rng, 3))
     qd = torch.tensor(rng.normal(size=q.shape) * 2.0)
     motion = _tree_motion(model, to_frames_last(q, 1), to_frames_last(qd, 1), hdot)
-    rotations, positions = (to_frames_first(x, q.shape[:-1]) for x in (motion.poses.rotations,
-                                                                        motion.poses.positions))
+    rotations, positions = (to_frames_first(x, q.shape[:-1]) for x in (motion.poses.rotations, motion.poses.positions))
     origin = to_frames_first(motion.origin, q.shape[:-1])
-    subspace = to_frames_first(motion.subspace, q.shape[:-1])            # [T, n_q, 6]
+    subspace = to_frames_first(motion.subspace, q.shape[:-1])  # [T, n_q, 6]
     velocity, bias = (to_frames_first(x, q.shape[:-1]) for x in (motion.joint_velocity, motion.joint_bias))
 
-    def to_body(vector: torch.Tensor, b: int) -> torch.Tensor:   # [T, 6] about O in ground -> body frame at origin
+    def to_body(vector: torch.Tensor, b: int) -> torch.Tensor:  # [T, 6] about O in ground -> body frame at origin
         angular = vector[..., :3]
         linear = vector[..., 3:] + torch.linalg.cross(angular, positions[:, b] - origin)
         rt = rotations[:, b].transpose(-1, -2)
@@ -113,8 +119,11 @@ def test_subtree_matches_the_whole_tree_and_must_hold_its_parents() -> None:
     q = to_frames_last(torch.tensor(random_poses(model, np.random.default_rng(3), 4)), 1)
     whole = KinematicTree.of(model, torch.float64)
     root = next(j.child for j in model.joints if j.parent < 0)
-    leg = [root] + [b for b in range(model.n_bodies)
-                    if model.body_names[b] in ("femur_r", "tibia_r", "talus_r", "calcn_r", "toes_r")]
+    leg = [root] + [
+        b
+        for b in range(model.n_bodies)
+        if model.body_names[b] in ("femur_r", "tibia_r", "talus_r", "calcn_r", "toes_r")
+    ]
 
     def passes(tree: KinematicTree) -> tuple:
         values, slopes, _ = tree.axis_values(q)
@@ -130,14 +139,16 @@ def test_subtree_matches_the_whole_tree_and_must_hold_its_parents() -> None:
         assert torch.allclose(poses.rotations, full_poses.rotations[tree.bodies], atol=1e-14)
         assert torch.allclose(poses.positions, full_poses.positions[tree.bodies], atol=1e-14)
         owned = [c for j in model.joints if j.child in bodies for c in j.coordinates]
-        assert torch.allclose(w[owned], full_w[owned], atol=1e-14) and torch.allclose(v[owned], full_v[owned],
-                                                                                        atol=1e-14)
+        assert torch.allclose(w[owned], full_w[owned], atol=1e-14) and torch.allclose(
+            v[owned], full_v[owned], atol=1e-14
+        )
         others = [c for c in range(model.n_q) if c not in owned]
         assert not w[others].any() and not v[others].any()
         on = model.marker_bodies[torch.isin(model.marker_bodies, torch.tensor(bodies))]
         offsets = torch.zeros(len(on), 3, dtype=torch.float64)
-        assert torch.allclose(tree.points(poses, tree.tree_bodies(on), offsets),
-                              whole.points(full_poses, on, offsets), atol=1e-14)
+        assert torch.allclose(
+            tree.points(poses, tree.tree_bodies(on), offsets), whole.points(full_poses, on, offsets), atol=1e-14
+        )
     with pytest.raises(ModelError):
         KinematicTree(model, torch.float64, bodies=leg[2:])
     with pytest.raises(ModelError):

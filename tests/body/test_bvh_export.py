@@ -11,17 +11,16 @@ import numpy as np
 import pytest
 import torch
 
-from tests.conftest import DATA_ROOT, data_path
-
 from biomotion.body.bvh_export import ROTATION_CHANNELS, motion_to_bvh, zxy_euler
 from biomotion.body.kinematics import apply_couplers, forward_kinematics
 from biomotion.body.model import BodyModel
 from biomotion.errors import ModelError
 from biomotion.io.bvh import axis_rotation, read_bvh, write_bvh
 from biomotion.motion import Motion
+from tests.conftest import DATA_ROOT, data_path
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
-POSITION_TOLERANCE = 1e-4   # m
+POSITION_TOLERANCE = 1e-4  # m
 ROTATION_TOLERANCE = 1e-6
 
 torch.set_num_threads(1)
@@ -68,7 +67,7 @@ def test_skeleton_is_the_body_tree(model):
     for j, name in enumerate(skeleton.names[1:], start=1):
         assert skeleton.names[skeleton.parents[j]] == model.body_names[model.parent[model.body_index(name)]]
     six = {name for name, chans in zip(skeleton.names, skeleton.channels) if len(chans) == 6}
-    assert six == {"pelvis", "tibia_r", "tibia_l", "patella_r", "patella_l"}   # root and translating joints
+    assert six == {"pelvis", "tibia_r", "tibia_l", "patella_r", "patella_l"}  # root and translating joints
     assert all(chans[-3:] == ROTATION_CHANNELS for chans in skeleton.channels)
     rest = forward_kinematics(model, torch.zeros(model.n_q, dtype=torch.float64))
     femur, tibia = model.body_index("femur_r"), model.body_index("tibia_r")
@@ -99,13 +98,14 @@ def test_cached_motions_round_trip_through_a_bvh_file(model, tmp_path):
 def test_zxy_euler_inverts_bvh_rotations_including_gimbal_lock():
     rng = np.random.default_rng(0)
     angles = rng.uniform(-np.pi, np.pi, (200, 3))
-    angles[:, 1] /= 2                                  # x in [-90, 90] degrees
-    angles[:5, 1] = np.pi / 2                          # gimbal lock
+    angles[:, 1] /= 2  # x in [-90, 90] degrees
+    angles[:5, 1] = np.pi / 2  # gimbal lock
     angles[5:10, 1] = -np.pi / 2
     matrices = axis_rotation("Z", angles[:, 0]) @ axis_rotation("X", angles[:, 1]) @ axis_rotation("Y", angles[:, 2])
     recovered = zxy_euler(torch.as_tensor(matrices)).numpy()
-    rebuilt = (axis_rotation("Z", recovered[:, 0]) @ axis_rotation("X", recovered[:, 1])
-               @ axis_rotation("Y", recovered[:, 2]))
+    rebuilt = (
+        axis_rotation("Z", recovered[:, 0]) @ axis_rotation("X", recovered[:, 1]) @ axis_rotation("Y", recovered[:, 2])
+    )
     np.testing.assert_allclose(rebuilt, matrices, atol=1e-7)
     np.testing.assert_allclose(recovered[10:], angles[10:], atol=1e-9)
 

@@ -28,9 +28,9 @@ def test_matches_lawson_hanson_and_meets_kkt():
     x = _nonnegative_least_squares(a, r, d, iterations=50)
     assert (x >= 0).all()
     gradient = (a.transpose(-1, -2) @ ((a @ x[..., None]).squeeze(-1) - r)[..., None]).squeeze(-1) + d * x
-    scale = 1e-9 * (1.0 + r.abs().amax(-1, keepdim=True))          # N·(force units): rounding level
-    assert (gradient[x > 0].abs() <= 1e3 * scale.expand_as(x)[x > 0]).all()   # stationary where free
-    assert (gradient[x == 0] >= -1e3 * scale.expand_as(x)[x == 0]).all()      # no descent into x > 0
+    scale = 1e-9 * (1.0 + r.abs().amax(-1, keepdim=True))  # N·(force units): rounding level
+    assert (gradient[x > 0].abs() <= 1e3 * scale.expand_as(x)[x > 0]).all()  # stationary where free
+    assert (gradient[x == 0] >= -1e3 * scale.expand_as(x)[x == 0]).all()  # no descent into x > 0
     for t in range(a.shape[0]):  # the same problem as a stacked least squares: [A; √D] x ≈ [r; 0]
         stacked = np.vstack([a[t].numpy(), np.diag(np.sqrt(d[t].numpy()))])
         reference, _ = nnls(stacked, np.concatenate([r[t].numpy(), np.zeros(40)]), maxiter=10_000)
@@ -41,11 +41,12 @@ def test_matches_lawson_hanson_and_meets_kkt():
 def test_frames_are_independent_and_edge_cases():
     a, r, d = _problem(16, seed=1)
     together = _nonnegative_least_squares(a, r, d, iterations=50)
-    alone = torch.cat([_nonnegative_least_squares(a[t:t + 1], r[t:t + 1], d[t:t + 1], iterations=50)
-                       for t in range(16)])
+    alone = torch.cat(
+        [_nonnegative_least_squares(a[t : t + 1], r[t : t + 1], d[t : t + 1], iterations=50) for t in range(16)]
+    )
     torch.testing.assert_close(together, alone, rtol=1e-9, atol=1e-9)
     assert _nonnegative_least_squares(a[:0], r[:0], d[:0], iterations=50).shape == (0, 40)
     zero = _nonnegative_least_squares(a[:2], torch.zeros_like(r[:2]), d[:2], iterations=50)
-    assert (zero == 0).all()                                          # nothing to explain: no force
+    assert (zero == 0).all()  # nothing to explain: no force
     a[3] = float("nan")
     assert _nonnegative_least_squares(a, r, d, iterations=50).isnan().any(-1).tolist() == [t == 3 for t in range(16)]

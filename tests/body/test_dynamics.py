@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from tests.body.oracle import Oracle, osim, random_poses
-from tests.conftest import data_path
-
 from biomotion.body.dynamics import ExternalLoad, bias_forces, inverse_dynamics, mass_matrix
 from biomotion.body.model import BodyModel
 from biomotion.errors import ModelError
+from tests.body.oracle import Oracle, osim, random_poses
+from tests.conftest import data_path
 
 ID_TOLERANCE = 1e-4  # N·m or N; measured errors are about 1e-12
 MODELS = (
@@ -49,8 +48,15 @@ def test_inverse_dynamics_and_mass_matrix_match_opensim(relative: str) -> None:
 
 
 def _external_force(storage, prefix: str, body: str):
-    force = osim.ExternalForce(storage, f"{prefix}ground_force_v", f"{prefix}ground_force_p",
-                               f"{prefix}ground_torque_", body, "ground", "ground")
+    force = osim.ExternalForce(
+        storage,
+        f"{prefix}ground_force_v",
+        f"{prefix}ground_force_p",
+        f"{prefix}ground_torque_",
+        body,
+        "ground",
+        "ground",
+    )
     force.setName(f"{body}_grf")
     return force
 
@@ -99,12 +105,21 @@ def test_random_external_loads_match_opensim() -> None:
     rng = np.random.default_rng(6)
     storage = osim.Storage()
     labels = osim.ArrayStr()
-    for label in ["time"] + [f"{p}{s}{a}" for p in ("", "1_") for s in ("ground_force_v", "ground_force_p",
-                                                                         "ground_torque_") for a in "xyz"]:
+    for label in ["time"] + [
+        f"{p}{s}{a}" for p in ("", "1_") for s in ("ground_force_v", "ground_force_p", "ground_torque_") for a in "xyz"
+    ]:
         labels.append(label)
     storage.setColumnLabels(labels)
-    values = np.concatenate([rng.normal(size=3) * 400, rng.normal(size=3), rng.normal(size=3) * 20,
-                             rng.normal(size=3) * 100, rng.normal(size=3), rng.normal(size=3) * 5])
+    values = np.concatenate(
+        [
+            rng.normal(size=3) * 400,
+            rng.normal(size=3),
+            rng.normal(size=3) * 20,
+            rng.normal(size=3) * 100,
+            rng.normal(size=3),
+            rng.normal(size=3) * 5,
+        ]
+    )
     for time in (0.0, 1.0):
         row = osim.Vector(18, 0.0)
         for i, v in enumerate(values):
@@ -124,10 +139,12 @@ def test_crba_and_rnea_agree() -> None:
     model = BodyModel.from_osim(data_path(MODELS[0]))
     q, qd, qdd = _random_state(model, 8, 4)
     tau = inverse_dynamics(model, q, qd, qdd)
-    assert torch.allclose(tau, (mass_matrix(model, q) @ qdd[..., None]).squeeze(-1) + bias_forces(model, q, qd),
-                          atol=1e-9, rtol=0)
-    unit = inverse_dynamics(model, q, torch.zeros_like(q), torch.eye(model.n_q, dtype=q.dtype)[:, None, :]
-                            .expand(-1, 4, -1), gravity=False)
+    assert torch.allclose(
+        tau, (mass_matrix(model, q) @ qdd[..., None]).squeeze(-1) + bias_forces(model, q, qd), atol=1e-9, rtol=0
+    )
+    unit = inverse_dynamics(
+        model, q, torch.zeros_like(q), torch.eye(model.n_q, dtype=q.dtype)[:, None, :].expand(-1, 4, -1), gravity=False
+    )
     assert torch.allclose(unit.permute(1, 2, 0), mass_matrix(model, q), atol=1e-9, rtol=0)
 
 
@@ -139,14 +156,18 @@ def test_exact_velocity_terms_conserve_power() -> None:
     tau = inverse_dynamics(model, q, qd, qdd, gravity=False, hdot="exact")
     _, m_dot = torch.func.jvp(lambda x: mass_matrix(model, x), (q,), (qd,))
     power = (qd[..., None, :] @ mass_matrix(model, q) @ qdd[..., None]).squeeze((-1, -2)) + 0.5 * (
-        qd[..., None, :] @ m_dot @ qd[..., None]).squeeze((-1, -2))
+        qd[..., None, :] @ m_dot @ qd[..., None]
+    ).squeeze((-1, -2))
     assert torch.allclose((qd * tau).sum(-1), power, atol=1e-9, rtol=0)
     opensim_style = inverse_dynamics(model, q, qd, qdd, gravity=False)
     difference = (opensim_style - tau).abs()
     knees = [model.coordinate_index(n) for n in ("knee_angle_r", "knee_angle_l")]
     assert 1e-7 < float(difference.max()) < 1e-1
-    elsewhere = [i for i, name in enumerate(model.coordinate_names)  # joints outside the knees' chains
-                 if name.startswith(("lumbar", "arm_", "elbow", "pro_sup", "wrist")) or name.endswith("_beta")]
+    elsewhere = [
+        i
+        for i, name in enumerate(model.coordinate_names)  # joints outside the knees' chains
+        if name.startswith(("lumbar", "arm_", "elbow", "pro_sup", "wrist")) or name.endswith("_beta")
+    ]
     assert float(difference[..., elsewhere].max()) <= 1e-10
     assert float(difference[..., knees].max()) > 0.0
     with pytest.raises(ModelError, match="hdot"):
@@ -166,6 +187,7 @@ def test_inverse_dynamics_directional_derivative_through_splines() -> None:
     direction = torch.tensor(np.random.default_rng(12).normal(size=q.shape))
     _, derivative = torch.func.jvp(lambda x: inverse_dynamics(model, x, qd, qdd), (q,), (direction,))
     h = 1e-6
-    numeric = (inverse_dynamics(model, q + h * direction, qd, qdd)
-               - inverse_dynamics(model, q - h * direction, qd, qdd)) / (2 * h)
+    numeric = (
+        inverse_dynamics(model, q + h * direction, qd, qdd) - inverse_dynamics(model, q - h * direction, qd, qdd)
+    ) / (2 * h)
     assert (derivative - numeric).abs().max() <= 1e-5 * max(1.0, float(numeric.abs().max()))

@@ -7,19 +7,20 @@ import numpy as np
 import pytest
 import torch
 
-from tests.body.oracle import osim
-from tests.conftest import data_path
-
 from biomotion.body.functions import build_function
 from biomotion.io import osim as spec
+from tests.body.oracle import osim
+from tests.conftest import data_path
 
 TOLERANCE = 1e-9
 
 
 def _opensim_function(tmp_path, tag: str, x, y):
     path = tmp_path / f"{tag}.xml"
-    path.write_text(f'<?xml version="1.0"?><OpenSimDocument Version="40000"><{tag} name="f">'
-                    f'<x>{" ".join(map(repr, x))}</x><y>{" ".join(map(repr, y))}</y></{tag}></OpenSimDocument>')
+    path.write_text(
+        f'<?xml version="1.0"?><OpenSimDocument Version="40000"><{tag} name="f">'
+        f"<x>{' '.join(map(repr, x))}</x><y>{' '.join(map(repr, y))}</y></{tag}></OpenSimDocument>"
+    )
     return osim.Function.safeDownCast(osim.OpenSimObject.makeObjectFromFile(str(path)))
 
 
@@ -29,8 +30,14 @@ def _opensim_values(function, xs, order: int = 0) -> np.ndarray:
     return np.array([function.calcDerivative(osim.StdVectorInt([0] * order), osim.Vector(1, float(v))) for v in xs])
 
 
-@pytest.mark.parametrize("tag, cls", [("SimmSpline", spec.SimmSpline), ("NaturalCubicSpline", spec.NaturalCubicSpline),
-                                      ("PiecewiseLinearFunction", spec.PiecewiseLinearFunction)])
+@pytest.mark.parametrize(
+    "tag, cls",
+    [
+        ("SimmSpline", spec.SimmSpline),
+        ("NaturalCubicSpline", spec.NaturalCubicSpline),
+        ("PiecewiseLinearFunction", spec.PiecewiseLinearFunction),
+    ],
+)
 @pytest.mark.parametrize("knots", [2, 3, 4, 5, 13])
 def test_splines_match_opensim(tmp_path, tag: str, cls, knots: int) -> None:
     rng = np.random.default_rng(knots)
@@ -50,14 +57,18 @@ def test_splines_match_opensim(tmp_path, tag: str, cls, knots: int) -> None:
 
 def test_polynomial_linear_constant_multiplier_match_opensim() -> None:
     xs = np.linspace(-2.0, 2.0, 41)
-    cases = [(spec.PolynomialFunction((0.5, -1.0, 2.0, 3.0)), osim.PolynomialFunction(osim.Vector([0.5, -1.0, 2.0, 3.0]))),
-             (spec.LinearFunction(-2.5, 0.3), osim.LinearFunction(-2.5, 0.3)),
-             (spec.ConstantFunction(0.7), osim.Constant(0.7))]
+    cases = [
+        (spec.PolynomialFunction((0.5, -1.0, 2.0, 3.0)), osim.PolynomialFunction(osim.Vector([0.5, -1.0, 2.0, 3.0]))),
+        (spec.LinearFunction(-2.5, 0.3), osim.LinearFunction(-2.5, 0.3)),
+        (spec.ConstantFunction(0.7), osim.Constant(0.7)),
+    ]
     for ours_spec, reference in cases:
         ours = build_function(ours_spec)
         for order in range(3):
-            assert np.abs(ours.derivatives(torch.tensor(xs))[order].numpy()
-                          - _opensim_values(reference, xs, order)).max() <= TOLERANCE
+            assert (
+                np.abs(ours.derivatives(torch.tensor(xs))[order].numpy() - _opensim_values(reference, xs, order)).max()
+                <= TOLERANCE
+            )
     multiplied = build_function(spec.MultiplierFunction(spec.PolynomialFunction((1.0, 0.0, -1.0)), 1.5))
     assert torch.allclose(multiplied(torch.tensor(xs)), 1.5 * (torch.tensor(xs) ** 2 - 1.0), atol=1e-15, rtol=0)
 
@@ -79,8 +90,13 @@ def test_every_rajagopal_transform_function_matches_opensim() -> None:
                 continue
             ours = build_function(parsed[joint.getName()].transform[k].function)
             for order in range(3):
-                assert np.abs(ours.derivatives(torch.tensor(xs))[order].numpy()
-                              - _opensim_values(axis.getFunction(), xs, order)).max() <= TOLERANCE
+                assert (
+                    np.abs(
+                        ours.derivatives(torch.tensor(xs))[order].numpy()
+                        - _opensim_values(axis.getFunction(), xs, order)
+                    ).max()
+                    <= TOLERANCE
+                )
             checked += 1
     assert checked >= 30
 

@@ -9,12 +9,18 @@ import numpy as np
 import pytest
 import torch
 
+from biomotion.body.kinematics import (
+    apply_couplers,
+    body_coms,
+    center_of_mass,
+    forward_kinematics,
+    joint_centers,
+    marker_jacobians,
+    marker_positions,
+)
+from biomotion.body.model import BodyModel
 from tests.body.oracle import Oracle, model_paths, random_poses
 from tests.conftest import data_path
-
-from biomotion.body.kinematics import (apply_couplers, body_coms, center_of_mass, forward_kinematics,
-                                       joint_centers, marker_jacobians, marker_positions)
-from biomotion.body.model import BodyModel
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 RUNNER = "fukuchi-running/RBDS001/RBDS001_simple.osim"
@@ -54,8 +60,10 @@ def test_center_of_mass_matches_opensim() -> None:
         assert np.abs(com[k].numpy() - expected).max() <= 1e-9
         femur = oracle.model.getBodySet().get("femur_r")
         station = femur.findStationLocationInGround(oracle.state, femur.getMassCenter())
-        assert np.abs(coms[k, model.body_index("femur_r")].numpy() - np.array([station.get(i) for i in range(3)])
-                      ).max() <= 1e-9
+        assert (
+            np.abs(coms[k, model.body_index("femur_r")].numpy() - np.array([station.get(i) for i in range(3)])).max()
+            <= 1e-9
+        )
 
 
 def test_couplers_match_opensim_assembly() -> None:
@@ -97,13 +105,14 @@ def test_marker_jacobians_match_central_differences() -> None:
 def test_fk_gradcheck() -> None:
     model = BodyModel.from_osim(data_path(RUNNER))
     q = torch.tensor(random_poses(model, np.random.default_rng(4), 1), requires_grad=True)
-    assert torch.autograd.gradcheck(lambda x: (marker_positions(model, x), forward_kinematics(model, x).rotations),
-                                    (q,))
+    assert torch.autograd.gradcheck(
+        lambda x: (marker_positions(model, x), forward_kinematics(model, x).rotations), (q,)
+    )
 
 
 def test_wrong_coordinate_count_is_rejected() -> None:
     from biomotion.errors import ModelError
+
     model = BodyModel.from_osim(data_path(RUNNER))
     with pytest.raises(ModelError, match="coordinates"):
         forward_kinematics(model, torch.zeros(model.n_q + 1, dtype=torch.float64))
-

@@ -7,11 +7,10 @@ import dataclasses
 import pytest
 import torch
 
-from tests.body.oracle import Oracle
-from tests.conftest import data_path
-
 from biomotion.body.model import BodyModel
 from biomotion.errors import ModelError
+from tests.body.oracle import Oracle
+from tests.conftest import data_path
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 RUNNER = "fukuchi-running/RBDS001/RBDS001_simple.osim"
@@ -47,7 +46,9 @@ def test_rajagopal_facts() -> None:
     assert (model.n_bodies, model.n_q, len(model.marker_names)) == (22, 39, 66)
     assert abs(float(model.total_mass) - 75.337) < 1e-3
     assert [(model.coordinate_names[c.dependent], model.coordinate_names[c.independent]) for c in model.couplers] == [
-        ("knee_angle_r_beta", "knee_angle_r"), ("knee_angle_l_beta", "knee_angle_l")]
+        ("knee_angle_r_beta", "knee_angle_r"),
+        ("knee_angle_l_beta", "knee_angle_l"),
+    ]
     locked = {model.coordinate_names[i] for i in torch.nonzero(model.locked).flatten().tolist()}
     assert locked == {f"{c}_{s}" for c in ("subtalar_angle", "mtp_angle", "wrist_flex", "wrist_dev") for s in "rl"}
     seen = {-1}
@@ -79,15 +80,23 @@ def test_topology_errors() -> None:
     spec = model.spec
     hip = next(j for j in spec.joints if j.name == "hip_r")
     knee = next(j for j in spec.joints if j.name == "knee_r")
-    two_parents = dataclasses.replace(spec, joints=spec.joints + (dataclasses.replace(hip, name="extra", coordinates=(),
-                                                                                       transform=()),))
+    two_parents = dataclasses.replace(
+        spec, joints=spec.joints + (dataclasses.replace(hip, name="extra", coordinates=(), transform=()),)
+    )
     with pytest.raises(ModelError, match="child of joints"):
         BodyModel.from_spec(two_parents)
-    loop = dataclasses.replace(spec, joints=tuple(
-        dataclasses.replace(j, parent_frame=knee.child_frame) if j.name == "hip_r" else j for j in spec.joints))
+    loop = dataclasses.replace(
+        spec,
+        joints=tuple(
+            dataclasses.replace(j, parent_frame=knee.child_frame) if j.name == "hip_r" else j for j in spec.joints
+        ),
+    )
     with pytest.raises(ModelError, match="connect to ground"):
         BodyModel.from_spec(loop)
-    orphan = dataclasses.replace(spec, joints=tuple(j for j in spec.joints if j.name != "knee_r"),
-                                 coordinates=tuple(c for c in spec.coordinates if c.joint != "knee_r"))
+    orphan = dataclasses.replace(
+        spec,
+        joints=tuple(j for j in spec.joints if j.name != "knee_r"),
+        coordinates=tuple(c for c in spec.coordinates if c.joint != "knee_r"),
+    )
     with pytest.raises(ModelError, match="no joint"):
         BodyModel.from_spec(orphan)

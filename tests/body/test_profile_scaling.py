@@ -9,18 +9,16 @@ import re
 import pytest
 import torch
 
-from tests.conftest import data_path
-
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
-from biomotion.body.scaling.stature import (RAJAGOPAL_2016_HEIGHT, scale_to_person, scale_to_profile,
-                                            standing_height)
+from biomotion.body.scaling.stature import RAJAGOPAL_2016_HEIGHT, scale_to_person, scale_to_profile, standing_height
 from biomotion.errors import ConfigError
 from biomotion.profile import Profile
+from tests.conftest import data_path
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
-HEIGHT_TOLERANCE = 1e-3     # m
-MASS_TOLERANCE = 1e-6       # relative
+HEIGHT_TOLERANCE = 1e-3  # m
+MASS_TOLERANCE = 1e-6  # relative
 
 torch.set_num_threads(1)
 
@@ -47,7 +45,7 @@ def _assert_same_model(ours: BodyModel, written: BodyModel) -> None:
 def test_generic_rajagopal_height_is_the_stated_one(generic_path):
     measured = standing_height(BodyModel.from_osim(generic_path))
     assert measured.height == pytest.approx(RAJAGOPAL_2016_HEIGHT, abs=1e-12)
-    assert "torso" in measured.reference and measured.bottom < -0.9      # feet below the pelvis origin
+    assert "torso" in measured.reference and measured.bottom < -0.9  # feet below the pelvis origin
 
 
 @pytest.mark.parametrize("height, mass", [(1.82, 68.0), (1.55, 92.5)])
@@ -57,7 +55,7 @@ def test_scaled_height_and_mass(generic_path, tmp_path, height, mass):
     assert abs(standing_height(scaled).height - height) < HEIGHT_TOLERANCE
     assert abs(float(scaled.total_mass) / mass - 1) < MASS_TOLERANCE
     ratio = generic.masses / generic.total_mass
-    assert torch.allclose(scaled.masses / scaled.total_mass, ratio, rtol=1e-12)      # distribution preserved
+    assert torch.allclose(scaled.masses / scaled.total_mass, ratio, rtol=1e-12)  # distribution preserved
     written = BodyModel.from_osim(tmp_path / "scaled.osim")
     _assert_same_model(scaled, written)
     assert abs(float(written.total_mass) / mass - 1) < MASS_TOLERANCE
@@ -79,8 +77,10 @@ def test_missing_height_or_mass_leaves_that_aspect(generic_path, tmp_path):
 def test_head_marker_is_measured_and_survives_the_file(generic_path, tmp_path):
     """A model with a head-top marker is measured by it, so the written file measures the same height again."""
     text = generic_path.read_text()
-    marker = ("<Marker name=\"HEAD\"><socket_parent_frame>/bodyset/torso</socket_parent_frame>"
-              "<location>-0.03 0.66 0</location><fixed>false</fixed></Marker>")
+    marker = (
+        '<Marker name="HEAD"><socket_parent_frame>/bodyset/torso</socket_parent_frame>'
+        "<location>-0.03 0.66 0</location><fixed>false</fixed></Marker>"
+    )
     text, count = re.subn(r"(<MarkerSet name=\"markerset\">\s*<objects>)", r"\1" + marker, text)
     assert count == 1
     with_head = tmp_path / "with_head.osim"
@@ -104,7 +104,9 @@ def test_opensim_loads_the_scaled_model(generic_path, tmp_path):
     assert [bodies.get(i).getName() for i in range(bodies.getSize())] == list(ours.body_names)
     masses = torch.tensor([bodies.get(i).getMass() for i in range(bodies.getSize())], dtype=torch.float64)
     assert torch.allclose(masses, ours.masses, rtol=1e-12)
-    model.realizePosition(state)                                        # default pose: body origins agree
-    theirs = torch.tensor([[bodies.get(i).getTransformInGround(state).p().get(k) for k in range(3)]
-                           for i in range(bodies.getSize())], dtype=torch.float64)
+    model.realizePosition(state)  # default pose: body origins agree
+    theirs = torch.tensor(
+        [[bodies.get(i).getTransformInGround(state).p().get(k) for k in range(3)] for i in range(bodies.getSize())],
+        dtype=torch.float64,
+    )
     assert (forward_kinematics(ours, ours.default_q()).positions - theirs).abs().max() < 1e-9

@@ -7,13 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from tests.body.oracle import osim, random_poses
-from tests.conftest import DATA_ROOT, data_path
-
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_factors, scale_model, scale_model_from_file
 from biomotion.io.osim import read_scale_set
+from tests.body.oracle import osim, random_poses
+from tests.conftest import DATA_ROOT, data_path
 
 DENTON = "fukuchi-running/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim"
 UHLRICH = "fukuchi-running/generic-models/Uhlrich2022_LowerLimb_Fukuchi2017.osim"
@@ -55,8 +54,9 @@ def test_every_runner_scale_set_matches_opensim(tmp_path) -> None:
     scale_sets = sorted(DATA_ROOT.glob("fukuchi-running/*/*_scaleSet_simple.xml"))
     assert scale_sets
     for scale_set in scale_sets:
-        _assert_same(scale_model_from_file(generic, scale_set, 70.0),
-                     _opensim_scaled(source, scale_set, True, 70.0, tmp_path))
+        _assert_same(
+            scale_model_from_file(generic, scale_set, 70.0), _opensim_scaled(source, scale_set, True, 70.0, tmp_path)
+        )
 
 
 def test_products_of_inertia_scale_like_opensim(tmp_path) -> None:
@@ -95,6 +95,7 @@ def test_unscaled_bodies_and_shapes() -> None:
     scaled = scale_model(model, factors)
     assert torch.equal(scaled.body_scales, factors) and torch.allclose(scaled.total_mass, model.total_mass)
     from biomotion.errors import ModelError
+
     with pytest.raises(ModelError):
         scale_model(model, torch.ones(3, 3, dtype=torch.float64))
     with pytest.raises(ModelError, match="no body"):

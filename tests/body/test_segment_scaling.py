@@ -12,15 +12,13 @@ import numpy as np
 import pytest
 import torch
 
-from tests.conftest import data_path
-
 from biomotion.body.kinematics import forward_kinematics
+from biomotion.body.scaling.segments import ANSUR_MEN, SEGMENTS, body_factors, segment_factors, shipped_lines
 from biomotion.body.scaling.stature import scale_to_person, standing_height
-from biomotion.training.fit_segments import fit_lines
-from biomotion.body.scaling.segments import (ANSUR_MEN, SEGMENTS, body_factors, segment_factors,
-                                            shipped_lines)
 from biomotion.errors import ConfigError
 from biomotion.io.tables import read_subject_table
+from biomotion.training.fit_segments import fit_lines
+from tests.conftest import data_path
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 
@@ -34,8 +32,17 @@ def test_the_shipped_lines_are_a_fit_of_the_survey():
 def test_each_segment_scales_its_bodies_on_both_sides():
     names = ("pelvis", "femur_r", "patella_l", "tibia_r", "calcn_l", "torso", "humerus_r", "hand_l", "skull")
     factors = body_factors(names, {"thigh": 1.1, "hand": 0.9}, 1.02)
-    assert factors == {"pelvis": 1.02, "femur_r": 1.1, "patella_l": 1.1, "tibia_r": 1.02, "calcn_l": 1.02,
-                       "torso": 1.02, "humerus_r": 1.02, "hand_l": 0.9, "skull": 1.02}
+    assert factors == {
+        "pelvis": 1.02,
+        "femur_r": 1.1,
+        "patella_l": 1.1,
+        "tibia_r": 1.02,
+        "calcn_l": 1.02,
+        "torso": 1.02,
+        "humerus_r": 1.02,
+        "hand_l": 0.9,
+        "skull": 1.02,
+    }
 
 
 def test_measures_in_metres_are_named_as_a_unit_mistake():
@@ -75,8 +82,22 @@ def test_scale_command_scales_a_survey_row(tmp_path, capsys):
     from biomotion.cli import main
 
     table = data_path("anthropometry/ANSUR_II_FEMALE_Public.csv")
-    assert main(["scale", "--subject-table", str(table), "--subject-id", "10037", "--model",
-                 str(data_path(RAJAGOPAL)), "--out", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "scale",
+                "--subject-table",
+                str(table),
+                "--subject-id",
+                "10037",
+                "--model",
+                str(data_path(RAJAGOPAL)),
+                "--out",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     assert "10 ANSUR II measures, stature ratio elsewhere" in capsys.readouterr().out
     summary = json.loads((tmp_path / "10037_scale.json").read_text())
     assert summary["height_m"] == 1.56 and abs(summary["standing_height_m"] / 1.56 - 1) < 0.05

@@ -9,10 +9,22 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from biomotion.body.spatial import (axis_angle, body_fixed_xyz, cross_frames_last, cross_motion,
-                                    cross_motion_frames_last, matmul_frames_last, matvec_frames_last,
-                                    motion_transform, skew, skew_frames_last, spatial_inertia,
-                                    spatial_inertia_frames_last, tmatvec_frames_last, vee)
+from biomotion.body.spatial import (
+    axis_angle,
+    body_fixed_xyz,
+    cross_frames_last,
+    cross_motion,
+    cross_motion_frames_last,
+    matmul_frames_last,
+    matvec_frames_last,
+    motion_transform,
+    skew,
+    skew_frames_last,
+    spatial_inertia,
+    spatial_inertia_frames_last,
+    tmatvec_frames_last,
+    vee,
+)
 
 _F64 = torch.float64
 
@@ -31,7 +43,7 @@ def test_skew_is_the_cross_product_and_vee_its_inverse() -> None:
     assert torch.allclose(skew(v).transpose(-1, -2), -skew(v))
     assert torch.allclose(vee(skew(v)), v, atol=0)
     m = _random(5, 3, 3, seed=3)
-    assert torch.allclose(vee(m), vee(0.5 * (m - m.transpose(-1, -2))), atol=1e-15)   # the skew part only
+    assert torch.allclose(vee(m), vee(0.5 * (m - m.transpose(-1, -2))), atol=1e-15)  # the skew part only
 
 
 def test_axis_angle_is_the_matrix_exponential_and_body_fixed_xyz_is_intrinsic_xyz() -> None:
@@ -40,9 +52,9 @@ def test_axis_angle_is_the_matrix_exponential_and_body_fixed_xyz_is_intrinsic_xy
     rotation = axis_angle(axis, angle)
     expected = torch.linalg.matrix_exp(angle[:, None, None] * skew(axis))
     assert torch.allclose(rotation, expected, atol=1e-14)
-    assert torch.allclose(rotation @ axis, axis.expand(9, 3), atol=1e-15)   # the axis stays put
+    assert torch.allclose(rotation @ axis, axis.expand(9, 3), atol=1e-15)  # the axis stays put
     angles = _random(4, 3, seed=5)
-    scipy = Rotation.from_euler("XYZ", angles.numpy()).as_matrix()                    # upper case: body-fixed
+    scipy = Rotation.from_euler("XYZ", angles.numpy()).as_matrix()  # upper case: body-fixed
     assert np.allclose(body_fixed_xyz(angles).numpy(), scipy, atol=1e-14)
 
 
@@ -51,7 +63,7 @@ def test_motion_transforms_compose_and_carry_the_cross_operator() -> None:
     r_ab, r_bc = _rotations(4, seed=6), _rotations(4, seed=7)
     p_ab, p_bc = _random(4, 3, seed=8), _random(4, 3, seed=9)
     x_ba, x_cb = motion_transform(r_ab, p_ab), motion_transform(r_bc, p_bc)
-    r_ac = r_ab @ r_bc                                                                 # C in A
+    r_ac = r_ab @ r_bc  # C in A
     p_ac = p_ab + (r_ab @ p_bc[..., None])[..., 0]
     assert torch.allclose(x_cb @ x_ba, motion_transform(r_ac, p_ac), atol=1e-13)
     v = _random(4, 6, seed=10)
@@ -83,16 +95,19 @@ def test_frames_last_formulas_equal_the_frames_first_ones() -> None:
 
     assert torch.allclose(matmul_frames_last(last(a), last(b)), last(a @ b), atol=1e-14)
     assert torch.allclose(matvec_frames_last(last(a), last(u)), last((a @ u[..., None])[..., 0]), atol=1e-14)
-    assert torch.allclose(tmatvec_frames_last(last(a), last(u)),
-                          last((a.transpose(-1, -2) @ u[..., None])[..., 0]), atol=1e-14)
+    assert torch.allclose(
+        tmatvec_frames_last(last(a), last(u)), last((a.transpose(-1, -2) @ u[..., None])[..., 0]), atol=1e-14
+    )
     assert torch.allclose(cross_frames_last(last(u), last(v)), last(torch.linalg.cross(u, v)), atol=1e-14)
     assert torch.allclose(skew_frames_last(last(u)), last(skew(u)), atol=0)
-    assert torch.allclose(cross_motion_frames_last(last(v6), last(m6)),
-                          last((cross_motion(v6) @ m6[..., None])[..., 0]), atol=1e-14)
+    assert torch.allclose(
+        cross_motion_frames_last(last(v6), last(m6)), last((cross_motion(v6) @ m6[..., None])[..., 0]), atol=1e-14
+    )
     mass = torch.rand(7, dtype=_F64, generator=torch.Generator().manual_seed(20)) + 0.5
     inertia = a @ a.transpose(-1, -2)
-    assert torch.allclose(spatial_inertia_frames_last(mass, last(u), last(inertia)),
-                          last(spatial_inertia(mass, u, inertia)), atol=1e-13)
+    assert torch.allclose(
+        spatial_inertia_frames_last(mass, last(u), last(inertia)), last(spatial_inertia(mass, u, inertia)), atol=1e-13
+    )
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from biomotion.body.kinematics import forward_kinematics
-from biomotion.body.model import BodyModel
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.mirror import mirror_coordinates, mirror_labels, other_side
+from biomotion.body.model import BodyModel
 from tests.conftest import data_path
 
 

@@ -6,14 +6,13 @@ import shutil
 import numpy as np
 import pytest
 
-from biomotion.cli import main
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.cli import main
 from biomotion.data.placement import GENERIC_HEIGHT
 from biomotion.data.registry import DatasetCache, build_cache, subject_split
 from biomotion.data.sources import to_canonical
 from biomotion.io.mot import read_motion
 from tests.conftest import DATA_ROOT
-
 
 #: every source but the retargeted BVH one, whose 664 clips take minutes of IK (tested on a few clips below)
 FILE_SOURCES = ["fukuchi", "opencap", "hamner", "schreiber"]
@@ -105,8 +104,13 @@ def test_excluded_subjects_are_left_out_unread(tmp_path, data_root):
     """`biomotion eval generation` builds only the people a model never saw; excluding everyone is an error."""
     from biomotion.errors import BiomotionError
 
-    manifest = build_cache(data_root, tmp_path / "some", sources=["schreiber"], progress=False,
-                           exclude_subjects=["schreiber/2014001", "schreiber/2014004"])
+    manifest = build_cache(
+        data_root,
+        tmp_path / "some",
+        sources=["schreiber"],
+        progress=False,
+        exclude_subjects=["schreiber/2014001", "schreiber/2014004"],
+    )
     subjects = {c["subject"] for c in manifest["clips"]}
     assert subjects and not subjects & {"2014001", "2014004"}
     everyone = {f"schreiber/{s}" for s in subjects | {"2014001", "2014004"}}
@@ -123,7 +127,7 @@ def test_percentile_bounds_are_stored_with_the_cache(cache):
     assert speeds.low[knee] < -3.0 and speeds.high[knee] > 3.0  # running knee flexion speeds exceed 3 rad/s
     angles = PercentileBounds.load(cache.folder / "bounds_coordinates.json")
     hip = angles.names.index("hip_flexion_r")
-    assert -0.6 < angles.low[hip] < 0.0 < 0.4 < angles.high[hip] < 1.6   # rad: extension to flexion in gait
+    assert -0.6 < angles.low[hip] < 0.0 < 0.4 < angles.high[hip] < 1.6  # rad: extension to flexion in gait
     com = PercentileBounds.load(cache.folder / cache.manifest["bounds"]["com"])
     speed, acceleration = (com.names.index(n) for n in ("com_speed", "com_acceleration"))
     # training clips are walks (1-2 m/s), runs at 2.5-5 m/s and squats or jumps: the 95th percentile of COM speed
@@ -134,8 +138,23 @@ def test_percentile_bounds_are_stored_with_the_cache(cache):
 
 def test_report_writes_the_counts(tmp_path, data_root):
     report = tmp_path / "dataset.md"
-    assert main(["data", "build", "--data-root", str(data_root), "--out", str(tmp_path / "c"), "--quiet",
-                 "--report", str(report), *[a for s in FILE_SOURCES for a in ("--source", s)]]) == 0
+    assert (
+        main(
+            [
+                "data",
+                "build",
+                "--data-root",
+                str(data_root),
+                "--out",
+                str(tmp_path / "c"),
+                "--quiet",
+                "--report",
+                str(report),
+                *[a for s in FILE_SOURCES for a in ("--source", s)],
+            ]
+        )
+        == 0
+    )
     text = report.read_text()
     runners = {p.name.split("_")[0] for p in DATA_ROOT.glob("fukuchi-running/ik/T*/*_ik_simple.mot")}
     assert f"| fukuchi | {3 * len(runners)} | {len(runners)} |" in text
@@ -145,8 +164,11 @@ def test_bandai_clips_are_retargeted_into_the_cache(tmp_path, data_root):
     """A root with three Bandai-Namco clips (and the model they are retargeted onto): canonical coordinates that
     move like the clip says, labels from the name, the actor group as subject."""
     root = tmp_path / "root"
-    for name in ("dataset-2/dataset-2_walk_elderly_001.bvh.gz", "dataset-2/dataset-2_run_normal_001.bvh.gz",
-                 "dataset-1/dataset-1_bow_happy_001.bvh.gz"):
+    for name in (
+        "dataset-2/dataset-2_walk_elderly_001.bvh.gz",
+        "dataset-2/dataset-2_run_normal_001.bvh.gz",
+        "dataset-1/dataset-1_bow_happy_001.bvh.gz",
+    ):
         (root / "bandai-namco" / name).parent.mkdir(parents=True, exist_ok=True)
         (root / "bandai-namco" / name).symlink_to(data_root / "bandai-namco" / name)
     model = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
@@ -158,11 +180,11 @@ def test_bandai_clips_are_retargeted_into_the_cache(tmp_path, data_root):
     records = {r["clip_id"]: (i, r) for i, r in enumerate(cache.records)}
     i, walk = records["bandai-namco/dataset-2/walk_elderly_001"]
     assert walk["labels"]["action"] == "walk" and walk["labels"]["style"] == "elderly"
-    assert walk["labels"]["text"] == "walk, elderly" and 0.3 < walk["labels"]["speed"] < 1.6   # m/s, measured
-    assert walk["subject"] == "dataset-2/hips@5,91,-427"             # active/elderly/exhausted share an actor
+    assert walk["labels"]["text"] == "walk, elderly" and 0.3 < walk["labels"]["speed"] < 1.6  # m/s, measured
+    assert walk["subject"] == "dataset-2/hips@5,91,-427"  # active/elderly/exhausted share an actor
     motion = cache.motion(i)
     assert motion.mask.all() and motion.rate == pytest.approx(30.0)
-    assert np.degrees(motion["knee_angle_r"]).max() > 40              # swing flexion
+    assert np.degrees(motion["knee_angle_r"]).max() > 40  # swing flexion
     run = cache.motion(records["bandai-namco/dataset-2/run_normal_001"][0])
     assert np.degrees(run["knee_angle_r"]).max() > np.degrees(motion["knee_angle_r"]).max()
     bow = cache.motion(records["bandai-namco/dataset-1/bow_happy_001"][0])
@@ -174,8 +196,7 @@ def test_a_runner_with_only_raw_c3d_is_solved_into_the_cache(tmp_path, data_root
     and lands where the shipped IK of the same trial is."""
     base = data_root / "fukuchi-running"
     root = tmp_path / "root" / "fukuchi-running"
-    for name in ("c3d/RBDS09runT35.c3d", "c3d/RBDS09static.c3d", "RBDS09", "participantInfo.csv",
-                 "generic-models"):
+    for name in ("c3d/RBDS09runT35.c3d", "c3d/RBDS09static.c3d", "RBDS09", "participantInfo.csv", "generic-models"):
         (root / name).parent.mkdir(parents=True, exist_ok=True)
         (root / name).symlink_to(base / name)
     out = tmp_path / "cache"
@@ -188,5 +209,5 @@ def test_a_runner_with_only_raw_c3d_is_solved_into_the_cache(tmp_path, data_root
     reference = to_canonical(read_motion(base / "ik/T35/RBDS09_T35_ik_simple.mot"), knee_flipped=True)
     reference = reference.resample(30.0)
     for name in ("hip_flexion_r", "knee_angle_r", "ankle_angle_r", "knee_angle_l", "hip_adduction_l"):
-        rms = np.degrees(np.sqrt(np.mean((solved[name] - reference[name][:solved.n_frames]) ** 2)))
-        assert rms < 1.0, name   # the chain reproduces RBDS09 within 0.54 deg (tests/ik/test_fukuchi_chain.py)
+        rms = np.degrees(np.sqrt(np.mean((solved[name] - reference[name][: solved.n_frames]) ** 2)))
+        assert rms < 1.0, name  # the chain reproduces RBDS09 within 0.54 deg (tests/ik/test_fukuchi_chain.py)

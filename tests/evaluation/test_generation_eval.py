@@ -12,8 +12,9 @@ from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.evaluation.generation import done_when, kinematic_measures, stride_period
 
 
-def _running(period: float, knee_amplitude: float, bounce: float, speed: float, rate: float = 30.0,
-             seconds: float = 4.0) -> np.ndarray:
+def _running(
+    period: float, knee_amplitude: float, bounce: float, speed: float, rate: float = 30.0, seconds: float = 4.0
+) -> np.ndarray:
     t = np.arange(int(seconds * rate)) / rate
     q = np.zeros((len(t), len(CANONICAL_COORDINATES)))
     col = CANONICAL_COORDINATES.index
@@ -36,10 +37,20 @@ def test_stride_period_and_measures_recover_the_synthetic_gait():
 
 
 def _table(**means):
-    keys = ("fidelity", "penetration", "floating", "foot_contact_velocity", "muscle_violations", "skate_ratio",
-            "jerk", "zmp_in_support")
-    return {v: {k: {"mean": means.get(f"{v}_{k}", 1.0)} for k in keys}
-            for v in ("reference", "full", "no_guidance", "no_personalization", "population")}
+    keys = (
+        "fidelity",
+        "penetration",
+        "floating",
+        "foot_contact_velocity",
+        "muscle_violations",
+        "skate_ratio",
+        "jerk",
+        "zmp_in_support",
+    )
+    return {
+        v: {k: {"mean": means.get(f"{v}_{k}", 1.0)} for k in keys}
+        for v in ("reference", "full", "no_guidance", "no_personalization", "population")
+    }
 
 
 def test_done_when_reads_each_bar_from_the_table():
@@ -70,7 +81,6 @@ def test_speed_error_is_measured_at_the_persons_size():
     assert errors[0] == pytest.approx(0.0, abs=1e-9) and math.isnan(errors[1]) and errors[2] == pytest.approx(0.0)
 
 
-
 def test_a_target_has_a_measured_trunk_only_with_every_lumbar_coordinate_present():
     from biomotion.evaluation.generation import measured_trunk
     from biomotion.motion import Motion
@@ -79,11 +89,13 @@ def test_a_target_has_a_measured_trunk_only_with_every_lumbar_coordinate_present
     times = np.arange(len(q)) / 30.0
     assert measured_trunk(Motion(times=times, values=q, names=CANONICAL_COORDINATES))
     mask = np.ones(len(CANONICAL_COORDINATES), dtype=bool)
-    mask[CANONICAL_COORDINATES.index("lumbar_rotation")] = False      # a runner whose model has no trunk
+    mask[CANONICAL_COORDINATES.index("lumbar_rotation")] = False  # a runner whose model has no trunk
     assert not measured_trunk(Motion(times=times, values=q, names=CANONICAL_COORDINATES, mask=mask))
     legs = [i for i, n in enumerate(CANONICAL_COORDINATES) if not n.startswith("lumbar")]
-    assert not measured_trunk(Motion(times=times, values=q[:, legs],
-                                     names=tuple(CANONICAL_COORDINATES[i] for i in legs)))
+    assert not measured_trunk(
+        Motion(times=times, values=q[:, legs], names=tuple(CANONICAL_COORDINATES[i] for i in legs))
+    )
+
 
 def test_manipulation_bar_needs_every_field_measured():
     row = lambda ok: {"as_documented": ok}  # noqa: E731
@@ -109,8 +121,12 @@ def test_the_identity_probe_never_trains_on_the_target_it_is_tested_on(monkeypat
     masks = []
 
     def clip(k: int, measured: bool = False) -> Motion:  # the people's data lacks the second coordinate
-        return Motion(times=np.arange(4) / 30.0, values=np.full((4, 2), float(k)), names=("id", "arm"),
-                      mask=np.array([True, measured]))
+        return Motion(
+            times=np.arange(4) / 30.0,
+            values=np.full((4, 2), float(k)),
+            names=("id", "arm"),
+            mask=np.array([True, measured]),
+        )
 
     def embedding(tokenizer, m: Motion) -> np.ndarray:
         masks.append(tuple(m.mask))

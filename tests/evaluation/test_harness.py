@@ -25,8 +25,8 @@ def model():
 @pytest.fixture(scope="module")
 def cache_set(tmp_path_factory, model):
     """Four Schreiber walking clips from a dataset cache, through the body model."""
-    from biomotion.data.registry import DatasetCache, build_cache
     from biomotion.data.clips import cache_clips, coordinate_set
+    from biomotion.data.registry import DatasetCache, build_cache
 
     data_path("SchreiberMoissenet2019")
     out = tmp_path_factory.mktemp("cache")
@@ -51,21 +51,41 @@ def test_cache_clips_score_in_sanity_ranges(cache_set, model):
     from biomotion.metrics.registry import summarize_set
 
     records = summarize_set(cache_set, model, physics=True)
-    assert {"penetration", "floating", "skate_ratio", "jerk", "energy_com", "energy_body", "zmp_in_support",
-            "joint_range", "entropy", "diversity"} <= set(records)
-    for key in ("penetration", "penetration_median", "floating", "floating_median", "jerk", "energy_com",
-                "energy_body", "joint_range", "entropy", "diversity"):
+    assert {
+        "penetration",
+        "floating",
+        "skate_ratio",
+        "jerk",
+        "energy_com",
+        "energy_body",
+        "zmp_in_support",
+        "joint_range",
+        "entropy",
+        "diversity",
+    } <= set(records)
+    for key in (
+        "penetration",
+        "penetration_median",
+        "floating",
+        "floating_median",
+        "jerk",
+        "energy_com",
+        "energy_body",
+        "joint_range",
+        "entropy",
+        "diversity",
+    ):
         assert _finite(records[key]), key
         assert records[key]["count"] == (4 if key != "diversity" else 6)  # 4 clips, 6 pairs
     # walking IK at 30 Hz: contact errors of cm, not m; jerk of joint centres tens to hundreds of m/s^3
-    assert 0 <= records["penetration"]["mean"] < 10            # cm
-    assert 0 < records["penetration_median"]["mean"] < 3        # cm: real data is never perfect on it
-    assert 0 <= records["floating"]["mean"] < 20                # cm
-    assert 0 <= records["skate_ratio"]["mean"] <= 100           # %
-    assert 20 < records["jerk"]["mean"] < 500                   # m/s^3
-    assert 1 < records["energy_com"]["mean"] < 50               # J, a walker's energy swings by a few J
+    assert 0 <= records["penetration"]["mean"] < 10  # cm
+    assert 0 < records["penetration_median"]["mean"] < 3  # cm: real data is never perfect on it
+    assert 0 <= records["floating"]["mean"] < 20  # cm
+    assert 0 <= records["skate_ratio"]["mean"] <= 100  # %
+    assert 20 < records["jerk"]["mean"] < 500  # m/s^3
+    assert 1 < records["energy_com"]["mean"] < 50  # J, a walker's energy swings by a few J
     assert records["energy_body"]["mean"] >= records["energy_com"]["mean"] * 0.5
-    assert 2 < records["entropy"]["mean"] < math.log(50)        # nat, 50 bins
+    assert 2 < records["entropy"]["mean"] < math.log(50)  # nat, 50 bins
     assert 0 <= records["zmp_in_support"]["mean"] <= 100
 
 
@@ -81,8 +101,8 @@ def test_identical_pred_and_ref_have_zero_error(cache_set, model):
 
 
 def test_different_clips_have_positive_error(cache_set, model):
-    from biomotion.metrics.clip_set import ClipSet
     from biomotion.evaluation.harness import evaluate
+    from biomotion.metrics.clip_set import ClipSet
 
     shifted = ClipSet(**{**cache_set.__dict__, "names": ("a", "b", "c", "d")})
     reversed_ref = ClipSet(**{**shifted.__dict__, "points": cache_set.points.flip(0), "valid": cache_set.valid.flip(0)})
@@ -94,17 +114,23 @@ def test_different_clips_have_positive_error(cache_set, model):
 def test_eval_command_on_bvh_folder(bvh_folder, tmp_path):
     from biomotion.evaluation.harness import eval_command
 
-    result = eval_command(bvh_folder, bvh_folder, data_path(""), tmp_path / "eval.json", tmp_path / "eval.md",
-                          plots_dir=tmp_path / "plots")
+    result = eval_command(
+        bvh_folder,
+        bvh_folder,
+        data_path(""),
+        tmp_path / "eval.json",
+        tmp_path / "eval.md",
+        plots_dir=tmp_path / "plots",
+    )
     stored = json.loads((tmp_path / "eval.json").read_text())
     assert stored["sets"]["pred"]["clips"] == list(BVH_CLIPS)
     metrics = stored["sets"]["pred"]["metrics"]
     assert "joint_range" not in metrics  # no coordinates in a BVH
     for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity", "jerk", "energy_com", "entropy"):
         assert _finite(metrics[key]), key
-    assert 0 <= metrics["floating"]["mean"] < 2                 # cm: soles lowered, foot-locked clips
-    assert 50 < metrics["jerk"]["mean"] < 300                   # m/s^3 (docs/metrics.md: 112 on 10 walks)
-    assert 2.5 < metrics["entropy"]["mean"] < 3.9               # nat (docs/metrics.md: 3.20)
+    assert 0 <= metrics["floating"]["mean"] < 2  # cm: soles lowered, foot-locked clips
+    assert 50 < metrics["jerk"]["mean"] < 300  # m/s^3 (docs/metrics.md: 112 on 10 walks)
+    assert 2.5 < metrics["entropy"]["mean"] < 3.9  # nat (docs/metrics.md: 3.20)
     assert all(r["mean"] == pytest.approx(0.0, abs=1e-6) for r in result["paired"].values())
     table = (tmp_path / "eval.md").read_text()
     assert "| Reference | 3 |" in table and "| Generated | 3 |" in table and "Fidelity (DTW) (cm) ↓" in table
@@ -128,8 +154,11 @@ def test_unpairable_sets_are_refused(cache_set, model):
     from biomotion.metrics.registry import _take
 
     with pytest.raises(BiomotionError, match="cannot pair"):
-        evaluate(_take(cache_set, [0, 1]), _take(cache_set, [2]).__class__(
-            **{**_take(cache_set, [2]).__dict__, "names": ("other",)}), model)
+        evaluate(
+            _take(cache_set, [0, 1]),
+            _take(cache_set, [2]).__class__(**{**_take(cache_set, [2]).__dict__, "names": ("other",)}),
+            model,
+        )
 
 
 def test_eval_without_report_files_prints_the_table_and_writes_nothing(tmp_path, capsys, monkeypatch):
@@ -163,6 +192,10 @@ def test_markdown_arrow_comes_from_higher_is_better():
     class LowerIsBetter(ZMPInsideSupport):
         higher_is_better = False
 
-    table = markdown_table({"a": {"zmp_in_support": record(ZMPInsideSupport(), torch.tensor([0.9]))},
-                            "b": {"low": record(LowerIsBetter(), torch.tensor([0.9]))}})
+    table = markdown_table(
+        {
+            "a": {"zmp_in_support": record(ZMPInsideSupport(), torch.tensor([0.9]))},
+            "b": {"low": record(LowerIsBetter(), torch.tensor([0.9]))},
+        }
+    )
     assert "ZMP in support (%) ↑" in table and "ZMP in support (%) ↓" in table

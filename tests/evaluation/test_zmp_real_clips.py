@@ -7,8 +7,8 @@ import importlib.util
 import numpy as np
 import torch
 
-from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.body.kinematics import forward_kinematics
 from biomotion.data.clips import body_model
 from biomotion.motion import Motion
 from tests.conftest import REPO, data_path
@@ -50,7 +50,7 @@ def test_trunk_variants_hold_the_trunk_on_the_pelvis_or_about_steady_in_the_grou
         return float(torch.rad2deg(angle).max())
 
     rigid, steady = variants["trunk rigid to the pelvis"], variants["trunk held steady in the ground"]
-    assert swing_deg(rigid, relative_to_pelvis=True) < 1e-4      # arccos near 1: rounding
+    assert swing_deg(rigid, relative_to_pelvis=True) < 1e-4  # arccos near 1: rounding
     assert swing_deg(variants["as captured"], relative_to_pelvis=True) > 5.0
     assert swing_deg(rigid, relative_to_pelvis=False) > 10.0
-    assert swing_deg(steady, relative_to_pelvis=False) < 2.0       # 1.4 deg: the rotation orders differ
+    assert swing_deg(steady, relative_to_pelvis=False) < 2.0  # 1.4 deg: the rotation orders differ

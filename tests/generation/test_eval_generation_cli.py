@@ -16,8 +16,9 @@ RUNNERS = ("RBDS012", "RBDS017")  # held-out (val) runners: the shipped generato
 
 
 def test_eval_generation_on_a_root_of_new_people(tmp_path, capsys):
-    missing = [f for f in (TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE)
-               if not (CHECKPOINTS / f).exists()]
+    missing = [
+        f for f in (TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE) if not (CHECKPOINTS / f).exists()
+    ]
     if missing:
         pytest.skip(f"shipped weights absent: {missing}")
     data_path("fukuchi-running/participantInfo.csv")
@@ -31,8 +32,24 @@ def test_eval_generation_on_a_root_of_new_people(tmp_path, capsys):
             name = f"{runner}_{speed}_ik_simple.mot"
             os.symlink(data_path(f"fukuchi-running/ik/{speed}/{name}"), root / f"fukuchi-running/ik/{speed}/{name}")
     out = tmp_path / "eval.json"
-    code = main(["eval", "generation", "--data-root", str(root), "--json", str(out), "--md", str(tmp_path / "e.md"),
-                 "--max-seconds", "2", "--manipulation-samples", "0", "--repeats", "2"])
+    code = main(
+        [
+            "eval",
+            "generation",
+            "--data-root",
+            str(root),
+            "--json",
+            str(out),
+            "--md",
+            str(tmp_path / "e.md"),
+            "--max-seconds",
+            "2",
+            "--manipulation-samples",
+            "0",
+            "--repeats",
+            "2",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     report = json.loads(out.read_text())
     assert report["targets"] == 6 and report["subjects"] == 2  # 2 runners x 3 speeds, each the others' reference

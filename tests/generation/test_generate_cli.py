@@ -17,9 +17,22 @@ from biomotion.generation.pipeline import (
 from biomotion.io.mot import read_motion, read_storage
 from tests.conftest import REPO, data_path
 
-OUTPUTS = ("motion.mot", "model.osim", "motion.bvh", "grf.mot", "grf_loads.xml", "torques.sto", "activations.sto",
-           "com_zmp.sto", "metrics.json", "viewer.html", "joint_angles.png", "grf.png", "balance.png",
-           "activations.png")
+OUTPUTS = (
+    "motion.mot",
+    "model.osim",
+    "motion.bvh",
+    "grf.mot",
+    "grf_loads.xml",
+    "torques.sto",
+    "activations.sto",
+    "com_zmp.sto",
+    "metrics.json",
+    "viewer.html",
+    "joint_angles.png",
+    "grf.png",
+    "balance.png",
+    "activations.png",
+)
 
 
 @pytest.fixture(scope="module")
@@ -32,8 +45,21 @@ def shipped():
 
 def test_generate_writes_every_output(shipped, tmp_path, capsys):
     out = tmp_path / "runner"
-    code = main(["generate", "--profile", str(REPO / "examples/runner_52_acl.yaml"), "--action",
-                 "running at 3.5 m/s", "--seconds", "1.5", "--out", str(out), "--data-root", str(data_path("."))])
+    code = main(
+        [
+            "generate",
+            "--profile",
+            str(REPO / "examples/runner_52_acl.yaml"),
+            "--action",
+            "running at 3.5 m/s",
+            "--seconds",
+            "1.5",
+            "--out",
+            str(out),
+            "--data-root",
+            str(data_path(".")),
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     for name in OUTPUTS:
         assert (out / name).exists(), name
@@ -41,8 +67,12 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     assert motion.n_frames == 45 and motion.rate == pytest.approx(30.0)
     assert read_storage(out / "activations.sto").data.shape[0] == 45
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["request"]["action"] == {"action": "run", "style": None, "speed": 3.5,
-                                            "text": metrics["request"]["action"]["text"]}
+    assert metrics["request"]["action"] == {
+        "action": "run",
+        "style": None,
+        "speed": 3.5,
+        "text": metrics["request"]["action"]["text"],
+    }
     assert metrics["request"]["bundle"] == "lab" and metrics["request"]["biodata_used"] is True
     # the weighted physics terms (Table 1 + ground) fall from the sample to the guided clip
     assert metrics["guidance_last_iteration"]["guidance"] < metrics["guidance_first_iteration"]["guidance"]
@@ -57,19 +87,25 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     assert f"note: {metrics['request']['notes'][0]}" in printed
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--profile", "no_such_profile.yaml"], "no_such_profile.yaml: --profile is not a file"),
-    (["--subject-table", "x.csv"], "--subject-table and --subject-id go together"),
-    (["--threads", "0"], "argument --threads: 0: must be at least 1"),
-    (["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
-     "--reference-action given 2 times for 1 --reference clips"),
-    (["--seconds", "0.1"], "argument --seconds: 0.1: must be at least 0.5"),
-    (["--smooth", "20"], "--smooth 20 Hz: the cutoff must lie between 0 and 15 Hz"),
-    (["--smooth", "6", "--no-guidance"], "--smooth filters the guided motion: it has no effect with --no-guidance"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--profile", "no_such_profile.yaml"], "no_such_profile.yaml: --profile is not a file"),
+        (["--subject-table", "x.csv"], "--subject-table and --subject-id go together"),
+        (["--threads", "0"], "argument --threads: 0: must be at least 1"),
+        (
+            ["--reference", "a.mot", "--reference-action", "run", "--reference-action", "walk"],
+            "--reference-action given 2 times for 1 --reference clips",
+        ),
+        (["--seconds", "0.1"], "argument --seconds: 0.1: must be at least 0.5"),
+        (["--smooth", "20"], "--smooth 20 Hz: the cutoff must lie between 0 and 15 Hz"),
+        (["--smooth", "6", "--no-guidance"], "--smooth filters the guided motion: it has no effect with --no-guidance"),
+    ],
+)
 def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, message):
-    code = main(["generate", *args, "--action", "run", "--out", str(tmp_path / "o"),
-                 "--data-root", str(data_path("."))])
+    code = main(
+        ["generate", *args, "--action", "run", "--out", str(tmp_path / "o"), "--data-root", str(data_path("."))]
+    )
     assert code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # nothing half-written
@@ -78,21 +114,52 @@ def test_generate_bad_input_is_one_clear_line(shipped, tmp_path, capsys, args, m
 def test_a_profile_field_that_is_not_a_number_is_named(shipped, tmp_path, capsys):
     profile = tmp_path / "person.yaml"
     profile.write_text("age: fifty\nmass: 70\n")
-    code = main(["generate", "--profile", str(profile), "--action", "run", "--out", str(tmp_path / "o"),
-                 "--data-root", str(data_path("."))])
+    code = main(
+        [
+            "generate",
+            "--profile",
+            str(profile),
+            "--action",
+            "run",
+            "--out",
+            str(tmp_path / "o"),
+            "--data-root",
+            str(data_path(".")),
+        ]
+    )
     assert code == 2
-    assert "person.yaml: invalid profile: age must be a number (SI units: m, kg, years), got 'fifty'" in \
-        capsys.readouterr().err
+    assert (
+        "person.yaml: invalid profile: age must be a number (SI units: m, kg, years), got 'fifty'"
+        in capsys.readouterr().err
+    )
     assert not (tmp_path / "o").exists()
 
 
 def test_a_reference_clip_centres_the_motion_on_the_persons_posture(shipped, tmp_path, capsys):
     reference = data_path("fukuchi-running/ik/T25/RBDS001_T25_ik_simple.mot")
     out = tmp_path / "rbds001"
-    code = main(["generate", "--subject-table", str(data_path("fukuchi-running/participantInfo.csv")),
-                 "--subject-id", "RBDS001", "--reference", str(reference), "--reference-action", "run at 2.5 m/s",
-                 "--action", "run at 4.5 m/s", "--seconds", "1.5", "--no-figures", "--out", str(out),
-                 "--data-root", str(data_path("."))])
+    code = main(
+        [
+            "generate",
+            "--subject-table",
+            str(data_path("fukuchi-running/participantInfo.csv")),
+            "--subject-id",
+            "RBDS001",
+            "--reference",
+            str(reference),
+            "--reference-action",
+            "run at 2.5 m/s",
+            "--action",
+            "run at 4.5 m/s",
+            "--seconds",
+            "1.5",
+            "--no-figures",
+            "--out",
+            str(out),
+            "--data-root",
+            str(data_path(".")),
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     metrics = json.loads((out / "metrics.json").read_text())
     offset = metrics["posture_offset"]  # degrees: the Fukuchi model has legs and pelvis, no trunk or arms
@@ -112,8 +179,9 @@ def test_tempo_brings_the_sample_to_the_asked_speed_before_any_guidance_step(shi
 
     generator = Generator.load(data_path("."), CHECKPOINTS)
     action = generator.bundle.vocabulary.parse("run at 3.5 m/s")
-    out = generator.generate(action, seconds=2.0, samples=4, seed=5,
-                             guidance_config=GuidanceConfig(iterations=0, planting=None))
+    out = generator.generate(
+        action, seconds=2.0, samples=4, seed=5, guidance_config=GuidanceConfig(iterations=0, planting=None)
+    )
     target = 3.5  # no profile: the canonical size, the request's speed as it is
     before = (mean_horizontal_speed(out.unguided, generator.rate) - target).abs()
     after = (mean_horizontal_speed(out.q, generator.rate) - target).abs()

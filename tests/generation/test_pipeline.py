@@ -11,26 +11,28 @@ import numpy as np
 import pytest
 import torch
 
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.body.kinematics import apply_couplers
 from biomotion.body.model import BodyModel
-from biomotion.models.actions import ActionRequest, ActionVocabulary
-from biomotion.models.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds
-from biomotion.models.conditioning import action_size
 from biomotion.generation.outputs import write_generation
 from biomotion.generation.pipeline import Generator
-from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES
 from biomotion.guidance.planting import leg_columns
 from biomotion.guidance.refine import GuidanceConfig
 from biomotion.io.mot import read_motion
-from biomotion.motion import lowpass
+from biomotion.models.actions import ActionRequest, ActionVocabulary
+from biomotion.models.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds
+from biomotion.models.conditioning import action_size
 from biomotion.models.prior import PriorConfig, ProfileActionPrior
 from biomotion.models.vqvae import MotionVQVAE, VQVAEConfig
+from biomotion.motion import lowpass
 from biomotion.muscles.surrogate import MuscleSurrogate, SurrogateConfig
 from biomotion.profile import InjuryRecord, Profile
 from tests.conftest import data_path
 
-LABELS = [{"action": "run", "style": None, "speed": 3.5, "text": "run on a treadmill at 3.5 m/s"},
-          {"action": "squat", "style": "normal", "speed": None, "text": "squat"}]
+LABELS = [
+    {"action": "run", "style": None, "speed": 3.5, "text": "run on a treadmill at 3.5 m/s"},
+    {"action": "squat", "style": "normal", "speed": None, "text": "squat"},
+]
 
 
 @pytest.fixture(scope="module")
@@ -43,10 +45,12 @@ def generator():
     tokenizer.std.fill_(0.05)
     tokenizer.eval()
     vocabulary = ActionVocabulary.from_labels(LABELS)
-    prior = ProfileActionPrior(PriorConfig(codebook_size=16, code_dim=8, action_size=action_size(vocabulary),
-                                           width=16, layers=1, heads=2, max_tokens=8)).eval()
-    bounds = {ALL_ACTIONS: GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000,
-                                             tuple([100.0] * 39))}
+    prior = ProfileActionPrior(
+        PriorConfig(
+            codebook_size=16, code_dim=8, action_size=action_size(vocabulary), width=16, layers=1, heads=2, max_tokens=8
+        )
+    ).eval()
+    bounds = {ALL_ACTIONS: GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * 39))}
     surrogate = MuscleSurrogate(["a", "b"], SurrogateConfig(width=8, depth=1)).eval()
     surrogate.high.fill_(0.3)
     return Generator(tokenizer, GeneratorBundle(prior, vocabulary, bounds), body, surrogate)
@@ -74,7 +78,6 @@ def test_generate_shapes_and_guidance_lowers_its_loss(generator):
         torch.testing.assert_close(q, apply_couplers(generator.body, q), rtol=0, atol=0)
 
 
-
 def test_the_zmp_term_is_off_by_default_and_when_on_pulls_the_zmp_towards_the_support(generator):
     request = ActionRequest("squat", "normal", None, "squat")
     off = generator.generate(request, seconds=1.0, seed=5, guidance_config=GuidanceConfig(iterations=3, ramp=1))
@@ -90,8 +93,9 @@ def test_smoothing_low_passes_the_guided_coordinates_before_planting(generator):
     request = ActionRequest("squat", "normal", None, "squat")
     config = GuidanceConfig(iterations=3, ramp=1, planting=None)
     plain = generator.generate(request, seconds=2.0, seed=7, guidance_config=config)
-    smooth = generator.generate(request, seconds=2.0, seed=7,
-                                guidance_config=dataclasses.replace(config, smooth_hz=4.0))
+    smooth = generator.generate(
+        request, seconds=2.0, seed=7, guidance_config=dataclasses.replace(config, smooth_hz=4.0)
+    )
     expected = torch.as_tensor(lowpass(plain.q.numpy(), 30.0, 4.0, axis=1).copy(), dtype=plain.q.dtype)
     ranges = generator.body.ranges.to(plain.q.dtype)
     inside = (expected >= ranges[:, 0]) & (expected <= ranges[:, 1])
@@ -143,7 +147,7 @@ def test_reference_clips_of_flexion_negative_models_are_flipped(generator):
     t = np.arange(60) / 30.0
     values = np.zeros((60, len(CANONICAL_COORDINATES)))
     knee = CANONICAL_COORDINATES.index("knee_angle_r")
-    values[:, knee] = 0.5 + 0.4 * np.sin(2 * np.pi * t)          # flexion positive, canonical
+    values[:, knee] = 0.5 + 0.4 * np.sin(2 * np.pi * t)  # flexion positive, canonical
     canonical = Motion(times=t, values=values, names=CANONICAL_COORDINATES)
     flipped = canonical.with_values(np.where(np.arange(values.shape[1]) == knee, -values, values))
     q_canonical, _ = reference_motion(canonical, generator.body, None)
@@ -158,8 +162,9 @@ def test_reference_clips_centre_the_sample_on_the_persons_posture(generator):
     knee = CANONICAL_COORDINATES.index("knee_angle_r")
     population = np.full(39, np.nan)
     population[knee] = 0.6
-    with_posture = GuidanceBounds(tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * 39),
-                                  tuple(population), tuple([0.0] * 39), 3.5)
+    with_posture = GuidanceBounds(
+        tuple([1.0] * 39), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * 39), tuple(population), tuple([0.0] * 39), 3.5
+    )
     bounds = {ALL_ACTIONS: with_posture, "run": with_posture}
     bundle = GeneratorBundle(generator.bundle.prior, generator.bundle.vocabulary, bounds)
     personal = Generator(generator.tokenizer, bundle, generator.body, generator.surrogate)
@@ -168,8 +173,14 @@ def test_reference_clips_centre_the_sample_on_the_persons_posture(generator):
     values[:, knee] = 0.75 + 0.2 * np.sin(2 * np.pi * t)  # the person runs 0.15 rad more bent than everyone
     reference = Motion(times=t, values=values, names=CANONICAL_COORDINATES)
     request = ActionRequest("run", None, 3.5, "run")
-    common = {"references": [reference], "reference_actions": ["run"], "reference_speeds": [3.5], "seconds": 1.0,
-              "seed": 3, "guidance": False}
+    common = {
+        "references": [reference],
+        "reference_actions": ["run"],
+        "reference_speeds": [3.5],
+        "seconds": 1.0,
+        "seed": 3,
+        "guidance": False,
+    }
     out = personal.generate(request, **common)
     assert float(out.unguided[0, :, knee].mean()) == pytest.approx(0.75, abs=1e-4)
     assert float(out.posture[knee]) == pytest.approx(0.15, abs=1e-6)

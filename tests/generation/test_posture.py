@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.generation.posture import POSTURE_COORDINATES, centring_shift, nearest_action, posture_offset
 from biomotion.models.actions import ActionVocabulary
 from biomotion.models.bundle import ALL_ACTIONS, GeneratorBundle, GuidanceBounds, population_posture
-from biomotion.generation.posture import POSTURE_COORDINATES, centring_shift, nearest_action, posture_offset
 
 N = len(CANONICAL_COORDINATES)
 KNEE, ROTATION = CANONICAL_COORDINATES.index("knee_angle_r"), CANONICAL_COORDINATES.index("pelvis_rotation")
@@ -22,18 +22,26 @@ SLOPE[KNEE] = 0.08  # rad per m/s
 
 
 def _bounds(posture, slope=(), speed=math.nan) -> GuidanceBounds:
-    return GuidanceBounds(tuple([1.0] * N), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * N), tuple(posture),
-                          tuple(slope), speed)
+    return GuidanceBounds(
+        tuple([1.0] * N), (0.5, 4.0), (1.0, 20.0), 1000, tuple([100.0] * N), tuple(posture), tuple(slope), speed
+    )
 
 
 def _bundle(with_postures: bool = True) -> GeneratorBundle:
-    vocabulary = ActionVocabulary.from_labels([{"action": "run", "style": None, "speed": 3.5, "text": "run"},
-                                               {"action": "squat", "style": None, "speed": None, "text": "squat"}])
+    vocabulary = ActionVocabulary.from_labels(
+        [
+            {"action": "run", "style": None, "speed": 3.5, "text": "run"},
+            {"action": "squat", "style": None, "speed": None, "text": "squat"},
+        ]
+    )
     if not with_postures:
         bounds = {ALL_ACTIONS: _bounds(())}
     else:
-        bounds = {ALL_ACTIONS: _bounds((RUN + SQUAT) / 2), "run": _bounds(RUN, SLOPE, 3.5),
-                  "squat": _bounds(SQUAT, np.zeros(N))}
+        bounds = {
+            ALL_ACTIONS: _bounds((RUN + SQUAT) / 2),
+            "run": _bounds(RUN, SLOPE, 3.5),
+            "squat": _bounds(SQUAT, np.zeros(N)),
+        }
     return GeneratorBundle(None, vocabulary, bounds)
 
 

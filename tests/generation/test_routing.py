@@ -17,10 +17,10 @@ import pytest
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.evaluation.generation import _style_checkpoints
-from biomotion.models.bundle import GeneratorBundle
 from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE
 from biomotion.generation.routing import FULL_BODY, route
 from biomotion.io.mot import read_motion
+from biomotion.models.bundle import GeneratorBundle
 from tests.conftest import REPO, data_path
 
 
@@ -50,17 +50,24 @@ def test_labels_only_the_full_body_bundle_knows_go_there_without_biodata(shipped
     assert chosen.full_body_score == 1.0 and chosen.lab_score < 1.0
 
 
-@pytest.mark.parametrize("text, full_body", [
-    ("running at 3.5 m/s", False), ("walk slowly", False), ("a slow jog at 9 km/h", False),
-    ("elderly walking", True), ("exhausted walk", True), ("waving", True),
-])
+@pytest.mark.parametrize(
+    "text, full_body",
+    [
+        ("running at 3.5 m/s", False),
+        ("walk slowly", False),
+        ("a slow jog at 9 km/h", False),
+        ("elderly walking", True),
+        ("exhausted walk", True),
+        ("waving", True),
+    ],
+)
 def test_free_text_goes_where_it_is_understood_better(shipped, encoder, text, full_body):
     assert route(text, CHECKPOINTS).full_body == full_body
 
 
 def test_without_a_full_body_folder_everything_is_the_lab_bundles(shipped, tmp_path):
     shutil.copy(CHECKPOINTS / GENERATOR_FILE, tmp_path / GENERATOR_FILE)
-    chosen = route("walk, elderly", tmp_path)   # lab vocabulary: "walk, elderly" is no exact label there
+    chosen = route("walk, elderly", tmp_path)  # lab vocabulary: "walk, elderly" is no exact label there
     assert chosen.checkpoints == tmp_path and chosen.biodata and chosen.full_body_label is None
 
 
@@ -79,17 +86,31 @@ def test_a_runner_asking_to_wave_gets_a_wave_on_their_own_model(shipped, tmp_pat
     the model is still the runner's (74 kg)."""
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
     out = tmp_path / "wave"
-    code = main(["generate", "--profile", str(REPO / "examples/runner_52_acl.yaml"), "--action", "wave both hands",
-                 "--seconds", "2", "--no-figures", "--out", str(out), "--data-root", str(data_path("."))])
+    code = main(
+        [
+            "generate",
+            "--profile",
+            str(REPO / "examples/runner_52_acl.yaml"),
+            "--action",
+            "wave both hands",
+            "--seconds",
+            "2",
+            "--no-figures",
+            "--out",
+            str(out),
+            "--data-root",
+            str(data_path(".")),
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     assert "answered by the full-body bundle" in capsys.readouterr().out
     request = json.loads((out / "metrics.json").read_text())["request"]
     assert request["bundle"] == "full-body" and request["biodata_used"] is False
-    motion = read_motion(out / "motion.mot")   # SI: radians
+    motion = read_motion(out / "motion.mot")  # SI: radians
     abduction = -np.degrees(np.stack([motion["arm_add_r"], motion["arm_add_l"]]))
     assert (abduction.max(axis=1) > 60).all()
     travel = np.hypot(*(np.ptp(motion[n]) for n in ("pelvis_tx", "pelvis_tz")))
-    assert travel < 1.0      # a walk at 1.3 m/s covers 2.6 m in 2 s
+    assert travel < 1.0  # a walk at 1.3 m/s covers 2.6 m in 2 s
     assert float(BodyModel.from_osim(out / "model.osim").total_mass) == pytest.approx(74.0, rel=1e-6)  # scaled
 
 

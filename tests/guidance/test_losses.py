@@ -26,13 +26,12 @@ def test_zmp_support_is_the_mean_distance_outside_the_stance_hull_over_supported
     contact = torch.ones(1, 4, 4, dtype=torch.bool)
     contact[0, 3] = False
     loaded = torch.tensor([[True, True, False, True]])
-    zmp = torch.tensor([[[0.1, 0.0, 0.05], [0.25, 0.0, 0.05], [5.0, 0.0, 5.0], [5.0, 0.0, 5.0]]],
-                       requires_grad=True)
+    zmp = torch.tensor([[[0.1, 0.0, 0.05], [0.25, 0.0, 0.05], [5.0, 0.0, 5.0], [5.0, 0.0, 5.0]]], requires_grad=True)
     penalty = losses.zmp_support(zmp, loaded, feet, contact)
     assert torch.allclose(penalty, torch.tensor([0.025]))
     penalty.sum().backward()
     assert torch.isfinite(zmp.grad).all()
-    assert zmp.grad[0, 1, 0] > 0 and zmp.grad[0, [0, 2, 3]].abs().sum() == 0   # only the outside frame pulls
+    assert zmp.grad[0, 1, 0] > 0 and zmp.grad[0, [0, 2, 3]].abs().sum() == 0  # only the outside frame pulls
 
 
 def test_foot_skim_weighs_horizontal_speed_by_nearness_to_the_floor():
@@ -47,5 +46,5 @@ def test_foot_skim_weighs_horizontal_speed_by_nearness_to_the_floor():
     skim = losses.foot_skim(feet, 30.0, 0.05)
     torch.testing.assert_close(skim, torch.tensor([3.2]))
     skim.sum().backward()
-    assert feet.grad[0, :, 0, 1].sum() < 0        # lifting the fast low point lowers the term ...
+    assert feet.grad[0, :, 0, 1].sum() < 0  # lifting the fast low point lowers the term ...
     assert feet.grad[0, :, 1].abs().sum() == 0 and feet.grad[0, :, 2].abs().sum() == 0  # ... the others are free

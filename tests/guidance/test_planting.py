@@ -17,9 +17,9 @@ from tests.conftest import data_path
 def test_plant_targets_anchor_at_the_mean_on_the_floor_and_fade_out():
     t = np.arange(20)
     points = np.zeros((1, 20, 2, 3))
-    points[0, :, 0, 1] = np.where((t >= 5) & (t <= 14), 0.005, 0.2)   # right point: planted on frames 5-14
-    points[0, :, 0, 0] = 0.01 * t                                        # ... sliding 1 cm per frame
-    points[0, :, 1, 1] = 0.3                                             # left point: in the air throughout
+    points[0, :, 0, 1] = np.where((t >= 5) & (t <= 14), 0.005, 0.2)  # right point: planted on frames 5-14
+    points[0, :, 0, 0] = 0.01 * t  # ... sliding 1 cm per frame
+    points[0, :, 1, 1] = 0.3  # left point: in the air throughout
     config = PlantingConfig(ramp=3)
     target, weight = plant_targets(points, ("r", "l"), config)
     anchor = 0.01 * np.arange(5, 15).mean()
@@ -50,7 +50,8 @@ def _feet(body, q):
     points = foot_points(body)
     flat = q.reshape(-1, q.shape[-1])
     return points_in_ground(forward_kinematics(body, flat), points.bodies, points.offsets.float()).view(
-        *q.shape[:2], -1, 3)
+        *q.shape[:2], -1, 3
+    )
 
 
 def test_plant_feet_holds_sliding_feet_still_on_the_floor(body):
@@ -64,9 +65,9 @@ def test_plant_feet_holds_sliding_feet_still_on_the_floor(body):
         for name, value in (("hip_flexion", 0.15), ("knee_angle", 0.3), ("ankle_angle", 0.15)):
             q[..., names.index(f"{name}_{side}")] = value
     lowest = _feet(body, q)[..., 1].min()
-    q[..., 4] -= lowest - 0.002                                   # soles 2 mm above the floor
-    q[..., 3] += torch.linspace(0.0, 0.08, frames)                # pelvis_tx glides 8 cm
-    q[..., 4] -= torch.linspace(0.0, 0.005, frames)               # and sinks 5 mm
+    q[..., 4] -= lowest - 0.002  # soles 2 mm above the floor
+    q[..., 3] += torch.linspace(0.0, 0.08, frames)  # pelvis_tx glides 8 cm
+    q[..., 4] -= torch.linspace(0.0, 0.005, frames)  # and sinks 5 mm
     before = _feet(body, q)
     assert float(before[0, -1, :, 0].sub(before[0, 0, :, 0]).abs().min()) > 0.079
 
@@ -79,7 +80,7 @@ def test_plant_feet_holds_sliding_feet_still_on_the_floor(body):
     # before: 5 mm deep at the end; the damping (1e-2 per rad^2) trades about a millimetre of height for joint change
     assert float(before[..., 1].min()) < -0.0029
     assert float(after[..., 1].min()) > -0.0015
-    assert float(after[..., 1].amin(-1).abs().max()) < 0.0015     # still standing on the floor, not lifted
+    assert float(after[..., 1].amin(-1).abs().max()) < 0.0015  # still standing on the floor, not lifted
     legs = leg_columns(tuple(body.coordinate_names))
     others = [i for i in range(body.n_q) if i not in legs and not body.coordinate_names[i].endswith("_beta")]
     torch.testing.assert_close(planted[..., others], q[..., others], rtol=0, atol=0)

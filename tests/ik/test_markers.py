@@ -34,8 +34,9 @@ def _full_q(model: BodyModel, z: torch.Tensor) -> torch.Tensor:
     return apply_couplers(model, q)
 
 
-def _synthetic(model: BodyModel, frames: int, seed: int, noise: float = 0.0, gaps: float = 0.0,
-               yaw: float = 0.0) -> tuple[Markers, torch.Tensor]:
+def _synthetic(
+    model: BodyModel, frames: int, seed: int, noise: float = 0.0, gaps: float = 0.0, yaw: float = 0.0
+) -> tuple[Markers, torch.Tensor]:
     """Markers from FK of a smooth motion inside the clamped ranges (plus noise and NaN gaps), and its q."""
     rng = np.random.default_rng(seed)
     free = free_coordinates(model)
@@ -59,15 +60,18 @@ def test_gauss_newton_hessian_and_gradient_match_autograd_through_body_fk():
     """H = J^T W J and g = J^T W r, assembled per body without forming J, equal autograd's through
     `biomotion.body.kinematics.marker_positions` (gait2392: spline knee; Rajagopal: couplers, locked coordinates),
     with NaN gaps and coordinate tasks (one on a coupled coordinate)."""
-    for relative, task_names in ((GAIT_MODEL, ("subtalar_angle_r", "knee_angle_l")),
-                                 (RAJAGOPAL, ("knee_angle_r_beta", "hip_rotation_l"))):
+    for relative, task_names in (
+        (GAIT_MODEL, ("subtalar_angle_r", "knee_angle_l")),
+        (RAJAGOPAL, ("knee_angle_r_beta", "hip_rotation_l")),
+    ):
         model = _model(relative)
         markers, _ = _synthetic(model, 3, seed=1, noise=0.01, gaps=0.2)
         tasks = [CoordinateTask(name, 3.0 + i, "manual_value", 0.1) for i, name in enumerate(task_names)]
         setup = _setup(model, markers, None, tasks, None, None)
         free = free_coordinates(model)
-        z = model.defaults[free] + 0.2 * torch.randn(3, len(free), dtype=torch.float64,
-                                                     generator=torch.Generator().manual_seed(0))
+        z = model.defaults[free] + 0.2 * torch.randn(
+            3, len(free), dtype=torch.float64, generator=torch.Generator().manual_seed(0)
+        )
         _, cost, hessian, gradient = setup.problem.evaluate(z)
         index = [markers.names.index(model.marker_names[m]) for m in setup.model_index]
         target = torch.as_tensor(markers.positions[:, index])
@@ -99,9 +103,9 @@ def test_recovers_known_motion_exactly_without_noise():
     assert result.converged.all()
     assert result.rmse < 1e-7
     difference = result.motion.values - q.numpy()
-    difference = np.abs((difference + np.pi) % (2 * np.pi) - np.pi)     # unclamped angles: same pose mod 2 pi
+    difference = np.abs((difference + np.pi) % (2 * np.pi) - np.pi)  # unclamped angles: same pose mod 2 pi
     determined = [model.coordinate_names.index(n) for n in model.coordinate_names if not n.startswith("mtp")]
-    assert difference[:, determined].max() < 1e-6                       # no marker on the toes: mtp is free
+    assert difference[:, determined].max() < 1e-6  # no marker on the toes: mtp is free
     assert np.abs(np.diff(result.motion["pelvis_rotation"])).max() < 0.1  # continuous through +-pi
 
 
@@ -120,12 +124,24 @@ def test_recovery_with_noise_and_gaps_respects_locked_coupled_and_clamped():
     low, high = model.ranges[:, 0].numpy(), model.ranges[:, 1].numpy()
     assert np.all(values[:, clamped] >= low[clamped] - 1e-12) and np.all(values[:, clamped] <= high[clamped] + 1e-12)
     error = np.degrees(np.abs(values - q.numpy()))
-    body = [names.index(n) for n in ("pelvis_tilt", "pelvis_list", "pelvis_rotation", "hip_flexion_r",
-                                     "hip_adduction_r", "knee_angle_r", "ankle_angle_r", "hip_flexion_l",
-                                     "knee_angle_l", "lumbar_extension")]
-    assert np.sqrt((error[:, body] ** 2).mean(0)).max() < 1.0           # 2 mm marker noise, 10 % gaps
+    body = [
+        names.index(n)
+        for n in (
+            "pelvis_tilt",
+            "pelvis_list",
+            "pelvis_rotation",
+            "hip_flexion_r",
+            "hip_adduction_r",
+            "knee_angle_r",
+            "ankle_angle_r",
+            "hip_flexion_l",
+            "knee_angle_l",
+            "lumbar_extension",
+        )
+    ]
+    assert np.sqrt((error[:, body] ** 2).mean(0)).max() < 1.0  # 2 mm marker noise, 10 % gaps
     truth = evaluate_ik(model, markers, Motion(times=markers.times, names=names, values=q.numpy()))
-    assert np.all(result.cost <= truth.cost * (1 + 1e-9))                # the optimum is at least as good
+    assert np.all(result.cost <= truth.cost * (1 + 1e-9))  # the optimum is at least as good
 
 
 def test_clamped_coordinate_stops_at_its_bound():
@@ -135,8 +151,9 @@ def test_clamped_coordinate_stops_at_its_bound():
     q[:, model.coordinate_index("pelvis_ty")] = 0.95
     q[:, model.coordinate_index("knee_angle_r")] = -np.radians(10)
     q = apply_couplers(model, q)
-    markers = Markers(times=np.array([0.0, 0.01]), names=model.marker_names,
-                      positions=marker_positions(model, q).numpy())
+    markers = Markers(
+        times=np.array([0.0, 0.01]), names=model.marker_names, positions=marker_positions(model, q).numpy()
+    )
     result = solve_ik(model, markers)
     assert np.all(result.motion["knee_angle_r"] == float(model.ranges[model.coordinate_index("knee_angle_r"), 0]))
 
@@ -149,13 +166,25 @@ def test_gait2392_window_matches_fresh_opensim_ik():
     model_path = data_path(GAIT_MODEL)
     markers = read_trc(setup.file("marker_file"))
     window = (1.0, 1.5)
-    ours = solve_ik(BodyModel.from_osim(model_path), markers, weights=setup.marker_weights,
-                    coordinate_tasks=setup.coordinate_tasks, time_range=window)
-    reference = validate.opensim_ik(model_path, markers, weights=setup.marker_weights,
-                                    coordinate_tasks=setup.coordinate_tasks, time_range=window)
+    ours = solve_ik(
+        BodyModel.from_osim(model_path),
+        markers,
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=window,
+    )
+    reference = validate.opensim_ik(
+        model_path, markers, weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks, time_range=window
+    )
     assert reference.motion.n_frames == ours.motion.n_frames == 31
-    figures = validate.compare(BodyModel.from_osim(model_path), markers, ours, reference.motion,
-                               weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks)
+    figures = validate.compare(
+        BodyModel.from_osim(model_path),
+        markers,
+        ours,
+        reference.motion,
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+    )
     assert figures["ik_rmse_deg"] < 0.1 and figures["ik_rmse_m"] < 1e-4
     assert figures["ik_marker_rmse_m"] <= figures["opensim_marker_rmse_m"] + 1e-7
     assert figures["frames_opensim_objective_lower"] == 0
@@ -179,9 +208,21 @@ def test_opencap_window_matches_fresh_opensim_ik_where_determined():
     assert {"pro_sup_r", "pro_sup_l"} <= set(figures["over_bar"]) <= arms
     assert figures["frames_opensim_objective_lower"] == 0
     rmse = figures["coordinate_rmse"]
-    assert max(rmse[n] for n in ("hip_flexion_r", "knee_angle_r", "ankle_angle_r", "knee_angle_l",
-                                 "pelvis_tilt", "lumbar_extension")) < 1.0
-    assert rmse["knee_angle_r_beta"] < 1.0   # coupled coordinate read back in radians from OpenSim's file
+    assert (
+        max(
+            rmse[n]
+            for n in (
+                "hip_flexion_r",
+                "knee_angle_r",
+                "ankle_angle_r",
+                "knee_angle_l",
+                "pelvis_tilt",
+                "lumbar_extension",
+            )
+        )
+        < 1.0
+    )
+    assert rmse["knee_angle_r_beta"] < 1.0  # coupled coordinate read back in radians from OpenSim's file
     assert figures["ik_marker_rmse_m"] < figures["opensim_marker_rmse_m"]
 
 
@@ -205,15 +246,16 @@ def test_drop_jump_arms_stay_on_one_euler_branch_and_whole_turn_limits_are_cross
     base = data_path("opencap/Subject4")
     setup = read_ik_setup(base / "IK" / "DJ3_ik_setup.xml")
     model = BodyModel.from_osim(base / "Models" / "optimized_scale_and_markers.osim")
-    result = solve_ik(model, read_trc(base / "MarkerData" / "DJ3.trc"), weights=setup.marker_weights,
-                      time_range=setup.time_range)
+    result = solve_ik(
+        model, read_trc(base / "MarkerData" / "DJ3.trc"), weights=setup.marker_weights, time_range=setup.time_range
+    )
     for name in ("arm_flex_l", "arm_add_l", "arm_rot_l", "arm_flex_r", "arm_add_r", "arm_rot_r"):
         angles = result.motion.values[:, result.motion.names.index(name)]
         steps = np.abs(np.diff(np.unwrap(angles)))
-        assert steps.max() < np.radians(60), name     # 100 Hz: no half-turn flips (fastest step: 32 deg, as OpenSim)
+        assert steps.max() < np.radians(60), name  # 100 Hz: no half-turn flips (fastest step: 32 deg, as OpenSim)
         low, high = (float(v) for v in model.ranges[model.coordinate_index(name)])
         assert angles.min() >= low - 1e-9 and angles.max() <= high + 1e-9, name
-    assert result.cost.max() < 3e-4                                  # measured 2.1e-4 (OpenSim's worst: 2.0e-4)
+    assert result.cost.max() < 3e-4  # measured 2.1e-4 (OpenSim's worst: 2.0e-4)
 
 
 def test_shoulder_over_its_whole_turn_cut_ends_on_opensims_set_of_angles():
@@ -231,16 +273,22 @@ def test_shoulder_over_its_whole_turn_cut_ends_on_opensims_set_of_angles():
     model = BodyModel.from_osim(model_path)
     markers = read_trc(base / "MarkerData" / "DJAsym3.trc")
     ours = solve_ik(model, markers, weights=setup.marker_weights, time_range=setup.time_range)
-    reference = validate.opensim_ik(model_path, base / "MarkerData" / "DJAsym3.trc", weights=setup.marker_weights,
-                                    time_range=setup.time_range, accuracy=validate.ORACLE_ACCURACY).motion
+    reference = validate.opensim_ik(
+        model_path,
+        base / "MarkerData" / "DJAsym3.trc",
+        weights=setup.marker_weights,
+        time_range=setup.time_range,
+        accuracy=validate.ORACLE_ACCURACY,
+    ).motion
     theirs = evaluate_ik(model, markers, reference, weights=setup.marker_weights)
     same_minimum = (theirs.cost <= ours.cost * 1.01) & (ours.cost <= theirs.cost * 1.01)
     shoulder = [model.coordinate_index(n) for n in ("arm_flex_r", "arm_add_r", "arm_rot_r")]
     theirs_q = reference.select(model.coordinate_names)
     difference = ours.motion.values[:, shoulder] - np.stack(
-        [np.interp(ours.motion.times, theirs_q.times, theirs_q.values[:, c]) for c in shoulder], axis=1)
+        [np.interp(ours.motion.times, theirs_q.times, theirs_q.values[:, c]) for c in shoulder], axis=1
+    )
     wrapped = np.abs((difference + np.pi) % (2 * np.pi) - np.pi).max(axis=1)
-    assert same_minimum.sum() > 230                                   # measured 242 of 260
-    assert (wrapped[same_minimum] > np.radians(1.0)).sum() <= 4       # measured 2 (was 85)
+    assert same_minimum.sum() > 230  # measured 242 of 260
+    assert (wrapped[same_minimum] > np.radians(1.0)).sum() <= 4  # measured 2 (was 85)
     tail = ours.motion.values[-50:, model.coordinate_index("arm_add_r")]
-    assert np.abs(tail).max() < np.radians(45)                        # the anatomical set: measured |add| < 25 deg
+    assert np.abs(tail).max() < np.radians(45)  # the anatomical set: measured |add| < 25 deg

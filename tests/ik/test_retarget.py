@@ -21,12 +21,23 @@ def test_folder_with_a_bad_trial(tmp_path):
     write_trc(trials / "walk.trc", markers, units="mm")
     (trials / "broken.trc").write_text("PathFileType\t4\nnot a trc\n")
     out = tmp_path / "out"
-    code = main(["retarget", str(trials), "--model", str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
-                 "--setup", str(data_path(GAIT + "subject01_Setup_IK.xml")), "--out", str(out), "--quiet"])
+    code = main(
+        [
+            "retarget",
+            str(trials),
+            "--model",
+            str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
+            "--setup",
+            str(data_path(GAIT + "subject01_Setup_IK.xml")),
+            "--out",
+            str(out),
+            "--quiet",
+        ]
+    )
     assert code == 0
     rows = {r["trial"]: r for r in csv.DictReader((out / "summary.csv").open())}
-    assert "broken.trc" in rows["broken"]["error"]                         # named, not fatal
-    assert float(rows["walk"]["rms_error_m"]) < 0.03                        # OpenSim's own IK: about 2.2 cm here
+    assert "broken.trc" in rows["broken"]["error"]  # named, not fatal
+    assert float(rows["walk"]["rms_error_m"]) < 0.03  # OpenSim's own IK: about 2.2 cm here
     motion = read_motion(out / "walk.mot")
     assert motion.n_frames == markers.n_frames and np.isfinite(motion.values).all()
     stored = read_motion(data_path(GAIT + "subject01_walk1_ik.mot")).at(motion.times)  # OpenSim's stored IK
@@ -40,16 +51,34 @@ def test_folder_with_a_bad_trial(tmp_path):
 def test_rejects_what_it_cannot_read(tmp_path, capsys):
     text = tmp_path / "clip.txt"
     text.write_text("not motion")
-    code = main(["retarget", str(text), "--model", str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
-                 "--out", str(tmp_path / "o"), "--quiet"])
+    code = main(
+        [
+            "retarget",
+            str(text),
+            "--model",
+            str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ]
+    )
     assert code == 2 and "reads .trc and .c3d marker files and .bvh(.gz) skeletons" in capsys.readouterr().err
 
 
 def test_a_skeleton_on_a_model_the_map_does_not_fit_is_named(tmp_path, capsys):
     bvh = tmp_path / "clip.bvh.gz"
     shutil.copy(data_path("bandai-namco/dataset-2/dataset-2_walk_normal_016.bvh.gz"), bvh)
-    code = main(["retarget", str(bvh), "--model", str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
-                 "--out", str(tmp_path / "o"), "--quiet"])
+    code = main(
+        [
+            "retarget",
+            str(bvh),
+            "--model",
+            str(data_path(GAIT + "OutputReference/subject01_simbody.osim")),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ]
+    )
     row = next(csv.DictReader((tmp_path / "o" / "summary.csv").open()))
     assert code == 2 and "model joint 'walker_knee_r'" in row["error"] and row["trial"] == "clip"
 
@@ -65,14 +94,30 @@ def test_an_ik_setup_brings_its_coordinate_tasks_and_time_range(tmp_path, capsys
 
     folder = data_path(GAIT)
     model = folder / "OutputReference/subject01_simbody.osim"
-    code = main(["retarget", str(folder / "subject01_walk1.trc"), "--model", str(model), "--setup",
-                 str(folder / "subject01_Setup_IK.xml"), "--out", str(tmp_path), "--quiet"])
+    code = main(
+        [
+            "retarget",
+            str(folder / "subject01_walk1.trc"),
+            "--model",
+            str(model),
+            "--setup",
+            str(folder / "subject01_Setup_IK.xml"),
+            "--out",
+            str(tmp_path),
+            "--quiet",
+        ]
+    )
     assert code == 0 and "121 frames" in capsys.readouterr().out
     ours = read_motion(tmp_path / "subject01_walk1.mot")
     setup = read_ik_setup(folder / "subject01_Setup_IK.xml")
-    reference = opensim_ik(model, setup.file("marker_file"), weights=setup.marker_weights,
-                           coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range,
-                           accuracy=ORACLE_ACCURACY).motion
+    reference = opensim_ik(
+        model,
+        setup.file("marker_file"),
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=setup.time_range,
+        accuracy=ORACLE_ACCURACY,
+    ).motion
     assert ours.n_frames == reference.n_frames == 121
     rotational = [n for n in reference.names if not n.startswith("pelvis_t")]
     difference = ours.select(rotational).values - reference.select(rotational).values

@@ -14,15 +14,21 @@ import torch
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_model
+from biomotion.body.scaling.osim_file import write_scale_set, write_scaled_osim
 from biomotion.errors import DataFormatError
 from biomotion.ik.markers import evaluate_ik
-from biomotion.ik.scaling import (average_frames, body_scale_factors, frame_range, place_markers, register_markers,
-                                  scale_static)
-from biomotion.body.scaling.osim_file import write_scale_set, write_scaled_osim
-from biomotion.io.setup import read_scale_setup
+from biomotion.ik.scaling import (
+    average_frames,
+    body_scale_factors,
+    frame_range,
+    place_markers,
+    register_markers,
+    scale_static,
+)
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_storage
 from biomotion.io.osim import read_scale_set
+from biomotion.io.setup import read_scale_setup
 from biomotion.io.trc import write_trc
 from biomotion.motion import Markers, Motion
 from tests.conftest import data_path
@@ -38,8 +44,11 @@ def _static(runner: str) -> Markers:
 
 def _fiber_lengths(path) -> dict[str, float]:
     root = ET.parse(path).getroot()
-    return {m.get("name"): float(m.findtext("optimal_fiber_length")) for m in root.iter()
-            if m.find("optimal_fiber_length") is not None}
+    return {
+        m.get("name"): float(m.findtext("optimal_fiber_length"))
+        for m in root.iter()
+        if m.find("optimal_fiber_length") is not None
+    }
 
 
 @pytest.mark.parametrize("runner", ["RBDS001", "RBDS019"])
@@ -50,7 +59,7 @@ def test_measurement_factors_match_the_shipped_scale_set(runner):
     shipped_path = data_path(f"{FUKUCHI}/{runner}/{runner}_scaleSet_simple.xml")
     shipped = {s.segment: s.scales for s in read_scale_set(shipped_path)}
     errors = [abs(factors[b][i] / shipped[b][i] - 1) for b in factors for i in range(3)]
-    assert max(errors) < 1e-4        # the issue's bar is 3 %; the shipped file has 6 significant digits
+    assert max(errors) < 1e-4  # the issue's bar is 3 %; the shipped file has 6 significant digits
     assert len(per_measurement) == len(setup.measurements) == 17
 
 
@@ -65,17 +74,21 @@ def test_scaled_model_matches_a_fresh_opensim_scaletool_run(tmp_path):
     static = _static(runner)
     write_trc(tmp_path / "static.trc", static, units="mm")
     text = setup_path.read_text()
-    for old, new in ((f"{runner}\\{runner}static.trc", "static.trc"),
-                     ("..\\model\\Denton2023_LowerLimb_Fukuchi2017.osim", str(data_path(DENTON)))):
+    for old, new in (
+        (f"{runner}\\{runner}static.trc", "static.trc"),
+        ("..\\model\\Denton2023_LowerLimb_Fukuchi2017.osim", str(data_path(DENTON))),
+    ):
         text = text.replace(old, new)
     for tag, name in (("output_scale_file", "scale_set.xml"), ("output_motion_file", "static.mot")):
-        text = text.replace(text[text.index(f"<{tag}>"):text.index(f"</{tag}>")], f"<{tag}>{name}")
+        text = text.replace(text[text.index(f"<{tag}>") : text.index(f"</{tag}>")], f"<{tag}>{name}")
     first = text.index("<output_model_file>")
-    text = text[:first] + text[first:].replace(text[first:text.index("</output_model_file>", first)],
-                                              "<output_model_file>scaled.osim", 1)
+    text = text[:first] + text[first:].replace(
+        text[first : text.index("</output_model_file>", first)], "<output_model_file>scaled.osim", 1
+    )
     second = text.index("<output_model_file>", first + 30)
-    text = text[:second] + text[second:].replace(text[second:text.index("</output_model_file>", second)],
-                                                "<output_model_file>placed.osim", 1)
+    text = text[:second] + text[second:].replace(
+        text[second : text.index("</output_model_file>", second)], "<output_model_file>placed.osim", 1
+    )
     (tmp_path / "setup.xml").write_text(text)
     assert osim.ScaleTool(str(tmp_path / "setup.xml")).run()
 
@@ -84,30 +97,34 @@ def test_scaled_model_matches_a_fresh_opensim_scaletool_run(tmp_path):
     result = scale_static(generic, static, setup)
     theirs = {s.segment: s.scales for s in read_scale_set(tmp_path / "scale_set.xml")}
     worst = max(abs(result.factors[b][i] / theirs[b][i] - 1) for b in result.factors for i in range(3))
-    assert worst < 1e-5       # OpenSim writes the ScaleSet with 6 significant digits
+    assert worst < 1e-5  # OpenSim writes the ScaleSet with 6 significant digits
 
     table = read_storage(tmp_path / "static.mot")
     joint = [generic.joints[generic.coordinate_joint[c]].name for c in range(generic.n_q)]
-    pose_values = [table.data[0, table.labels.index(f"/jointset/{joint[c]}/{name}/value")]
-                   for c, name in enumerate(generic.coordinate_names)]
+    pose_values = [
+        table.data[0, table.labels.index(f"/jointset/{joint[c]}/{name}/value")]
+        for c, name in enumerate(generic.coordinate_names)
+    ]
     averaged = average_frames(static.slice(*setup.placer_time_range))
     pose = Motion(times=averaged.times, names=generic.coordinate_names, values=np.array([pose_values]))
     scaled = scale_model(generic, result.factors, mass=setup.mass, preserve_mass_distribution=True)
     tasks = setup.placer_tasks
-    opensim_objective = evaluate_ik(scaled, averaged, pose, weights=tasks.marker_weights,
-                                    coordinate_tasks=tasks.coordinate_tasks).cost[0]
+    opensim_objective = evaluate_ik(
+        scaled, averaged, pose, weights=tasks.marker_weights, coordinate_tasks=tasks.coordinate_tasks
+    ).cost[0]
     assert result.placement.ik.cost[0] <= opensim_objective
 
     placed, moved = register_markers(scaled, averaged, pose)
-    assert len(moved) == 28                       # every non-fixed marker of the trial
+    assert len(moved) == 28  # every non-fixed marker of the trial
     ours_path = write_scaled_osim(data_path(DENTON), tmp_path / "ours.osim", dataclasses.replace(result, model=placed))
     ours, reference = BodyModel.from_osim(ours_path), BodyModel.from_osim(tmp_path / "placed.osim")
     assert torch.allclose(ours.masses, reference.masses, atol=1e-9) and abs(float(ours.total_mass) - 62.0) < 1e-9
     assert torch.allclose(ours.inertias, reference.inertias, rtol=1e-6, atol=1e-12)
-    q = generic.default_q() + 0.3 * torch.randn(5, generic.n_q, dtype=torch.float64,
-                                                generator=torch.Generator().manual_seed(0))
+    q = generic.default_q() + 0.3 * torch.randn(
+        5, generic.n_q, dtype=torch.float64, generator=torch.Generator().manual_seed(0)
+    )
     assert (forward_kinematics(ours, q).positions - forward_kinematics(reference, q).positions).abs().max() < 1e-8
-    assert (marker_positions(ours, q) - marker_positions(reference, q)).abs().max() < 5e-5   # .mot has 8 decimals
+    assert (marker_positions(ours, q) - marker_positions(reference, q)).abs().max() < 5e-5  # .mot has 8 decimals
     fibers, expected = _fiber_lengths(ours_path), _fiber_lengths(tmp_path / "placed.osim")
     assert max(abs(fibers[m] / expected[m] - 1) for m in expected) < 1e-6
     loaded = osim.Model(str(ours_path))
@@ -128,13 +145,14 @@ def test_opencap_manual_rescaling_reproduces_the_shipped_model(tmp_path):
     ours, shipped = BodyModel.from_osim(path), BodyModel.from_osim(shipped_path)
     assert torch.allclose(ours.masses, shipped.masses, rtol=1e-12)
     assert torch.allclose(ours.inertias, shipped.inertias, rtol=1e-9, atol=1e-15)
-    q = shipped.default_q() + 0.2 * torch.randn(4, shipped.n_q, dtype=torch.float64,
-                                                generator=torch.Generator().manual_seed(1))
+    q = shipped.default_q() + 0.2 * torch.randn(
+        4, shipped.n_q, dtype=torch.float64, generator=torch.Generator().manual_seed(1)
+    )
     assert (forward_kinematics(ours, q).positions - forward_kinematics(shipped, q).positions).abs().max() < 1e-12
     assert (marker_positions(ours, q) - marker_positions(shipped, q)).abs().max() < 1e-12
     fibers, expected = _fiber_lengths(path), _fiber_lengths(shipped_path)
     relative = np.array([abs(fibers[m] / expected[m] - 1) for m in expected])
-    assert len(relative) == 80 and relative.max() < 0.02           # wrapped paths: straight-segment lengths
+    assert len(relative) == 80 and relative.max() < 0.02  # wrapped paths: straight-segment lengths
     assert np.mean(relative < 1e-9) >= 0.65 and np.mean(relative < 2e-3) >= 0.9
 
 
@@ -165,7 +183,7 @@ def test_percentile_registration_ignores_outlier_frames():
     error = (robust.model.marker_offsets[rows] - truth[rows]).norm(dim=-1)
     assert float(error.max()) < 5e-4
     thigh = model.marker_index("R.Thigh.Top.Lateral")
-    assert float((plain.model.marker_offsets[thigh] - truth[thigh]).norm()) > 2e-3   # 4 % x 5 cm bias
+    assert float((plain.model.marker_offsets[thigh] - truth[thigh]).norm()) > 2e-3  # 4 % x 5 cm bias
 
 
 def test_scale_set_round_trip(tmp_path):
@@ -188,7 +206,7 @@ def test_static_frames_as_opensim_selects_and_checks_them():
     """OpenSim's MarkerData: the frames enclosing the time range; max_marker_movement refuses a moving marker."""
     times = np.arange(6) / 150.0
     positions = np.zeros((6, 2, 3))
-    positions[:, 1, 0] = np.linspace(0.0, 0.05, 6)          # marker "B" slides 5 cm
+    positions[:, 1, 0] = np.linspace(0.0, 0.05, 6)  # marker "B" slides 5 cm
     markers = Markers(times=times, names=("A", "B"), positions=positions)
     assert np.array_equal(frame_range(markers, (0.001, 0.0134)).times, times[:4])
     assert np.array_equal(frame_range(markers, (0.0, 0.993333)).times, times)
@@ -206,13 +224,17 @@ def test_a_marker_set_names_the_marker_whose_frame_the_model_lacks(tmp_path):
     from biomotion.io.osim import read_marker_set
 
     path = tmp_path / "markers.xml"
-    path.write_text('<OpenSimDocument Version="20302"><MarkerSet><objects>'
-                    '<Marker name="Wing"><body>wing</body><location>0 0.1 0</location></Marker>'
-                    '<Marker name="Hip"><socket_parent_frame>/bodyset/pelvis</socket_parent_frame>'
-                    '<location>0.1 0 0</location><fixed>true</fixed></Marker></objects></MarkerSet></OpenSimDocument>')
+    path.write_text(
+        '<OpenSimDocument Version="20302"><MarkerSet><objects>'
+        '<Marker name="Wing"><body>wing</body><location>0 0.1 0</location></Marker>'
+        '<Marker name="Hip"><socket_parent_frame>/bodyset/pelvis</socket_parent_frame>'
+        "<location>0.1 0 0</location><fixed>true</fixed></Marker></objects></MarkerSet></OpenSimDocument>"
+    )
     markers = read_marker_set(path)
-    assert [(m.name, m.frame, m.fixed) for m in markers] == [("Wing", "/bodyset/wing", False),
-                                                            ("Hip", "/bodyset/pelvis", True)]
+    assert [(m.name, m.frame, m.fixed) for m in markers] == [
+        ("Wing", "/bodyset/wing", False),
+        ("Hip", "/bodyset/pelvis", True),
+    ]
     model = BodyModel.from_osim(data_path(DENTON))
     merged = with_marker_set(model, markers[1:], path)
     assert merged.marker_names == (*model.marker_names, "Hip")

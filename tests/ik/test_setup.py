@@ -16,18 +16,20 @@ def test_gait2392_ik_setup_weights_tasks_and_time_range():
     assert setup.time_range == (0.5, 2.5)
     assert len(setup.marker_weights) == 31
     assert setup.marker_weights["R.ASIS"] == 10 and setup.marker_weights["Top.Head"] == 0.1
-    assert setup.coordinate_tasks == tuple(CoordinateTask(n, 1000.0, "default_value", 0.0) for n in
-                                           ("subtalar_angle_r", "mtp_angle_r", "subtalar_angle_l", "mtp_angle_l"))
+    assert setup.coordinate_tasks == tuple(
+        CoordinateTask(n, 1000.0, "default_value", 0.0)
+        for n in ("subtalar_angle_r", "mtp_angle_r", "subtalar_angle_l", "mtp_angle_l")
+    )
     assert setup.constraint_weight == 20 and setup.accuracy == 1e-5
     assert setup.file("marker_file").name == "subject01_walk1.trc"
-    assert setup.file("model_file") is None   # subject01_simbody.osim lives only under OutputReference/
+    assert setup.file("model_file") is None  # subject01_simbody.osim lives only under OutputReference/
 
 
 def test_opencap_setup_paths_resolve_despite_mixed_bases():
     setup = read_ik_setup(data_path("opencap/Subject4/IK/walking1_ik_setup.xml"))
     assert setup.time_range is None
-    assert setup.file("model_file").name == "optimized_scale_and_markers.osim"   # relative to Subject4/
-    assert setup.file("marker_file").name == "walking1.trc"                      # relative to IK/
+    assert setup.file("model_file").name == "optimized_scale_and_markers.osim"  # relative to Subject4/
+    assert setup.file("marker_file").name == "walking1.trc"  # relative to IK/
     assert len(setup.marker_weights) == 49 and set(setup.marker_weights.values()) == {1.0}
 
 
@@ -41,7 +43,7 @@ def test_fukuchi_scale_setup_measurements_and_placer_tasks():
     assert breadth.bodies == (("femur_r", "XZ"),)
     weights = setup.placer_tasks.marker_weights
     assert weights["R.ASIS"] == 10 and weights["R.MT2"] == 2.5
-    assert "R.Thigh.Top.Lateral" not in weights          # <apply>false</apply>: not tracked
+    assert "R.Thigh.Top.Lateral" not in weights  # <apply>false</apply>: not tracked
     assert len(setup.placer_tasks.coordinate_tasks) == 13
     assert setup.placer_time_range == (0.0, 0.993333) and setup.placer_apply and setup.scaler_apply
 
@@ -58,26 +60,38 @@ def test_task_set_in_another_file(tmp_path):
         '<OpenSimDocument Version="40000"><IKTaskSet><objects>'
         '<IKMarkerTask name="A"><weight>3</weight></IKMarkerTask>'
         '<IKCoordinateTask name="knee"><weight>2</weight><value_type>manual_value</value_type><value>0.5</value>'
-        '</IKCoordinateTask></objects></IKTaskSet></OpenSimDocument>')
+        "</IKCoordinateTask></objects></IKTaskSet></OpenSimDocument>"
+    )
     (tmp_path / "setup.xml").write_text(
         '<OpenSimDocument Version="40000"><InverseKinematicsTool><IKTaskSet file="tasks.xml"/>'
-        '<time_range>0 1</time_range></InverseKinematicsTool></OpenSimDocument>')
+        "<time_range>0 1</time_range></InverseKinematicsTool></OpenSimDocument>"
+    )
     setup = read_ik_setup(tmp_path / "setup.xml")
     assert setup.marker_weights == {"A": 3.0}
     assert setup.coordinate_tasks == (CoordinateTask("knee", 2.0, "manual_value", 0.5),)
 
 
-@pytest.mark.parametrize("body, line, field", [
-    ("<IKTaskSet><objects><IKMarkerTask name='A'>\n<weight>heavy</weight></IKMarkerTask></objects></IKTaskSet>",
-     2, "weight"),
-    ("<IKTaskSet><objects>\n<IKMarkerTask name='A'><weight>-1</weight></IKMarkerTask></objects></IKTaskSet>",
-     2, "weight"),
-    ("\n<time_range>2 1</time_range>", 2, "time_range"),
-])
+@pytest.mark.parametrize(
+    "body, line, field",
+    [
+        (
+            "<IKTaskSet><objects><IKMarkerTask name='A'>\n<weight>heavy</weight></IKMarkerTask></objects></IKTaskSet>",
+            2,
+            "weight",
+        ),
+        (
+            "<IKTaskSet><objects>\n<IKMarkerTask name='A'><weight>-1</weight></IKMarkerTask></objects></IKTaskSet>",
+            2,
+            "weight",
+        ),
+        ("\n<time_range>2 1</time_range>", 2, "time_range"),
+    ],
+)
 def test_bad_setup_names_line_and_field(tmp_path, body, line, field):
     path = tmp_path / "bad.xml"
-    path.write_text(f"<OpenSimDocument Version='40000'><InverseKinematicsTool>{body}</InverseKinematicsTool>"
-                    f"</OpenSimDocument>")
+    path.write_text(
+        f"<OpenSimDocument Version='40000'><InverseKinematicsTool>{body}</InverseKinematicsTool></OpenSimDocument>"
+    )
     with pytest.raises(DataFormatError) as error:
         read_ik_setup(path)
     assert error.value.line == line and error.value.field == field and error.value.path == path

@@ -15,7 +15,7 @@ def test_another_opencap_subject_is_validated(tmp_path):
     from biomotion.validation.ik import opencap_subjects, validate_ik
 
     subject4 = data_path("opencap/Subject4")
-    folder = tmp_path / "root" / "opencap" / "Subject9"     # Subject4's walking1 (0.3 s of it) under a new name
+    folder = tmp_path / "root" / "opencap" / "Subject9"  # Subject4's walking1 (0.3 s of it) under a new name
     for relative in ("Models/optimized_scale_and_markers.osim", "IK/walking1_ik_setup.xml"):
         (folder / relative).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy(subject4 / relative, folder / relative)

@@ -18,9 +18,30 @@ from biomotion.io.bvh import CHANNEL_NAMES, BVHMotion, Skeleton, read_bvh, write
 from tests.conftest import data_path
 
 BANDAI = "bandai-namco"
-JOINTS = ("joint_Root", "Hips", "Spine", "Chest", "Neck", "Head", "Shoulder_L", "UpperArm_L", "LowerArm_L",
-          "Hand_L", "Shoulder_R", "UpperArm_R", "LowerArm_R", "Hand_R", "UpperLeg_L", "LowerLeg_L", "Foot_L",
-          "Toes_L", "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R")
+JOINTS = (
+    "joint_Root",
+    "Hips",
+    "Spine",
+    "Chest",
+    "Neck",
+    "Head",
+    "Shoulder_L",
+    "UpperArm_L",
+    "LowerArm_L",
+    "Hand_L",
+    "Shoulder_R",
+    "UpperArm_R",
+    "LowerArm_R",
+    "Hand_R",
+    "UpperLeg_L",
+    "LowerLeg_L",
+    "Foot_L",
+    "Toes_L",
+    "UpperLeg_R",
+    "LowerLeg_R",
+    "Foot_R",
+    "Toes_R",
+)
 BANDAI_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
 
 
@@ -42,14 +63,14 @@ def _assert_same(a: BVHMotion, b: BVHMotion, tol: float = 1e-6) -> None:
 
 # --- every real clip -------------------------------------------------------------------------------------------
 
+
 @pytest.mark.slow
 def test_every_bandai_namco_clip_reads_with_plausible_kinematics():
     root = data_path(BANDAI)
     expected_frames = {}
     for dataset in ("dataset-1", "dataset-2"):
         with open(root / dataset / "index.csv", newline="") as handle:
-            expected_frames.update({row["file"]: int(row["frames"]) for row in csv.DictReader(handle)
-                                    if row["file"]})
+            expected_frames.update({row["file"]: int(row["frames"]) for row in csv.DictReader(handle) if row["file"]})
     files = sorted(root.glob("dataset-[12]/*.bvh.gz"))
     assert len(files) == 664
     start = time.perf_counter()
@@ -89,8 +110,9 @@ def test_joint_root_carries_the_travel_in_run_normal_001():
     assert markers.rate == pytest.approx(30.0, rel=1e-5)
 
 
-@pytest.mark.parametrize("clip", ["dataset-1/dataset-1_run_normal_001.bvh.gz",
-                                  "dataset-2/dataset-2_walk_normal_004.bvh.gz"])
+@pytest.mark.parametrize(
+    "clip", ["dataset-1/dataset-1_run_normal_001.bvh.gz", "dataset-2/dataset-2_walk_normal_004.bvh.gz"]
+)
 @pytest.mark.parametrize("suffix", [".bvh", ".bvh.gz"])
 def test_real_clip_round_trip(tmp_path, clip, suffix):
     original = read_bvh(data_path(f"{BANDAI}/{clip}"))
@@ -184,8 +206,7 @@ def test_synthetic_xyz_order_in_metres_matches_scipy(tmp_path):
     motion = read_bvh(path)
     assert (motion.units, motion.units_inferred) == ("m", True)
     assert motion.skeleton.names == ("pelvis", "thigh", "shank", "shank_end")
-    assert motion.skeleton.channels[0] == ("Zposition", "Xrotation", "Xposition", "Yrotation", "Yposition",
-                                           "Zrotation")
+    assert motion.skeleton.channels[0] == ("Zposition", "Xrotation", "Xposition", "Yrotation", "Yposition", "Zrotation")
 
     # Direct computation: scipy's upper-case sequences are intrinsic rotations, BVH's definition.
     pelvis = Rotation.from_euler("XYZ", values[:, [1, 3, 5]], degrees=True)
@@ -202,9 +223,11 @@ def test_synthetic_xyz_order_in_metres_matches_scipy(tmp_path):
 @pytest.mark.parametrize("scale, units", [(1.0, "m"), (100.0, "cm"), (1000.0, "mm")])
 def test_units_detected_from_skeleton_size(tmp_path, scale, units):
     bone = 0.45 * scale  # two 0.45 m bones: L = 0.9, 90 or 900 file units
-    text = (f"HIERARCHY\nROOT a\n{{\nOFFSET 0 {2 * bone} 0\nCHANNELS 3 Xposition Yposition Zposition\n"
-            f"JOINT b\n{{\nOFFSET {bone} 0 0\nCHANNELS 1 Zrotation\nEnd Site\n{{\nOFFSET 0 {-bone} 0\n}}\n}}\n}}\n"
-            f"MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0 10\n{bone} 0 0 20\n")
+    text = (
+        f"HIERARCHY\nROOT a\n{{\nOFFSET 0 {2 * bone} 0\nCHANNELS 3 Xposition Yposition Zposition\n"
+        f"JOINT b\n{{\nOFFSET {bone} 0 0\nCHANNELS 1 Zrotation\nEnd Site\n{{\nOFFSET 0 {-bone} 0\n}}\n}}\n}}\n"
+        f"MOTION\nFrames: 2\nFrame Time: 0.1\n0 0 0 10\n{bone} 0 0 20\n"
+    )
     motion = read_bvh(_write_text(tmp_path / "size.bvh", text))
     assert (motion.units, motion.units_inferred) == (units, True)
     np.testing.assert_allclose(np.abs(motion.skeleton.offsets[1:]).sum(axis=1), [0.45, 0.45])
@@ -215,6 +238,7 @@ def test_units_detected_from_skeleton_size(tmp_path, scale, units):
 
 
 # --- errors: file and line -------------------------------------------------------------------------------------
+
 
 def _error(tmp_path, text: str, name: str = "bad.bvh") -> DataFormatError:
     path = _write_text(tmp_path / name, text)
@@ -265,14 +289,19 @@ def test_empty_and_broken_gzip(tmp_path):
 
 
 def test_unclosed_joint_and_bad_offset(tmp_path):
-    error = _error(tmp_path, TWO_JOINTS.replace("    CHANNELS 3 Zrotation Xrotation Yrotation\n  }\n",
-                                                "    CHANNELS 3 Zrotation Xrotation Yrotation\n"))
+    error = _error(
+        tmp_path,
+        TWO_JOINTS.replace(
+            "    CHANNELS 3 Zrotation Xrotation Yrotation\n  }\n", "    CHANNELS 3 Zrotation Xrotation Yrotation\n"
+        ),
+    )
     assert "never closed" in str(error)
     error = _error(tmp_path, TWO_JOINTS.replace("OFFSET 2 0 0", "OFFSET 2 x 0"))
     assert error.line == 8 and "'x'" in str(error)
 
 
 # --- property-based: random skeletons and corruptions ----------------------------------------------------------
+
 
 @st.composite
 def motions(draw) -> BVHMotion:
@@ -282,9 +311,9 @@ def motions(draw) -> BVHMotion:
     for j in range(count):
         candidates = [k for k in path if not end_sites[k]]
         parent = -1 if not candidates or draw(st.integers(0, 9)) == 0 else draw(st.sampled_from(candidates))
-        path = (path[:path.index(parent) + 1] if parent >= 0 else []) + [j]
+        path = (path[: path.index(parent) + 1] if parent >= 0 else []) + [j]
         is_end = parent >= 0 and draw(st.booleans())
-        chans = () if is_end else tuple(draw(st.permutations(CHANNEL_NAMES))[:draw(st.sampled_from([3, 6]))])
+        chans = () if is_end else tuple(draw(st.permutations(CHANNEL_NAMES))[: draw(st.sampled_from([3, 6]))])
         if not is_end and draw(st.booleans()):
             chans = tuple(c for c in chans if c.endswith("rotation"))  # 3-channel joints
         if is_end:  # the reader's names for End Sites: <parent>_end, then <parent>_end2 ...
@@ -300,8 +329,11 @@ def motions(draw) -> BVHMotion:
     offsets = draw(st.lists(st.tuples(*[st.floats(-0.5, 0.5)] * 3), min_size=count, max_size=count))
     skeleton = Skeleton(tuple(names), tuple(parents), np.array(offsets), tuple(channels), tuple(end_sites))
     frames = draw(st.integers(1, 4))
-    values = np.array(draw(st.lists(st.floats(-180, 180), min_size=frames * skeleton.n_channels,
-                                    max_size=frames * skeleton.n_channels))).reshape(frames, -1)
+    values = np.array(
+        draw(
+            st.lists(st.floats(-180, 180), min_size=frames * skeleton.n_channels, max_size=frames * skeleton.n_channels)
+        )
+    ).reshape(frames, -1)
     frame_time = draw(st.floats(1e-3, 1.0))
     return BVHMotion(skeleton, values, frame_time, units="cm")
 

@@ -27,8 +27,11 @@ def _c3d_files(kind: str = "") -> list:
 def _masses() -> dict[str, float]:
     """Body mass (kg) per runner from participantInfo.csv, one row per subject (the static.c3d row)."""
     with data_path(f"{FUKUCHI}/participantInfo.csv").open(newline="", encoding="utf-8-sig") as handle:
-        return {row["FileName"].removesuffix("static.c3d"): float(row["Mass"])
-                for row in csv.DictReader(handle) if row["FileName"].endswith("static.c3d")}
+        return {
+            row["FileName"].removesuffix("static.c3d"): float(row["Mass"])
+            for row in csv.DictReader(handle)
+            if row["FileName"].endswith("static.c3d")
+        }
 
 
 def test_every_fukuchi_c3d_reads_in_metres_at_150_hz():
@@ -39,7 +42,7 @@ def test_every_fukuchi_c3d_reads_in_metres_at_150_hz():
         assert trial.source == path
         assert markers.rate == pytest.approx(150.0) and markers.times[0] == 0.0, path
         assert np.array_equal(markers.times, np.arange(markers.n_frames) / 150.0), path  # OpenSim's k / rate
-        running = path.name.endswith(("runT25.c3d", "runT35.c3d", "runT45.c3d"))   # SOURCE.md: 3 speeds
+        running = path.name.endswith(("runT25.c3d", "runT35.c3d", "runT45.c3d"))  # SOURCE.md: 3 speeds
         assert path.name.endswith("static.c3d") or running, path
         assert markers.n_frames == (4500 if running else 150), path
         assert len(markers.names) == (len(set(markers.names))) and all(n == n.strip() for n in markers.names)
@@ -198,8 +201,9 @@ def _plate_corners(centre):
 
 def _known_load(samples, rng):
     """Force (plate frame, N), CoP (plate frame, m, on the surface) and free moment Tz (N·m) per sample."""
-    force = np.column_stack([rng.uniform(-150, 150, samples), rng.uniform(-150, 150, samples),
-                             rng.uniform(-900, -300, samples)])  # z down: a load pressing on the plate
+    force = np.column_stack(
+        [rng.uniform(-150, 150, samples), rng.uniform(-150, 150, samples), rng.uniform(-900, -300, samples)]
+    )  # z down: a load pressing on the plate
     cop = np.column_stack([rng.uniform(-0.25, 0.25, samples), rng.uniform(-0.15, 0.15, samples), np.zeros(samples)])
     return force, cop, rng.uniform(-5, 5, samples)
 
@@ -213,8 +217,11 @@ def test_plate_types_1_to_4_recover_a_known_load(tmp_path):
     samples = frames * RATIO
     force, cop, torque = _known_load(samples, rng)
     force[:15, 2] = -5.0  # below the 20 N CoP threshold
-    channels, plates, centres = [], [], [np.array(c) for c in ([1000.0, 0, 500], [0, 0, 0], [-800, 0, 300],
-                                                                [2000, 0, -600])]
+    channels, plates, centres = (
+        [],
+        [],
+        [np.array(c) for c in ([1000.0, 0, 500], [0, 0, 0], [-800, 0, 300], [2000, 0, -600])],
+    )
     mm = 1000.0
     # TYPE 1: Fx Fy Fz CoPx CoPy Tz (mm, N·mm)
     channels.append(np.column_stack([force, cop[:, :2] * mm, torque * mm]))
@@ -230,8 +237,10 @@ def test_plate_types_1_to_4_recover_a_known_load(tmp_path):
     # point whose moments match the load, shear split so that Mz = (arm x F)_z + Tz
     a, b, depth = 0.21, 0.13, -0.05
     apparent = cop[:, :2] - depth * force[:, :2] / force[:, 2:3]
-    weights = [(1 + sx * apparent[:, 0] / a) * (1 + sy * apparent[:, 1] / b) / 4
-               for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))]
+    weights = [
+        (1 + sx * apparent[:, 0] / a) * (1 + sy * apparent[:, 1] / b) / 4
+        for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))
+    ]
     twist = cop[:, 0] * force[:, 1] - cop[:, 1] * force[:, 0] + torque
     fx12, fx34 = force[:, 0] / 2 - twist / (4 * b), force[:, 0] / 2 + twist / (4 * b)
     fy14, fy23 = force[:, 1] / 2 + twist / (4 * a), force[:, 1] / 2 - twist / (4 * a)
@@ -239,8 +248,7 @@ def test_plate_types_1_to_4_recover_a_known_load(tmp_path):
     plates.append({"type": 3, "origin": [a * mm, b * mm, depth * mm], "corners": _plate_corners(centres[2])})
     # TYPE 4: a full (non-diagonal) calibration matrix applied to "volts"
     cal = np.diag([500.0, 500, 1000, 8e5, 2.5e5, 4e5]) + rng.uniform(-20, 20, (6, 6))
-    wrench = np.column_stack([force, (np.cross(arm, force) + np.column_stack(
-        [np.zeros((samples, 2)), torque])) * mm])
+    wrench = np.column_stack([force, (np.cross(arm, force) + np.column_stack([np.zeros((samples, 2)), torque])) * mm])
     channels.append(np.linalg.solve(cal, wrench.T).T)
     plates.append({"type": 4, "origin": origin * mm, "corners": _plate_corners(centres[3]), "cal": cal})
     # lay out the analog channels and name them in FORCE_PLATFORM:CHANNEL
@@ -250,8 +258,14 @@ def test_plate_types_1_to_4_recover_a_known_load(tmp_path):
         start += block.shape[1]
     analogs = np.concatenate(channels, axis=1).T
     points = rng.uniform(100, 900, (3, 2, frames))
-    path = _write(tmp_path / "plates.c3d", labels=["A", "B"], points=points, analogs=analogs, plates=plates,
-                  extra=[("TRIAL", "ACTUAL_START_FIELD", [51.0, 0.0])])
+    path = _write(
+        tmp_path / "plates.c3d",
+        labels=["A", "B"],
+        points=points,
+        analogs=analogs,
+        plates=plates,
+        extra=[("TRIAL", "ACTUAL_START_FIELD", [51.0, 0.0])],
+    )
 
     ours = read_c3d_forces(path, cop_threshold=20.0)
     assert ours.names == ("1", "2", "3", "4")
@@ -263,14 +277,17 @@ def test_plate_types_1_to_4_recover_a_known_load(tmp_path):
         np.testing.assert_allclose(rotation, [[1, 0, 0], [0, 0, -1], [0, 1, 0]], atol=1e-12)
         # float32 storage: forces to 0.01 N, CoP to 0.1 mm, free moment to 0.01 N·m
         np.testing.assert_allclose(ours.force[:, index], force @ rotation.T, atol=1e-2, err_msg=f"type {plate['type']}")
-        np.testing.assert_allclose(ours.cop[heavy, index], cop[heavy] @ rotation.T + centre, atol=1e-4,
-                                   err_msg=f"type {plate['type']}")
-        np.testing.assert_allclose(ours.moment[heavy, index], torque[heavy, None] * rotation[:, 2], atol=1e-2,
-                                   err_msg=f"type {plate['type']}")
+        np.testing.assert_allclose(
+            ours.cop[heavy, index], cop[heavy] @ rotation.T + centre, atol=1e-4, err_msg=f"type {plate['type']}"
+        )
+        np.testing.assert_allclose(
+            ours.moment[heavy, index], torque[heavy, None] * rotation[:, 2], atol=1e-2, err_msg=f"type {plate['type']}"
+        )
         assert np.isnan(ours.cop[~heavy, index]).all() and np.isnan(ours.moment[~heavy, index]).all()
         np.testing.assert_allclose(ours.force[:, index], reference[index]["force"].T, atol=1e-6)
-        np.testing.assert_allclose(ours.cop[heavy, index], reference[index]["center_of_pressure"].T[heavy] / mm,
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            ours.cop[heavy, index], reference[index]["center_of_pressure"].T[heavy] / mm, atol=1e-9
+        )
 
 
 def test_units_rate_start_frame_gaps_and_model_outputs(tmp_path):
@@ -285,8 +302,9 @@ def test_units_rate_start_frame_gaps_and_model_outputs(tmp_path):
     np.testing.assert_allclose(markers.times, (200 + np.arange(12)) / RATE)
     assert markers.occluded().sum() == 2 and markers.occluded()[4, 0] and markers.occluded()[5, 1]
     present = ~markers.occluded()
-    np.testing.assert_allclose(markers.positions[present], np.transpose(points[:, :2], (2, 1, 0))[present] / 100,
-                               rtol=1e-6)
+    np.testing.assert_allclose(
+        markers.positions[present], np.transpose(points[:, :2], (2, 1, 0))[present] / 100, rtol=1e-6
+    )
     kept = read_c3d_markers(path, zero_is_missing=False)
     np.testing.assert_array_equal(kept["A"][4], [0.0, 0.0, 0.0])
     np.testing.assert_allclose(read_c3d_markers(path, units="m").positions, markers.positions * 100, rtol=1e-12)
@@ -299,6 +317,7 @@ def test_units_rate_start_frame_gaps_and_model_outputs(tmp_path):
 
 
 # --- corrupted files ----------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("size", [100, 3000, 600_000, 2_527_000])
 def test_truncated_copy_raises_naming_the_file(tmp_path, size):
@@ -330,17 +349,21 @@ def test_non_finite_plate_channels_and_infinite_points_are_refused(tmp_path):
     infinite coordinate is no documented gap: both are refused, naming the file, frame and channel or marker."""
     rng = np.random.default_rng(5)
     frames = 10
-    analogs = np.column_stack([rng.uniform(-50, 50, (frames * RATIO, 2)), rng.uniform(-900, -300, frames * RATIO),
-                               rng.uniform(-1e4, 1e4, (frames * RATIO, 3))]).T
-    analogs[2, 7 * RATIO + 1] = np.nan                 # channel 3 (Fz) in frame 7
-    plate = {"type": 2, "origin": [0.0, 0.0, -40.0], "corners": _plate_corners(np.zeros(3)),
-             "channel": np.arange(1, 7)}
+    analogs = np.column_stack(
+        [
+            rng.uniform(-50, 50, (frames * RATIO, 2)),
+            rng.uniform(-900, -300, frames * RATIO),
+            rng.uniform(-1e4, 1e4, (frames * RATIO, 3)),
+        ]
+    ).T
+    analogs[2, 7 * RATIO + 1] = np.nan  # channel 3 (Fz) in frame 7
+    plate = {"type": 2, "origin": [0.0, 0.0, -40.0], "corners": _plate_corners(np.zeros(3)), "channel": np.arange(1, 7)}
     points = rng.uniform(100, 900, (3, 2, frames))
     path = _write(tmp_path / "nan_plate.c3d", labels=["A", "B"], points=points, analogs=analogs, plates=[plate])
     with pytest.raises(DataFormatError, match="analog channel 3 \\('ch2'\\) holds nan") as error:
         read_c3d_forces(path)
     assert error.value.frame == 7 and str(error.value).startswith(f"{path}: frame 7, field 'ANALOG:DATA': ")
-    assert read_c3d_markers(path).n_frames == frames          # the markers themselves are fine
+    assert read_c3d_markers(path).n_frames == frames  # the markers themselves are fine
     points[1, 1, 3] = np.inf
     path = _write(tmp_path / "inf_point.c3d", labels=["A", "B"], points=points)
     with pytest.raises(DataFormatError, match="marker 'B' has an infinite y coordinate") as error:

@@ -37,7 +37,7 @@ def test_a_cropped_trial_with_a_gap_reads_back_on_its_clock(tmp_path):
     np.testing.assert_array_equal(np.isnan(back.positions), np.isnan(positions))
     np.testing.assert_allclose(back.positions, positions, atol=1e-6, equal_nan=True)
     raw = ezc3d.c3d(str(path))
-    invalid = np.asarray(raw["data"]["meta_points"]["residuals"])[0].T < 0            # [T, M]
+    invalid = np.asarray(raw["data"]["meta_points"]["residuals"])[0].T < 0  # [T, M]
     np.testing.assert_array_equal(invalid, np.isnan(positions).any(axis=-1))
     assert (raw["header"]["points"]["first_frame"], raw["header"]["points"]["last_frame"]) == (30, 329)
     assert raw["parameters"]["POINT"]["UNITS"]["value"] == ["mm"]
@@ -61,8 +61,9 @@ def test_the_writer_works_after_opensim_has_run(tmp_path):
 def test_many_markers_and_long_trials_use_the_standards_continuations(tmp_path):
     """300 markers spill into POINT:LABELS2; 40000 frames (past int16) keep their count and last frame."""
     rng = np.random.default_rng(0)
-    wide = Markers(times=np.arange(3) / 100.0, names=tuple(f"M{i:03d}" for i in range(300)),
-                   positions=rng.normal(size=(3, 300, 3)))
+    wide = Markers(
+        times=np.arange(3) / 100.0, names=tuple(f"M{i:03d}" for i in range(300)), positions=rng.normal(size=(3, 300, 3))
+    )
     back = read_c3d_markers(write_c3d(tmp_path / "wide.c3d", wide))
     assert back.names == wide.names
     np.testing.assert_allclose(back.positions, wide.positions, atol=1e-6)

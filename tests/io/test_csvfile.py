@@ -10,8 +10,7 @@ from biomotion.motion import Motion
 
 def _written(tmp_path):
     rng = np.random.default_rng(0)
-    motion = Motion(times=np.arange(5) / 100.0, names=("hip_flexion_r", "knee_angle_r"),
-                    values=rng.normal(size=(5, 2)))
+    motion = Motion(times=np.arange(5) / 100.0, names=("hip_flexion_r", "knee_angle_r"), values=rng.normal(size=(5, 2)))
     path = write_motion_csv(tmp_path / "m.csv", motion)
     return motion, path, path.read_text().splitlines()
 
@@ -22,8 +21,15 @@ def test_round_trip(tmp_path):
     assert back.names == motion.names and np.array_equal(back.values, motion.values)
 
 
-@pytest.mark.parametrize("cell, message", [("", "cell is empty"), ("nan", "'nan', not a finite number"),
-                                           ("inf", "'inf', not a finite number"), ("1.2.3", "not a number")])
+@pytest.mark.parametrize(
+    "cell, message",
+    [
+        ("", "cell is empty"),
+        ("nan", "'nan', not a finite number"),
+        ("inf", "'inf', not a finite number"),
+        ("1.2.3", "not a number"),
+    ],
+)
 def test_bad_cells_name_line_and_column(tmp_path, cell, message):
     _, path, lines = _written(tmp_path)
     cells = lines[3].split(",")

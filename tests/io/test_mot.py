@@ -1,14 +1,19 @@
 """OpenSim .mot/.sto reader and writer on the real files, round trips through OpenSim's own readers, and errors."""
 
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from biomotion.errors import BiomotionWarning, DataFormatError
-from biomotion.io.mot import (read_ground_reaction, read_motion, read_storage, write_ground_reaction,
-                              write_motion, write_storage)
+from biomotion.io.mot import (
+    read_ground_reaction,
+    read_motion,
+    read_storage,
+    write_ground_reaction,
+    write_motion,
+    write_storage,
+)
 from tests.conftest import DATA_ROOT, data_path
 
 
@@ -107,15 +112,21 @@ def test_errors_name_file_and_line(tmp_path):
     source = data_path("opencap/Subject4/IK/walking1_ik.mot").read_text().splitlines()
     end = source.index("endheader")
     cases = {
-        "truncated": source[:end + 10],                                   # fewer rows than nRows
-        "columns": source[:end + 5] + [source[end + 5] + "\t1.0"] + source[end + 6:],
-        "nan_time": source[:end + 5] + ["nan\t" + source[end + 5].split("\t", 1)[1]] + source[end + 6:],
+        "truncated": source[: end + 10],  # fewer rows than nRows
+        "columns": source[: end + 5] + [source[end + 5] + "\t1.0"] + source[end + 6 :],
+        "nan_time": source[: end + 5] + ["nan\t" + source[end + 5].split("\t", 1)[1]] + source[end + 6 :],
         "no_endheader": [line for line in source if line != "endheader"],
-        "text": source[:end + 5] + [source[end + 5].replace("\t", "\tabc", 1)] + source[end + 6:],
+        "text": source[: end + 5] + [source[end + 5].replace("\t", "\tabc", 1)] + source[end + 6 :],
         "empty": [],
     }
-    messages = {"truncated": "truncated", "columns": "column labels", "nan_time": "NaN",
-                "no_endheader": "endheader", "text": "not a number", "empty": "empty"}
+    messages = {
+        "truncated": "truncated",
+        "columns": "column labels",
+        "nan_time": "NaN",
+        "no_endheader": "endheader",
+        "text": "not a number",
+        "empty": "empty",
+    }
     for name, lines in cases.items():
         path = tmp_path / f"{name}.mot"
         path.write_text("\n".join(lines))
@@ -191,7 +202,7 @@ def test_nan_and_inf_are_refused_naming_file_line_and_column(tmp_path):
     assert (info.value.line, info.value.field) == (end + 6, labels[5])
     gaps = read_motion(path, allow_gaps=True)
     assert np.isnan(gaps.values[3, 4]) and np.isfinite(np.delete(gaps.values, 4, axis=1)).all()
-    assert np.isnan(read_storage(path).data[3, 4])                   # the raw table keeps NaN by default
+    assert np.isnan(read_storage(path).data[3, 4])  # the raw table keeps NaN by default
     with pytest.raises(DataFormatError, match="NaN"):
         read_storage(path, allow_gaps=False)
     others = [name for name in labels[1:] if name != labels[5]]
@@ -220,7 +231,7 @@ def test_rows_of_the_wrong_width_empty_files_and_directories(tmp_path):
     source = data_path("opencap/Subject4/IK/walking1_ik.mot").read_text().splitlines()
     end = source.index("endheader")
     width = len(source[end + 1].split("\t"))
-    short = source[:end + 4] + ["\t".join(source[end + 4].split("\t")[:-1])] + source[end + 5:]
+    short = source[: end + 4] + ["\t".join(source[end + 4].split("\t")[:-1])] + source[end + 5 :]
     path = tmp_path / "short.mot"
     path.write_text("\n".join(short))
     with pytest.raises(DataFormatError, match=f"{width - 1} values but {width} column labels") as info:

@@ -4,15 +4,19 @@ from __future__ import annotations
 
 import pytest
 
-from tests.conftest import data_path
-
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io import osim
+from tests.conftest import data_path
 
 RAJAGOPAL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 RUNNER = "fukuchi-running/RBDS001/RBDS001_simple.osim"
-MODEL_GLOBS = ("opensim-models/**/*.osim", "fukuchi-running/**/*.osim", "opencap/**/*.osim", "Hamner2013/**/*.osim",
-               "SchreiberMoissenet2019/**/*.osim")
+MODEL_GLOBS = (
+    "opensim-models/**/*.osim",
+    "fukuchi-running/**/*.osim",
+    "opencap/**/*.osim",
+    "Hamner2013/**/*.osim",
+    "SchreiberMoissenet2019/**/*.osim",
+)
 
 
 def test_every_model_in_the_data_parses(data_root) -> None:
@@ -41,8 +45,10 @@ def test_rajagopal_spec() -> None:
     frame = next(f for f in spec.frames if f.path == knee.parent_frame)
     assert frame.parent == "/bodyset/femur_r" and frame.orientation == (-1.64157, 1.44618, 1.5708)
     wrist = next(j for j in spec.joints if j.name == "radius_hand_r")
-    assert wrist.type == "UniversalJoint" and [t.coordinates for t in wrist.transform[:2]] == [("wrist_flex_r",),
-                                                                                             ("wrist_dev_r",)]
+    assert wrist.type == "UniversalJoint" and [t.coordinates for t in wrist.transform[:2]] == [
+        ("wrist_flex_r",),
+        ("wrist_dev_r",),
+    ]
     coordinate = next(c for c in spec.coordinates if c.name == "knee_angle_r_beta")
     assert (coordinate.motion_type, coordinate.clamped, coordinate.range) == ("coupled", False, (-99999.9, 99999.9))
     assert spec.couplers[0].dependent == "knee_angle_r_beta" and spec.couplers[0].independent == ("knee_angle_r",)
@@ -79,8 +85,9 @@ def _write(tmp_path, text: str):
 
 def test_unsupported_joint_names_file_and_line(tmp_path, runner_text: str) -> None:
     text = runner_text.replace('<PinJoint name="knee_r">', '<EllipsoidJoint name="knee_r">', 1).replace(
-        "</PinJoint>", "</EllipsoidJoint>", 1)
-    line = text[:text.index("<EllipsoidJoint")].count("\n") + 1
+        "</PinJoint>", "</EllipsoidJoint>", 1
+    )
+    line = text[: text.index("<EllipsoidJoint")].count("\n") + 1
     with pytest.raises(ModelError, match=rf"broken.osim:{line}: <EllipsoidJoint name='knee_r'>.*not supported"):
         osim.read_osim(_write(tmp_path, text))
 
@@ -95,12 +102,14 @@ def test_malformed_inputs(tmp_path, runner_text: str) -> None:
     assert error.value.field == "mass" and error.value.line > 1
     with pytest.raises(ModelError, match="format version 30000"):
         osim.read_osim(_write(tmp_path, runner_text.replace('Version="40600"', 'Version="30000"', 1)))
-    missing = runner_text.replace("<socket_child_frame>tibia_r_offset</socket_child_frame>",
-                                  "<socket_child_frame>shin_offset</socket_child_frame>", 1)
+    missing = runner_text.replace(
+        "<socket_child_frame>tibia_r_offset</socket_child_frame>",
+        "<socket_child_frame>shin_offset</socket_child_frame>",
+        1,
+    )
     with pytest.raises(ModelError, match="'shin_offset' not found"):
         osim.read_osim(_write(tmp_path, missing))
     with pytest.raises(DataFormatError, match="not an OpenSim document"):
         osim.read_osim(_write(tmp_path, "<Model/>"))
     with pytest.raises(DataFormatError, match="no <ScaleSet>"):
         osim.read_scale_set(_write(tmp_path, runner_text))
-

@@ -33,10 +33,25 @@ def test_motus_subject_log_schema_xlsx(tmp_path):
     openpyxl = pytest.importorskip("openpyxl")
     book = openpyxl.Workbook()
     sheet = book.active
-    sheet.append(["Subject ID", "Age", "Gender", "Height (cm)", "Mass (kg)", "Level", "Sport",
-                  "Injury 1", "Injury 2", "Injury 3", "Injury 4", "Injury 5"])
-    sheet.append([1424, 17, "F", 165.5, 58.2, "Varsity", "Soccer", "ACL tear left knee", "Ankle sprain",
-                  None, None, None])
+    sheet.append(
+        [
+            "Subject ID",
+            "Age",
+            "Gender",
+            "Height (cm)",
+            "Mass (kg)",
+            "Level",
+            "Sport",
+            "Injury 1",
+            "Injury 2",
+            "Injury 3",
+            "Injury 4",
+            "Injury 5",
+        ]
+    )
+    sheet.append(
+        [1424, 17, "F", 165.5, 58.2, "Varsity", "Soccer", "ACL tear left knee", "Ankle sprain", None, None, None]
+    )
     sheet.append([38, 24, "Male", 182, 80, "Professional", "Hockey", None, None, None, None, None])
     path = tmp_path / "Subject Log.xlsx"
     book.save(path)
@@ -98,5 +113,5 @@ def test_rows_of_another_width_missing_files_and_directories_are_refused(tmp_pat
 
     table.write_text("subject_id,sex,age_years,height_m,mass_kg\ns1,F,52,1.68,61\ns2,M,1.80,75\n")
     with pytest.raises(DataFormatError, match="4 cells but 5 column names") as info:
-        describe(table)                     # still recognised as a subject table, and the row named
+        describe(table)  # still recognised as a subject table, and the row named
     assert str(info.value).startswith(f"{table}:3: ")

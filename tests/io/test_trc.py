@@ -18,7 +18,9 @@ def test_every_trc_in_the_data_reads_in_metres(data_root):
         markers = read_trc(path)
         heights = markers.positions[..., 1]
         assert np.nanmax(heights) < 2.2 and np.nanmin(heights) > -0.2, path  # y up, metres
-        assert markers.rate in (pytest.approx(60.0, rel=1e-3), pytest.approx(100.0, rel=1e-3)), path  # times rounded to 1 ms
+        assert markers.rate in (pytest.approx(60.0, rel=1e-3), pytest.approx(100.0, rel=1e-3)), (
+            path
+        )  # times rounded to 1 ms
 
 
 def test_mm_file_and_trailing_tab_rows():
@@ -45,8 +47,9 @@ def test_opensim_reads_what_we_write(tmp_path):
     assert table.getNumRows() == markers.n_frames
     row = table.getRowAtIndex(10)
     first = row[0]
-    np.testing.assert_allclose([first.get(0), first.get(1), first.get(2)],
-                               markers.positions[10, 0] * 1000.0, rtol=1e-12)
+    np.testing.assert_allclose(
+        [first.get(0), first.get(1), first.get(2)], markers.positions[10, 0] * 1000.0, rtol=1e-12
+    )
     back = read_trc(path)
     np.testing.assert_allclose(back.positions, markers.positions, rtol=1e-12, atol=1e-15)
     assert np.array_equal(np.isnan(back.positions), np.isnan(markers.positions))
@@ -56,8 +59,12 @@ def test_errors(tmp_path):
     lines = data_path("opencap/Subject4/MarkerData/DJ1.trc").read_text().splitlines()
     bad_units = lines[:2] + [lines[2].replace("\tm\t", "\tinch\t")] + lines[3:]
     too_many = lines[:8] + [lines[8] + "\t1\t2\t3\t4"] + lines[9:]
-    cases = {"units": (bad_units, "unknown units"), "truncated": (lines[:20], "truncated"),
-             "width": (too_many, "fields"), "header": (["hello"] * 6, "PathFileType")}
+    cases = {
+        "units": (bad_units, "unknown units"),
+        "truncated": (lines[:20], "truncated"),
+        "width": (too_many, "fields"),
+        "header": (["hello"] * 6, "PathFileType"),
+    }
     for name, (content, message) in cases.items():
         path = tmp_path / f"{name}.trc"
         path.write_text("\n".join(content))
@@ -68,14 +75,17 @@ def test_errors(tmp_path):
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(frames=st.integers(1, 15), count=st.integers(1, 4), units=st.sampled_from(["m", "mm", "cm"]),
-       seed=st.integers(0, 2**16))
+@given(
+    frames=st.integers(1, 15),
+    count=st.integers(1, 4),
+    units=st.sampled_from(["m", "mm", "cm"]),
+    seed=st.integers(0, 2**16),
+)
 def test_property_round_trip(tmp_path, frames, count, units, seed):
     rng = np.random.default_rng(seed)
     positions = rng.normal(size=(frames, count, 3))
     positions[rng.random(size=(frames, count)) < 0.2] = np.nan
-    markers = Markers(times=np.arange(frames) / 50.0, names=tuple(f"M{i}" for i in range(count)),
-                      positions=positions)
+    markers = Markers(times=np.arange(frames) / 50.0, names=tuple(f"M{i}" for i in range(count)), positions=positions)
     back = read_trc(write_trc(tmp_path / "p.trc", markers, units=units, rate=50.0))
     np.testing.assert_allclose(back.positions, positions, rtol=1e-12, atol=1e-15)
 
@@ -116,7 +126,7 @@ def test_a_short_row_is_refused_not_shifted(tmp_path, cut):
     elif cut == "middle":
         del fields[width // 2]
     else:
-        fields = fields[:-3]            # a whole trailing marker left out, tabs and all
+        fields = fields[:-3]  # a whole trailing marker left out, tabs and all
     path = tmp_path / "short.trc"
     path.write_text("\n".join(lines[:8] + ["\t".join(fields)] + lines[9:]))
     with pytest.raises(DataFormatError, match=f"{len(fields)} fields, expected {width}") as info:
@@ -130,7 +140,7 @@ def test_infinite_values_empty_files_and_directories_are_refused(tmp_path):
     lines = source.read_text().splitlines()
     names = [n for n in lines[3].split("\t")[2:] if n.strip()]
     fields = lines[10].split("\t")
-    fields[2 + 3 + 1] = "inf"                                        # second marker, Y
+    fields[2 + 3 + 1] = "inf"  # second marker, Y
     path = tmp_path / "inf.trc"
     path.write_text("\n".join(lines[:10] + ["\t".join(fields)] + lines[11:]))
     with pytest.raises(DataFormatError, match="infinite value") as info:
@@ -161,7 +171,7 @@ def test_time_range_parses_only_the_window(tmp_path):
     assert window.n_frames == 16 and np.array_equal(window.times, whole.times)
     np.testing.assert_array_equal(window.positions, whole.positions)
     lines = path.read_text().splitlines()
-    lines[5 + 35] = lines[5 + 35].replace(lines[5 + 35].split("\t")[3], "oops")   # a bad token outside the window
+    lines[5 + 35] = lines[5 + 35].replace(lines[5 + 35].split("\t")[3], "oops")  # a bad token outside the window
     path.write_text("\n".join(lines) + "\n")
     assert read_trc(path, (0.1, 0.25)).n_frames == 16
     with pytest.raises(DataFormatError, match="not a number"):
@@ -169,7 +179,7 @@ def test_time_range_parses_only_the_window(tmp_path):
     with pytest.raises(DataFormatError, match="no frame within time range") as error:
         read_trc(path, (1.0, 2.0))
     assert error.value.field == "time_range"
-    lines[5 + 20] = "21\t0.3\t" + "\t".join(lines[5 + 20].split("\t")[2:])             # time goes back: still found
+    lines[5 + 20] = "21\t0.3\t" + "\t".join(lines[5 + 20].split("\t")[2:])  # time goes back: still found
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataFormatError, match="time does not increase"):
         read_trc(path, (0.0, 0.05))
@@ -182,8 +192,7 @@ def test_property_a_deleted_field_never_reads_silently(tmp_path, frames, count, 
     rng = np.random.default_rng(frames * 31 + count)
     positions = rng.normal(size=(frames, count, 3))
     positions[rng.random(size=(frames, count)) < 0.3] = np.nan
-    markers = Markers(times=np.arange(frames) / 50.0, names=tuple(f"M{i}" for i in range(count)),
-                      positions=positions)
+    markers = Markers(times=np.arange(frames) / 50.0, names=tuple(f"M{i}" for i in range(count)), positions=positions)
     lines = write_trc(tmp_path / "p.trc", markers, rate=50.0).read_text().splitlines()
     line = 6 + row % frames
     fields = lines[line].split("\t")

@@ -30,7 +30,7 @@ def test_every_vtp_in_the_data(data_root):
         vertices, triangles = read_vtp(path)
         text = path.read_text()
         declared = int(re.search(r'NumberOfPoints="(\d+)"', text)[1])
-        polys = text[text.index("<Polys>"):text.index("</Polys>")]
+        polys = text[text.index("<Polys>") : text.index("</Polys>")]
         offsets = np.array(re.search(r'Name="offsets"[^>]*>([^<]*)<', polys)[1].split(), dtype=int)
         sizes = np.diff(np.concatenate([[0], offsets]))
         assert vertices.shape == (declared, 3), path
@@ -39,8 +39,15 @@ def test_every_vtp_in_the_data(data_root):
         assert np.ptp(vertices, axis=0).max() < 0.6, path  # metres: no bone is longer than 60 cm
         volumes[path.name] = _signed_volume(vertices, triangles)
         assert volumes[path.name] > 0, path  # winding kept: normals point out
-    for closed in ("r_femur.vtp", "l_femur.vtp", "r_talus.vtp", "r_patella.vtp", "r_bofoot.vtp", "sacrum.vtp",
-                   "hat_ribs_scap.vtp"):
+    for closed in (
+        "r_femur.vtp",
+        "l_femur.vtp",
+        "r_talus.vtp",
+        "r_patella.vtp",
+        "r_bofoot.vtp",
+        "sacrum.vtp",
+        "hat_ribs_scap.vtp",
+    ):
         assert _boundary_edges(read_vtp(next(p for p in files if p.name == closed))[1]) == 0, closed
     for name in ("talus", "bofoot", "foot", "fibula", "pelvis", "patella"):
         assert volumes[f"l_{name}.vtp"] == pytest.approx(volumes[f"r_{name}.vtp"], rel=0.01), name  # mirror pairs
@@ -60,9 +67,14 @@ VTP = """<?xml version="1.0"?>
   </PolyData>
 </VTKFile>
 """
-PENTAGON = dict(n=6, polys=2, fmt="ascii", points=" ".join(["0 0 0", "1 0 0", "1.3 1 0", "0.5 1.6 0", "-0.3 1 0",
-                                                           "0 0 1"]),
-                conn="0 1 2 3 4  0 1 5", offsets="5 8")
+PENTAGON = dict(
+    n=6,
+    polys=2,
+    fmt="ascii",
+    points=" ".join(["0 0 0", "1 0 0", "1.3 1 0", "0.5 1.6 0", "-0.3 1 0", "0 0 1"]),
+    conn="0 1 2 3 4  0 1 5",
+    offsets="5 8",
+)
 
 
 def test_polygons_become_fans(tmp_path):
@@ -73,15 +85,18 @@ def test_polygons_become_fans(tmp_path):
     assert triangles.tolist() == [[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 1, 5]]
 
 
-@pytest.mark.parametrize("change, message", [
-    (dict(fmt="binary"), "only ASCII"),
-    (dict(n=7), "18 coordinates for NumberOfPoints=7"),
-    (dict(conn="0 1 2 3 9  0 1 5"), "out of range"),
-    (dict(offsets="5 9"), "does not match 8 indices"),
-    (dict(conn="0 1 2 3 4  0 1 5", offsets="2 8"), "polygon 0 has 2 vertices"),
-    (dict(offsets="5"), "1 offsets for NumberOfPolys=2"),
-    (dict(points="0 0 0 1 0 0 1.3 1 0 0.5 1.6 0 -0.3 1 0 0 0 x"), "bad number"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(fmt="binary"), "only ASCII"),
+        (dict(n=7), "18 coordinates for NumberOfPoints=7"),
+        (dict(conn="0 1 2 3 9  0 1 5"), "out of range"),
+        (dict(offsets="5 9"), "does not match 8 indices"),
+        (dict(conn="0 1 2 3 4  0 1 5", offsets="2 8"), "polygon 0 has 2 vertices"),
+        (dict(offsets="5"), "1 offsets for NumberOfPolys=2"),
+        (dict(points="0 0 0 1 0 0 1.3 1 0 0.5 1.6 0 -0.3 1 0 0 0 x"), "bad number"),
+    ],
+)
 def test_malformed_files_name_the_field(tmp_path, change, message):
     path = tmp_path / "bad.vtp"
     path.write_text(VTP.format(**{**PENTAGON, **change}))

@@ -14,15 +14,27 @@ from biomotion.io.setup import read_ik_setup
 from biomotion.io.vtp import read_vtp
 from biomotion.io.xml import parse_tree, parse_with_lines
 
-LAUGHS = ('<?xml version="1.0"?>\n<!DOCTYPE lolz [\n <!ENTITY lol "lol">\n'
-          + "".join(f' <!ENTITY lol{i} "' + (f"&lol{i - 1};" if i > 1 else "&lol;") * 10 + '">\n' for i in range(1, 10))
-          + ']>\n<OpenSimDocument Version="40000"><Model name="m">&lol9;</Model></OpenSimDocument>\n')
-QUADRATIC = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "' + "x" * 50_000 + '">]>\n'
-             '<OpenSimDocument Version="40000"><Model name="m">' + "&a;" * 50_000 + "</Model></OpenSimDocument>\n")
-EXTERNAL = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY secret SYSTEM "file:///etc/passwd">]>\n'
-            '<OpenSimDocument Version="40000"><Model name="&secret;"/></OpenSimDocument>\n')
-READERS = {"parse_with_lines": parse_with_lines, "parse_tree": parse_tree, "read_osim": read_osim,
-           "read_marker_set": read_marker_set, "read_ik_setup": read_ik_setup, "read_vtp": read_vtp}
+LAUGHS = (
+    '<?xml version="1.0"?>\n<!DOCTYPE lolz [\n <!ENTITY lol "lol">\n'
+    + "".join(f' <!ENTITY lol{i} "' + (f"&lol{i - 1};" if i > 1 else "&lol;") * 10 + '">\n' for i in range(1, 10))
+    + ']>\n<OpenSimDocument Version="40000"><Model name="m">&lol9;</Model></OpenSimDocument>\n'
+)
+QUADRATIC = (
+    '<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "' + "x" * 50_000 + '">]>\n'
+    '<OpenSimDocument Version="40000"><Model name="m">' + "&a;" * 50_000 + "</Model></OpenSimDocument>\n"
+)
+EXTERNAL = (
+    '<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY secret SYSTEM "file:///etc/passwd">]>\n'
+    '<OpenSimDocument Version="40000"><Model name="&secret;"/></OpenSimDocument>\n'
+)
+READERS = {
+    "parse_with_lines": parse_with_lines,
+    "parse_tree": parse_tree,
+    "read_osim": read_osim,
+    "read_marker_set": read_marker_set,
+    "read_ik_setup": read_ik_setup,
+    "read_vtp": read_vtp,
+}
 
 
 @pytest.mark.parametrize("reader", list(READERS))
@@ -47,8 +59,10 @@ def test_many_text_pieces_are_joined_in_linear_time(tmp_path):
     assert root[0].text == "1 " * 200_000 and lines[id(root[0])] == 1
 
 
-@pytest.mark.parametrize("content, message, line", [("", "empty file", 1), ("  \n\n", "empty file", 3),
-                                                    ("<a>\n<b>\n</a>\n", "not well-formed XML", 3)])
+@pytest.mark.parametrize(
+    "content, message, line",
+    [("", "empty file", 1), ("  \n\n", "empty file", 3), ("<a>\n<b>\n</a>\n", "not well-formed XML", 3)],
+)
 def test_empty_and_malformed_files_name_the_file_and_line(tmp_path, content, message, line):
     path = tmp_path / "bad.osim"
     path.write_text(content)
@@ -73,8 +87,10 @@ texts = st.text(alphabet=st.sampled_from("xy 1.5\n\t<&>\"'"), max_size=8)
 
 @st.composite
 def documents(draw, depth=0):
-    elem = ET.Element(draw(names).replace("p:", ""), {k: draw(texts) for k in draw(st.lists(
-        st.sampled_from(["name", "file", "Version"]), max_size=2, unique=True))})
+    elem = ET.Element(
+        draw(names).replace("p:", ""),
+        {k: draw(texts) for k in draw(st.lists(st.sampled_from(["name", "file", "Version"]), max_size=2, unique=True))},
+    )
     elem.text = draw(texts) or None
     if depth < 3:
         for _ in range(draw(st.integers(0, 3))):

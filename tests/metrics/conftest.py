@@ -16,7 +16,6 @@ N_WALKS = 10
 FOOT_JOINTS = ("Toes_L", "Toes_R", "Foot_L", "Foot_R")
 
 
-
 @dataclass(frozen=True)
 class Walk:
     """One Bandai-Namco walking clip as tensors (float64, metres, y up)."""
@@ -53,8 +52,11 @@ def walks() -> list[Walk]:
     clips = []
     for path in files:
         motion = read_bvh(path)
-        clips.append(Walk(path.name.split(".")[0], motion.rate, torch.from_numpy(motion.global_positions()),
-                          motion.skeleton.names))
+        clips.append(
+            Walk(
+                path.name.split(".")[0], motion.rate, torch.from_numpy(motion.global_positions()), motion.skeleton.names
+            )
+        )
     return clips
 
 

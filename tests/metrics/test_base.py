@@ -18,10 +18,10 @@ def test_update_compute_reset_and_nan_sequences():
     batch = torch.zeros(3, 4, 1, 3)
     batch[0, :, 0, 1] = -0.01
     batch[1, :, 0, 1] = -0.03
-    valid = torch.tensor([[True] * 4, [True] * 4, [False] * 4])   # the third clip is all padding: undefined
+    valid = torch.tensor([[True] * 4, [True] * 4, [False] * 4])  # the third clip is all padding: undefined
     values = metric.update(batch, valid)
     assert values.shape == (3,) and math.isnan(values[2].item())
-    metric.update(np.zeros((4, 1, 3)))                                # numpy input, one clip without batch dims
+    metric.update(np.zeros((4, 1, 3)))  # numpy input, one clip without batch dims
     result = metric.compute()
     assert result.count == 3 and result.values.shape == (4,)
     assert result.mean == pytest.approx(0.04 / 3) and float(result) == result.mean

@@ -17,10 +17,11 @@ def test_masked_percentiles_match_numpy_per_column():
     values = rng.normal(size=(4, 50, 3)) * [1.0, 2.0, 3.0]
     column_mask = np.array([[True, True, False]] * 2 + [[True, True, True]] * 2)  # [clips, n]: col 2 absent twice
     frame_valid = np.ones((4, 50), dtype=bool)
-    frame_valid[1, 40:] = False                                                 # padding of clip 1
+    frame_valid[1, 40:] = False  # padding of clip 1
     mask = column_mask[:, None, :] & frame_valid[..., None]
-    bounds = PercentileBounds.from_samples(torch.from_numpy(values), ("a", "b", "c"), mask=torch.from_numpy(mask),
-                                           quantity="test", unit="rad/s")
+    bounds = PercentileBounds.from_samples(
+        torch.from_numpy(values), ("a", "b", "c"), mask=torch.from_numpy(mask), quantity="test", unit="rad/s"
+    )
     for j in range(3):
         kept = values[..., j][mask[..., j]]
         assert bounds.low[j] == pytest.approx(np.percentile(kept, 5), abs=1e-12)
@@ -56,8 +57,15 @@ def test_malformed_bounds_are_rejected(tmp_path):
     path.write_text(json.dumps({"format": "other"}))
     with pytest.raises(DataFormatError, match="format"):
         PercentileBounds.load(path)
-    path.write_text(json.dumps({"format": "biomotion-percentile-bounds/1", "percentiles": [5, 95],
-                                "columns": [{"name": "a", "low": 2.0, "high": 1.0}]}))
+    path.write_text(
+        json.dumps(
+            {
+                "format": "biomotion-percentile-bounds/1",
+                "percentiles": [5, 95],
+                "columns": [{"name": "a", "low": 2.0, "high": 1.0}],
+            }
+        )
+    )
     with pytest.raises(DataFormatError, match="field 'a'"):
         PercentileBounds.load(path)
     with pytest.raises(DataFormatError, match="names"):

@@ -9,8 +9,15 @@ import torch
 
 from biomotion.errors import DataFormatError
 from biomotion.metrics import contact as C
-from biomotion.metrics.contact import (FootContactVelocity, FootSliding, Floating, GroundPenetration,
-                                       LowestPointSliding, Penetration, SkateRatio)
+from biomotion.metrics.contact import (
+    Floating,
+    FootContactVelocity,
+    FootSliding,
+    GroundPenetration,
+    LowestPointSliding,
+    Penetration,
+    SkateRatio,
+)
 
 F64 = torch.float64
 
@@ -67,7 +74,7 @@ def test_box_sunk_by_a_known_depth():
     assert C.floating(sunk, 100.0).item() == 0.0
     assert C.foot_contact_velocity(sunk, 100.0).item() == 0.0 and C.skate_ratio(sunk, 100.0).item() == 0.0
     tilted = box([-0.01, -0.03, 0.01, 0.01])
-    assert C.penetration(tilted).item() == pytest.approx(0.03, abs=1e-12)     # depth of the lowest corner
+    assert C.penetration(tilted).item() == pytest.approx(0.03, abs=1e-12)  # depth of the lowest corner
     assert C.ground_penetration(tilted).item() == pytest.approx(0.02, abs=1e-12)  # mean over the sunk corners
     assert C.ground_penetration(box(0.01)).item() == 0.0
 
@@ -88,8 +95,9 @@ def test_clip_median_ground_is_the_public_evaluator_variant():
     assert C.ground_height(points, ground="clip_median").item() == pytest.approx(0.10, abs=1e-12)
     assert C.penetration(points).item() == 0.0
     assert C.penetration(points, ground="clip_median").item() == pytest.approx(0.02 / 5, abs=1e-12)
-    assert C.floating(points, 30.0, ground="clip_median", stance_speed=None).item() == \
-        pytest.approx(0.04 / 5, abs=1e-12)
+    assert C.floating(points, 30.0, ground="clip_median", stance_speed=None).item() == pytest.approx(
+        0.04 / 5, abs=1e-12
+    )
     # the evaluator's sliding: displacement of the lowest point per frame, the lowest point never switches here
     assert C.lowest_point_sliding(points).item() == pytest.approx((0.02 + 0.06) / 4, abs=1e-12)
 
@@ -102,10 +110,17 @@ def test_padding_is_ignored_and_batches_match_single_clips():
     batch = torch.stack([a, b_padded])
     valid = torch.ones(2, 30, dtype=torch.bool)
     valid[1, 20:] = False
-    for metric, args in ((Penetration(), ()), (GroundPenetration(), ()), (Floating(), (rate,)),
-                         (FootContactVelocity(), (rate,)), (FootSliding(), ()), (SkateRatio(), (rate,)),
-                         (LowestPointSliding(), ()), (Penetration("clip_median"), ()),
-                         (Floating("clip_median", stance_speed=None), (rate,))):
+    for metric, args in (
+        (Penetration(), ()),
+        (GroundPenetration(), ()),
+        (Floating(), (rate,)),
+        (FootContactVelocity(), (rate,)),
+        (FootSliding(), ()),
+        (SkateRatio(), (rate,)),
+        (LowestPointSliding(), ()),
+        (Penetration("clip_median"), ()),
+        (Floating("clip_median", stance_speed=None), (rate,)),
+    ):
         batched = metric.update(batch, *args, valid)
         single = torch.stack([metric.score(a, *args), metric.score(b[:20], *args)])
         torch.testing.assert_close(batched, single, rtol=0, atol=1e-12, equal_nan=True)
@@ -115,9 +130,14 @@ def test_padding_is_ignored_and_batches_match_single_clips():
 
 def test_contact_detection_thresholds_and_forces():
     rate = 10.0
-    points = torch.tensor([[[0.0, 0.01, 0.0], [0.0, 0.07, 0.0]],
-                           [[0.05, 0.01, 0.0], [0.0, 0.07, 0.0]],
-                           [[0.10, 0.01, 0.0], [0.0, 0.04, 0.0]]], dtype=F64)  # point 0 moves at 0.5 m/s
+    points = torch.tensor(
+        [
+            [[0.0, 0.01, 0.0], [0.0, 0.07, 0.0]],
+            [[0.05, 0.01, 0.0], [0.0, 0.07, 0.0]],
+            [[0.10, 0.01, 0.0], [0.0, 0.04, 0.0]],
+        ],
+        dtype=F64,
+    )  # point 0 moves at 0.5 m/s
     height_only = C.contact_mask(points)
     assert height_only.tolist() == [[True, False], [True, False], [True, True]]
     per_point = C.contact_mask(points, height=torch.tensor([0.005, 0.08], dtype=F64))
@@ -148,10 +168,25 @@ def test_bandai_walking_is_clean_but_not_perfect(walks, sole_offsets):
     catches the swing foot passing low and fast near minimum toe clearance (toe joints rise only ~11 cm here).
     """
     rate = walks[0].rate
-    soles = [w.feet() - torch.cat([torch.zeros(4, 1, dtype=F64), sole_offsets[:, None],
-                                   torch.zeros(4, 1, dtype=F64)], 1) for w in walks]
-    rows = {name: [] for name in ("pen_abs", "pen_median", "gp", "float", "float_median", "skate_toes",
-                                  "skate_toes_2cm", "contact_velocity_2cm", "fs_2cm", "lowest_sliding")}
+    soles = [
+        w.feet() - torch.cat([torch.zeros(4, 1, dtype=F64), sole_offsets[:, None], torch.zeros(4, 1, dtype=F64)], 1)
+        for w in walks
+    ]
+    rows = {
+        name: []
+        for name in (
+            "pen_abs",
+            "pen_median",
+            "gp",
+            "float",
+            "float_median",
+            "skate_toes",
+            "skate_toes_2cm",
+            "contact_velocity_2cm",
+            "fs_2cm",
+            "lowest_sliding",
+        )
+    }
     for sole in soles:
         toes = sole[:, :2]
         rows["pen_abs"].append(C.penetration(sole).item())
@@ -165,15 +200,14 @@ def test_bandai_walking_is_clean_but_not_perfect(walks, sole_offsets):
         rows["fs_2cm"].append(C.foot_sliding(sole, height=0.02).item())
         rows["lowest_sliding"].append(C.lowest_point_sliding(sole).item())
     means = {k: sum(v) / len(v) for k, v in rows.items()}
-    print("Bandai-Namco walk_normal x10 contact metrics (means):",
-          {k: round(v, 5) for k, v in means.items()})
+    print("Bandai-Namco walk_normal x10 contact metrics (means):", {k: round(v, 5) for k, v in means.items()})
     assert sole_offsets.tolist() == pytest.approx([0.042, 0.042, 0.117, 0.117], abs=0.002)
-    assert max(rows["pen_abs"]) < 0.002 and max(rows["gp"]) < 0.002      # no real sinking
-    assert 0.0 < means["pen_median"] < 0.005                             # the median ground always finds some
+    assert max(rows["pen_abs"]) < 0.002 and max(rows["gp"]) < 0.002  # no real sinking
+    assert 0.0 < means["pen_median"] < 0.005  # the median ground always finds some
     assert sum(v > 0 for v in rows["pen_median"]) >= 8
-    assert 0.0005 < means["float"] < 0.01                                # mm of hovering while planted
-    assert 0.15 < means["skate_toes"] < 0.5                              # 5 cm catches low, fast swing
-    assert 0.01 < means["skate_toes_2cm"] < 0.12                         # ~0.05 once the swing is excluded
-    assert 0.05 < means["contact_velocity_2cm"] < 0.5                    # m/s, roll-over of the planted foot
+    assert 0.0005 < means["float"] < 0.01  # mm of hovering while planted
+    assert 0.15 < means["skate_toes"] < 0.5  # 5 cm catches low, fast swing
+    assert 0.01 < means["skate_toes_2cm"] < 0.12  # ~0.05 once the swing is excluded
+    assert 0.05 < means["contact_velocity_2cm"] < 0.5  # m/s, roll-over of the planted foot
     assert means["fs_2cm"] == pytest.approx(means["contact_velocity_2cm"] / rate, rel=0.25)
-    assert 0.01 < means["lowest_sliding"] < 0.1                           # m/frame: the lowest point switches feet
+    assert 0.01 < means["lowest_sliding"] < 0.1  # m/frame: the lowest point switches feet

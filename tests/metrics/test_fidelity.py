@@ -24,8 +24,11 @@ def brute_force_dtw(cost: np.ndarray) -> tuple[float, int]:
     total[0, 0] = 0.0
     for i in range(1, rows + 1):
         for j in range(1, cols + 1):
-            options = [(total[i - 1, j - 1], steps[i - 1, j - 1]), (total[i - 1, j], steps[i - 1, j]),
-                       (total[i, j - 1], steps[i, j - 1])]
+            options = [
+                (total[i - 1, j - 1], steps[i - 1, j - 1]),
+                (total[i - 1, j], steps[i - 1, j]),
+                (total[i, j - 1], steps[i, j - 1]),
+            ]
             k = int(np.argmin([o[0] for o in options]))
             total[i, j] = cost[i - 1, j - 1] + options[k][0]
             steps[i, j] = options[k][1] + 1
@@ -55,11 +58,11 @@ def wave(frames: int, phase: float = 0.0) -> torch.Tensor:
 
 def test_fidelity_undoes_a_change_of_pace():
     ref = wave(40)
-    slow_start = torch.cat([ref[:1].expand(15, 2, 3), ref])          # holds the first pose for 15 frames
+    slow_start = torch.cat([ref[:1].expand(15, 2, 3), ref])  # holds the first pose for 15 frames
     assert F.aligned_joint_error(slow_start, ref).item() == pytest.approx(0.0, abs=1e-12)
     linear = F.aligned_joint_error(slow_start, ref, align="linear").item()
     assert linear > 0.05
-    stretched = wave(70)                                              # same path, other length
+    stretched = wave(70)  # same path, other length
     assert F.aligned_joint_error(stretched, ref, align="linear").item() < 0.005
     assert F.aligned_joint_error(ref + 0.02, ref).item() == pytest.approx(0.02 * math.sqrt(3), abs=1e-12)
 
@@ -86,17 +89,16 @@ def test_fidelity_batches_with_padding_and_joint_masks():
 
 
 def test_gaussian_w2_per_feature():
-    pred = torch.tensor([[0.0, 10.0], [2.0, 10.0]], dtype=F64)      # feature 0: mean 1, std 1; feature 1: 10, 0
+    pred = torch.tensor([[0.0, 10.0], [2.0, 10.0]], dtype=F64)  # feature 0: mean 1, std 1; feature 1: 10, 0
     ref = torch.tensor([[3.0, 10.0], [7.0, 10.0], [3.0, 10.0], [7.0, 10.0]], dtype=F64)  # 5, 2 and 10, 0
     assert F.gaussian_w2(pred, ref).item() == pytest.approx(math.sqrt(17) / 2)
-    assert GaussianFidelity().score(pred, ref, mask=torch.tensor([True, False])).item() == \
-        pytest.approx(math.sqrt(17))
+    assert GaussianFidelity().score(pred, ref, mask=torch.tensor([True, False])).item() == pytest.approx(math.sqrt(17))
 
 
 def test_entropy_of_known_histograms():
-    uniform = torch.arange(50, dtype=F64)[:, None]                    # one value per bin
+    uniform = torch.arange(50, dtype=F64)[:, None]  # one value per bin
     assert F.motion_entropy(uniform).item() == pytest.approx(math.log(50))
-    two = torch.tensor([[0.0, 1.0], [0.0, 1.0]], dtype=F64)           # two equally likely values
+    two = torch.tensor([[0.0, 1.0], [0.0, 1.0]], dtype=F64)  # two equally likely values
     assert F.motion_entropy(two).item() == pytest.approx(math.log(2))
     assert F.motion_entropy(torch.full((5, 3), 0.7, dtype=F64)).item() == 0.0
     padded = torch.cat([two, torch.tensor([[5.0, 9.0]], dtype=F64)])
@@ -109,7 +111,7 @@ def test_diversity_of_three_motions():
     diversity.update(torch.tensor([[0.0, 0.0], [3.0, 0.0]]))
     diversity.update(torch.tensor([0.0, 4.0]))
     result = diversity.compute()
-    assert result.mean == pytest.approx(4.0) and result.count == 3     # pairs 3, 4, 5
+    assert result.mean == pytest.approx(4.0) and result.count == 3  # pairs 3, 4, 5
     assert result.std == pytest.approx(math.sqrt(2 / 3))
 
 
@@ -132,8 +134,10 @@ def test_bandai_fidelity_entropy_and_diversity(walks):
 
     folder = data_path("bandai-namco/dataset-2")
     others = {}
-    for label, pattern in (("elderly walk", "dataset-2_walk_elderly_*.bvh.gz"),
-                           ("raise both hands", "dataset-2_raise-up-both-hands_normal_*.bvh.gz")):
+    for label, pattern in (
+        ("elderly walk", "dataset-2_walk_elderly_*.bvh.gz"),
+        ("raise both hands", "dataset-2_raise-up-both-hands_normal_*.bvh.gz"),
+    ):
         files = sorted(folder.glob(pattern))
         if not files:
             pytest.skip(f"real data not available: no {pattern} in {folder}")
@@ -149,9 +153,11 @@ def test_bandai_fidelity_entropy_and_diversity(walks):
         diversity.update(features(pose))
     for pose in others.values():
         diversity.update(features(pose))
-    print(f"Bandai fidelity (facing frame, DTW): same walk {np.mean(same_action) * 100:.2f} cm, "
-          + ", ".join(f"{k} {v * 100:.2f} cm" for k, v in other.items())
-          + f"; entropy {np.mean(entropy):.3f} nats; diversity {diversity.compute().mean:.3f} m")
+    print(
+        f"Bandai fidelity (facing frame, DTW): same walk {np.mean(same_action) * 100:.2f} cm, "
+        + ", ".join(f"{k} {v * 100:.2f} cm" for k, v in other.items())
+        + f"; entropy {np.mean(entropy):.3f} nats; diversity {diversity.compute().mean:.3f} m"
+    )
     assert F.aligned_joint_error(walks[0].joints, walks[0].joints, root=1).item() == 0.0
     assert 0.005 < np.mean(same_action) < 0.08
     assert max(same_action) < min(other.values())

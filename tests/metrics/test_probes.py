@@ -29,7 +29,7 @@ def test_probes_on_embeddings_with_a_known_answer():
     shuffled.update(x[1::2], rng.permutation(labels[1::2]), train=False)
     chance = shuffled.compute()["logistic_regression"]
     assert chance.accuracy < 0.45 and chance.top3 < 0.85
-    age = 20 + 2.0 * x[:, 0]                                   # exactly linear in the first feature
+    age = 20 + 2.0 * x[:, 0]  # exactly linear in the first feature
     probe = AgeProbe(models=("linear_regression",))
     probe.update(x[::2], age[::2], train=True)
     probe.update(x[1::2], age[1::2], train=False)
@@ -51,7 +51,7 @@ def test_probe_input_errors():
 def _window_embeddings(values: np.ndarray, size: int = 30, step: int = 15) -> np.ndarray:
     """Per 1 s window (30 frames, half overlap): mean, std, min and max of each coordinate."""
     starts = np.arange(0, values.shape[0] - size + 1, step)
-    windows = np.stack([values[s: s + size] for s in starts])
+    windows = np.stack([values[s : s + size] for s in starts])
     return np.concatenate([windows.mean(1), windows.std(1), windows.min(1), windows.max(1)], 1)
 
 
@@ -66,8 +66,9 @@ def test_fukuchi_runners_are_identified_across_speeds(fukuchi_cache):
         motion, record = cache.motion(index), cache.records[index]
         keep = [j for j, name in enumerate(motion.names) if motion.mask[j] and name not in GLOBAL]
         embeddings = _window_embeddings(motion.values[:, keep])
-        samples.append((embeddings, record["subject"], cache.profile(index).age, record["labels"]["speed"],
-                        record["split"]))
+        samples.append(
+            (embeddings, record["subject"], cache.profile(index).age, record["labels"]["speed"], record["split"])
+        )
     assert len({s[1] for s in samples}) == 23 and samples[0][0].shape[1] == 52
     identity = IdentityProbe(models=("linear_svm", "kernel_svm", "knn"))
     age = AgeProbe(models=("ridge", "knn"))
@@ -78,14 +79,18 @@ def test_fukuchi_runners_are_identified_across_speeds(fukuchi_cache):
         age.update(embeddings, np.full(n, years), train=speed != 3.5)
         unseen_runners.update(embeddings, np.full(n, years), train=split == "train")
     ident, ages, unseen = identity.compute(), age.compute(), unseen_runners.compute()
-    print("Fukuchi identity (test 3.5 m/s):",
-          {k: (round(v.accuracy, 3), round(v.top3, 3)) for k, v in ident.items()},
-          "| age MAE (years) same runners:", {k: round(v.mae, 2) for k, v in ages.items()},
-          "| unseen runners:", {k: round(v.mae, 2) for k, v in unseen.items()})
+    print(
+        "Fukuchi identity (test 3.5 m/s):",
+        {k: (round(v.accuracy, 3), round(v.top3, 3)) for k, v in ident.items()},
+        "| age MAE (years) same runners:",
+        {k: round(v.mae, 2) for k, v in ages.items()},
+        "| unseen runners:",
+        {k: round(v.mae, 2) for k, v in unseen.items()},
+    )
     assert ident["kernel_svm"].n_test > 200
-    assert min(v.accuracy for v in ident.values()) > 0.85                # chance is 1 / 23
+    assert min(v.accuracy for v in ident.values()) > 0.85  # chance is 1 / 23
     assert min(v.top3 for v in ident.values()) > 0.95
-    assert ages["knn"].mae < 2.0                                         # the runner is recognised, so is the age
+    assert ages["knn"].mae < 2.0  # the runner is recognised, so is the age
     assert ages["ridge"].mae < 5.0
     # unseen runners: report; only check the probe is not wildly off the mean-age predictor (5.7 years here)
     train_ages = np.concatenate([np.full(len(s[0]), s[2]) for s in samples if s[4] == "train"])

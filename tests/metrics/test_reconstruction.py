@@ -53,8 +53,9 @@ def test_global_trajectory_error_realigns_every_window():
     pred = target + drift + torch.tensor([5.0, 0.0, 0.0], dtype=F64)  # plus a constant offset, removed per window
     expected = 0.01 * sum(range(20)) / 20
     assert R.global_trajectory_error(pred, target, rate, window=2.0).item() == pytest.approx(expected, abs=1e-12)
-    assert GlobalTrajectoryError(window=10.0).score(pred, target, rate).item() == \
-        pytest.approx(0.01 * sum(range(40)) / 40, abs=1e-12)
+    assert GlobalTrajectoryError(window=10.0).score(pred, target, rate).item() == pytest.approx(
+        0.01 * sum(range(40)) / 40, abs=1e-12
+    )
 
 
 def test_bandai_joints_under_a_rigid_transform_and_noise(walks):

@@ -52,8 +52,11 @@ def test_every_registered_metric_has_direction_paper_equation_and_unit(kind):
 
 
 def test_every_metric_class_describes_itself():
-    classes = [c for c in (getattr(M, n) for n in M.__all__) if isinstance(c, type) and issubclass(c, Metric)
-               and c is not Metric]
+    classes = [
+        c
+        for c in (getattr(M, n) for n in M.__all__)
+        if isinstance(c, type) and issubclass(c, Metric) and c is not Metric
+    ]
     assert len(classes) >= 25
     for cls in classes:
         _described(cls())
@@ -61,10 +64,23 @@ def test_every_metric_class_describes_itself():
 
 def test_registry_lists_the_report_columns_in_order():
     assert [m.name for m in metrics("bvh")] == [
-        "penetration", "penetration_median", "floating", "floating_median", "skate_ratio", "foot_contact_velocity",
-        "jerk", "energy_com", "entropy"]
+        "penetration",
+        "penetration_median",
+        "floating",
+        "floating_median",
+        "skate_ratio",
+        "foot_contact_velocity",
+        "jerk",
+        "energy_com",
+        "entropy",
+    ]
     assert [m.name for m in metrics("coordinates", _model(), physics=True)][7:] == [
-        "energy_com", "energy_body", "zmp_in_support", "joint_range", "entropy"]
+        "energy_com",
+        "energy_body",
+        "zmp_in_support",
+        "joint_range",
+        "entropy",
+    ]
     assert [m.name for m in paired_metrics()] == ["mje", "p_mje", "accl", "vel", "fidelity", "gaussian_w2"]
     with pytest.raises(BiomotionError, match="body model"):
         metrics("coordinates")
@@ -82,8 +98,12 @@ def test_configured_variants_name_themselves():
     assert M.EnergyConsistency(energy="com").name == "energy_var_com"
     assert M.EnergyConsistency().name == "energy_consistency"
     per_frame = M.AccelerationError(per_frame=True)
-    assert (per_frame.name, per_frame.unit, per_frame.display_unit, per_frame.display_scale) == \
-        ("accl_per_frame", "m/frame^2", "mm/frame²", 1000.0)
+    assert (per_frame.name, per_frame.unit, per_frame.display_unit, per_frame.display_scale) == (
+        "accl_per_frame",
+        "m/frame^2",
+        "mm/frame²",
+        1000.0,
+    )
     assert M.Fidelity(align="linear").name == "fidelity_linear"
     excess = M.ComVelocityViolation(statistic="excess")
     assert (excess.name, excess.unit, excess.display_scale) == ("com_velocity_violation_excess", "m/s", 1.0)
@@ -111,7 +131,7 @@ def test_record_reads_label_unit_scale_and_direction_from_the_object():
     assert rec["mean"] == pytest.approx(2.0) and rec["count"] == 2 and rec["values"][2] is None
     assert record(M.ZMPInsideSupport(), torch.tensor([0.5]))["better"] == "↑"
     assert record(M.MotionEntropy(), torch.tensor([3.2]))["better"] == "→"
-    assert record(M.VelocityError(), torch.tensor([1.5]))["unit"] == "m/s"   # no display unit: the SI unit
+    assert record(M.VelocityError(), torch.tensor([1.5]))["unit"] == "m/s"  # no display unit: the SI unit
 
     class HigherPenetration(M.Penetration):
         higher_is_better = True

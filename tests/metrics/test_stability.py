@@ -25,10 +25,15 @@ def square_feet(frames: int, side: float = 0.2) -> torch.Tensor:
 
 def test_zmp_inside_and_outside_a_square_support():
     feet = square_feet(4)
-    zmp = torch.tensor([[0.0, 0.0, 0.0],      # centre: 0.1 m from every edge
-                        [0.05, 0.0, 0.0],     # 0.05 m from the +x edge
-                        [0.25, 0.0, 0.0],     # 0.15 m outside the +x edge
-                        [0.13, 0.0, 0.14]], dtype=F64)  # outside the corner (0.1, 0.1) by (0.03, 0.04)
+    zmp = torch.tensor(
+        [
+            [0.0, 0.0, 0.0],  # centre: 0.1 m from every edge
+            [0.05, 0.0, 0.0],  # 0.05 m from the +x edge
+            [0.25, 0.0, 0.0],  # 0.15 m outside the +x edge
+            [0.13, 0.0, 0.14],
+        ],
+        dtype=F64,
+    )  # outside the corner (0.1, 0.1) by (0.03, 0.04)
     margins = S.support_margin(zmp, feet)
     assert margins.tolist() == pytest.approx([0.1, 0.05, -0.15, -0.05], abs=1e-12)
     assert S.share_inside_support(zmp, feet).item() == pytest.approx(0.5)
@@ -39,8 +44,8 @@ def test_zmp_inside_and_outside_a_square_support():
 
 def test_contact_decides_the_support_and_flight_is_left_out():
     feet = square_feet(3)
-    feet[1, 2:, 1] = 0.2                      # frame 1: two corners lifted -> support is the segment z = -0.1
-    feet[2, :, 1] = 0.3                       # frame 2: flight
+    feet[1, 2:, 1] = 0.2  # frame 1: two corners lifted -> support is the segment z = -0.1
+    feet[2, :, 1] = 0.3  # frame 2: flight
     com = torch.tensor([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0]], dtype=F64)
     margins = S.support_margin(com, feet)
     assert margins[:2].tolist() == pytest.approx([0.1, -0.1], abs=1e-12) and math.isnan(margins[2].item())
@@ -56,12 +61,15 @@ def test_degenerate_supports():
     assert S.signed_distance_to_hull(one, torch.tensor([True]), origin).item() == pytest.approx(-0.5)
     line = torch.tensor([[-1.0, 0.0], [0.0, 0.0], [1.0, 0.0], [1.0, 0.0]], dtype=F64)  # collinear + duplicate
     assert S.signed_distance_to_hull(line, torch.ones(4, dtype=torch.bool), origin).item() == 0.0
-    assert S.signed_distance_to_hull(line, torch.ones(4, dtype=torch.bool),
-                                     torch.tensor([2.0, 0.0], dtype=F64)).item() == pytest.approx(-1.0)
-    square = torch.tensor([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.0], [0.5, 0.5], [1.0, 0.0]],
-                          dtype=F64)  # interior point, point on an edge, duplicated corner
-    assert S.signed_distance_to_hull(square, torch.ones(7, dtype=torch.bool),
-                                     torch.tensor([0.5, 0.5], dtype=F64)).item() == pytest.approx(0.5)
+    assert S.signed_distance_to_hull(
+        line, torch.ones(4, dtype=torch.bool), torch.tensor([2.0, 0.0], dtype=F64)
+    ).item() == pytest.approx(-1.0)
+    square = torch.tensor(
+        [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.0], [0.5, 0.5], [1.0, 0.0]], dtype=F64
+    )  # interior point, point on an edge, duplicated corner
+    assert S.signed_distance_to_hull(
+        square, torch.ones(7, dtype=torch.bool), torch.tensor([0.5, 0.5], dtype=F64)
+    ).item() == pytest.approx(0.5)
     assert math.isnan(S.signed_distance_to_hull(square, torch.zeros(7, dtype=torch.bool), origin).item())
 
 
@@ -70,8 +78,9 @@ def test_signed_distance_matches_scipy_convex_hull():
     points = rng.normal(size=(500, 6, 2))
     active = rng.random((500, 6)) < 0.8
     queries = rng.normal(size=(500, 2)) * 0.8
-    ours = S.signed_distance_to_hull(torch.from_numpy(points), torch.from_numpy(active),
-                                     torch.from_numpy(queries)).numpy()
+    ours = S.signed_distance_to_hull(
+        torch.from_numpy(points), torch.from_numpy(active), torch.from_numpy(queries)
+    ).numpy()
     checked = 0
     for n in range(500):
         hull_points = points[n][active[n]]
@@ -105,8 +114,10 @@ def test_bandai_walking_balance(walks, sole_offsets):
         com_share.append(BaseOfSupport(margin=0.05).score(com, soles).item())
         zmp_margin.append(SupportDistance(margin=0.05).score(zmp, soles).item())
     mean = lambda v: sum(v) / len(v)
-    print(f"Bandai walks: ZMP inside support {mean(zmp_share):.3f}, COM inside (BOS) {mean(com_share):.3f}, "
-          f"ZMP margin {mean(zmp_margin) * 100:.2f} cm")
+    print(
+        f"Bandai walks: ZMP inside support {mean(zmp_share):.3f}, COM inside (BOS) {mean(com_share):.3f}, "
+        f"ZMP margin {mean(zmp_margin) * 100:.2f} cm"
+    )
     assert 0.4 < mean(zmp_share) < 0.95
     assert 0.5 < mean(com_share) < 0.98
     assert -0.05 < mean(zmp_margin) < 0.05

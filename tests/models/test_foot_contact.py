@@ -23,23 +23,33 @@ def test_stance_is_low_and_slower_than_the_body_so_a_low_swing_is_not_stance():
     (limit 1.5 m/s); a standing clip keeps the 0.5 m/s floor."""
     rate, t = 30.0, torch.arange(30) / 30.0
     q = torch.zeros(1, 30, 39)
-    q[0, :, 3] = t                                        # pelvis_tx: 1 m/s
+    q[0, :, 3] = t  # pelvis_tx: 1 m/s
     feet = torch.zeros(1, 30, 2, 3)
-    feet[0, :, 0, 0], feet[0, :, 0, 1] = 0.3 * t, 0.01    # sliding stance point
-    feet[0, :, 1, 0], feet[0, :, 1, 1] = 2.5 * t, 0.02    # low swing point
+    feet[0, :, 0, 0], feet[0, :, 0, 1] = 0.3 * t, 0.01  # sliding stance point
+    feet[0, :, 1, 0], feet[0, :, 1, 1] = 2.5 * t, 0.02  # low swing point
     assert stance_mask(feet, q, rate, ratio=None).all()
     mask = stance_mask(feet, q, rate, ratio=1.5)
     assert mask[0, :, 0].all() and not mask[0, :, 1].any()
     standing = torch.zeros_like(q)
-    mask = stance_mask(feet, standing, rate, ratio=1.5)    # limit: the 0.5 m/s floor
+    mask = stance_mask(feet, standing, rate, ratio=1.5)  # limit: the 0.5 m/s floor
     assert mask[0, :, 0].all() and not mask[0, :, 1].any()
-    feet[0, :, 0, 1] = 0.08                                # above 5 cm: never stance
+    feet[0, :, 0, 1] = 0.08  # above 5 cm: never stance
     assert not stance_mask(feet, q, rate, ratio=1.5)[0, :, 0].any()
 
 
 def test_each_channel_covers_its_foot_points_and_no_other():
-    names = ("heel_med_r", "heel_lat_r", "met1_r", "met5_r", "toe_r", "heel_med_l", "heel_lat_l", "met1_l",
-             "met5_l", "toe_l")
+    names = (
+        "heel_med_r",
+        "heel_lat_r",
+        "met1_r",
+        "met5_r",
+        "toe_r",
+        "heel_med_l",
+        "heel_lat_l",
+        "met1_l",
+        "met5_l",
+        "toe_l",
+    )
     members = group_members(names)
     assert [g for g, _ in CONTACT_GROUPS] == ["heel_r", "forefoot_r", "heel_l", "forefoot_l"]
     assert members.sum(1).tolist() == [2, 3, 2, 3] and members.sum(0).tolist() == [1] * 10
@@ -70,11 +80,12 @@ def test_standing_on_the_floor_is_contact_everywhere_and_lifted_is_none(feet):
     lifted[..., 4] += 0.10
     assert feet.labels(lifted, mask, 30.0).eq(0.0).all()
     junk = q.clone()
-    junk[..., 20:] = 3.0               # trunk and arm coordinates far off ...
-    mask[:, 20:] = False               # ... but masked
+    junk[..., 20:] = 3.0  # trunk and arm coordinates far off ...
+    mask[:, 20:] = False  # ... but masked
     assert feet.labels(junk, mask, 30.0).eq(1.0).all()
-    assert points_in_contact(torch.tensor([[[True, False, False, True]]]), feet.members).tolist() == [[[True, True] + [False] * 3
-                                                                                   + [False] * 2 + [True] * 3]]
+    assert points_in_contact(torch.tensor([[[True, False, False, True]]]), feet.members).tolist() == [
+        [[True, True] + [False] * 3 + [False] * 2 + [True] * 3]
+    ]
 
 
 def test_penetration_is_the_mean_depth_below_the_floor_in_cm(feet):
@@ -132,20 +143,20 @@ def test_guidance_reads_its_contact_mask_from_the_decoder_when_it_has_channels(f
     """Guide.contact: with contact channels (and ``decoded_contact``), m_t is the points of the channels decoded
     above 0.5, whatever the kinematics say; without channels, or with ``decoded_contact`` off, it is
     `stance_mask` of the decoded feet."""
-    from biomotion.models.bundle import GuidanceBounds
     from biomotion.guidance.refine import GuidanceConfig, Guide, Kinematics
+    from biomotion.models.bundle import GuidanceBounds
 
     bounds = GuidanceBounds((1.0,) * N_COORDS, (0.0, 5.0), (0.0, 50.0), 100)
     tokenizer = MotionVQVAE(VQVAEConfig(width=32, code_dim=16, codebook_size=32, foot_contact=True))
     high = torch.ones(N_COORDS)
-    q = _standing(feet)                                   # still, feet flat on the floor: all stance kinematically
+    q = _standing(feet)  # still, feet flat on the floor: all stance kinematically
     k = Kinematics(q, feet.points(q), torch.zeros(1, q.shape[1], 3))
     decoded = torch.zeros(1, q.shape[1], 4)
-    decoded[:, :8, 0] = 0.9                               # right heel only, first half
+    decoded[:, :8, 0] = 0.9  # right heel only, first half
     k_decoded = Kinematics(k.q, k.feet, k.com, decoded)
     guide = Guide(tokenizer, feet.body, bounds, high, high)
     mask = guide.contact(k_decoded)
     assert mask[0, :8].tolist() == [[True, True] + [False] * 8] * 8 and not mask[0, 8:].any()
-    assert guide.contact(k).all()                         # no channels decoded: the kinematic rule
+    assert guide.contact(k).all()  # no channels decoded: the kinematic rule
     off = Guide(tokenizer, feet.body, bounds, high, high, config=GuidanceConfig(decoded_contact=False))
     assert off.contact(k_decoded).all()

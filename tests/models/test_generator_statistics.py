@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.data.clips import body_model
 from biomotion.data.registry import DatasetCache, build_cache
 from biomotion.errors import ConfigError
-from biomotion.data.clips import body_model
 from biomotion.models.actions import ActionVocabulary
 from biomotion.models.bundle import GeneratorBundle, action_bounds
 from biomotion.models.conditioning import action_size
@@ -47,22 +47,28 @@ def test_the_population_posture_is_the_line_through_the_clip_means_in_speed(hamn
 
 def _bundle(hamner, bounds) -> GeneratorBundle:
     vocabulary = ActionVocabulary.from_labels([r["labels"] for r in hamner.records])
-    prior = ProfileActionPrior(PriorConfig(codebook_size=16, code_dim=8, action_size=action_size(vocabulary),
-                                           width=16, layers=1, heads=2, max_tokens=8)).eval()
+    prior = ProfileActionPrior(
+        PriorConfig(
+            codebook_size=16, code_dim=8, action_size=action_size(vocabulary), width=16, layers=1, heads=2, max_tokens=8
+        )
+    ).eval()
     return GeneratorBundle(prior, vocabulary, bounds, "tokenizer-sha", ("hamner/subject01",))
 
 
-def test_statistics_are_added_to_a_trained_bundle_only_from_the_cache_it_was_trained_on(tmp_path, hamner, bounds,
-                                                                                        data_root):
-    without_postures = {k: replace(b, posture=(), posture_slope=(), posture_speed=float("nan"))
-                        for k, b in bounds.items()}
+def test_statistics_are_added_to_a_trained_bundle_only_from_the_cache_it_was_trained_on(
+    tmp_path, hamner, bounds, data_root
+):
+    without_postures = {
+        k: replace(b, posture=(), posture_slope=(), posture_speed=float("nan")) for k, b in bounds.items()
+    }
     path = tmp_path / "generator.safetensors"
     _bundle(hamner, without_postures).save(path)
     assert GeneratorBundle.load(path).posture("run") is None
     card = refresh_statistics({"train": {"dev_fraction": 0.0}}, hamner.folder, data_root, path, command="refresh")
     refreshed = GeneratorBundle.load(path)
     assert refreshed.posture("run", 5.0)[KNEE] == pytest.approx(
-        bounds["run"].posture[KNEE] + bounds["run"].posture_slope[KNEE] * (5.0 - bounds["run"].posture_speed))
+        bounds["run"].posture[KNEE] + bounds["run"].posture_slope[KNEE] * (5.0 - bounds["run"].posture_speed)
+    )
     assert refreshed.train_subjects == ("hamner/subject01",) and refreshed.tokenizer_sha256 == "tokenizer-sha"
     assert card["statistics_command"] == "refresh"
 

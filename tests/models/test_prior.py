@@ -10,16 +10,29 @@ from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
 
 def _prior(use_profile: bool = True) -> ProfileActionPrior:
     torch.manual_seed(0)
-    config = PriorConfig(codebook_size=12, code_dim=6, action_size=4, width=16, layers=2, heads=2, max_tokens=8,
-                         dropout=0.0, use_profile=use_profile)
+    config = PriorConfig(
+        codebook_size=12,
+        code_dim=6,
+        action_size=4,
+        width=16,
+        layers=2,
+        heads=2,
+        max_tokens=8,
+        dropout=0.0,
+        use_profile=use_profile,
+    )
     return ProfileActionPrior(config).eval()
 
 
 def _condition(batch: int, references: int = 5) -> Condition:
     g = torch.Generator().manual_seed(1)
-    return Condition(torch.randn(batch, references, 6, generator=g), torch.ones(batch, references, dtype=torch.bool),
-                     torch.randn(batch, 2 * len(BIODATA_FIELDS), generator=g),
-                     torch.randn(batch, 2 * len(METADATA_FIELDS), generator=g), torch.randn(batch, 8, generator=g))
+    return Condition(
+        torch.randn(batch, references, 6, generator=g),
+        torch.ones(batch, references, dtype=torch.bool),
+        torch.randn(batch, 2 * len(BIODATA_FIELDS), generator=g),
+        torch.randn(batch, 2 * len(METADATA_FIELDS), generator=g),
+        torch.randn(batch, 8, generator=g),
+    )
 
 
 def test_teacher_forcing_is_causal():
@@ -30,8 +43,8 @@ def test_teacher_forcing_is_causal():
     with torch.no_grad():
         a, b = prior(codes, cond), prior(changed, cond)
     assert a.shape == (2, 7, 12)
-    torch.testing.assert_close(a[:, :5], b[:, :5])      # logits up to step 4 never see code 4
-    assert not torch.allclose(a[:, 5:], b[:, 5:])        # later steps do
+    torch.testing.assert_close(a[:, :5], b[:, :5])  # logits up to step 4 never see code 4
+    assert not torch.allclose(a[:, 5:], b[:, 5:])  # later steps do
 
 
 def test_sampling_any_length_and_priming():
@@ -46,10 +59,20 @@ def test_sampling_any_length_and_priming():
 def test_profile_branches_without_input_use_their_absent_embedding():
     prior = _prior()
     cond = _condition(1)
-    empty = Condition(torch.zeros(1, 1, 6), torch.zeros(1, 1, dtype=torch.bool), torch.zeros_like(cond.biodata),
-                      torch.zeros_like(cond.metadata), cond.action)
-    other = Condition(torch.randn(1, 1, 6), torch.zeros(1, 1, dtype=torch.bool), torch.zeros_like(cond.biodata),
-                      torch.zeros_like(cond.metadata), cond.action)
+    empty = Condition(
+        torch.zeros(1, 1, 6),
+        torch.zeros(1, 1, dtype=torch.bool),
+        torch.zeros_like(cond.biodata),
+        torch.zeros_like(cond.metadata),
+        cond.action,
+    )
+    other = Condition(
+        torch.randn(1, 1, 6),
+        torch.zeros(1, 1, dtype=torch.bool),
+        torch.zeros_like(cond.biodata),
+        torch.zeros_like(cond.metadata),
+        cond.action,
+    )
     with torch.no_grad():  # invalid reference latents and all-masked biodata/metadata carry no information
         torch.testing.assert_close(prior.condition_vector(empty), prior.condition_vector(other))
     population = _prior(use_profile=False)

@@ -14,22 +14,36 @@ from tests.conftest import data_path
 # tolerance covers float and solver differences between machines (0.02 = 48 of the 2380 muscle-frames), not a change
 # of method.
 MEASURED_SO = 0.7664
-MEASURED_SURROGATE = 0.7479   # the surrogate of 2026-12-07 (window cuts trimmed); before it 0.7681, 0.7845, 0.7588
-MEASURED_SO_PER_MUSCLE = {"SOL": 0.8403, "GAS": 0.8361, "TA": 0.9538, "MH": 0.9496, "BF": 0.7899, "VL": 0.6387,
-                          "VM": 0.7437, "RF": 0.5924, "GMAX": 0.7605, "GMED": 0.5588}
+MEASURED_SURROGATE = 0.7479  # the surrogate of 2026-12-07 (window cuts trimmed); before it 0.7681, 0.7845, 0.7588
+MEASURED_SO_PER_MUSCLE = {
+    "SOL": 0.8403,
+    "GAS": 0.8361,
+    "TA": 0.9538,
+    "MH": 0.9496,
+    "BF": 0.7899,
+    "VL": 0.6387,
+    "VM": 0.7437,
+    "RF": 0.5924,
+    "GMAX": 0.7605,
+    "GMED": 0.5588,
+}
 TOLERANCE = 0.02
 
 
 def _anc_text(samples=5, rate=1000.0, channels=("F1Z", "SOL", "TA"), duration=None, rates=None) -> str:
     duration = (samples - 1) / rate if duration is None else duration
     rates = rates or [rate] * len(channels)
-    lines = ["File_Type:\tAnalog R/C ASCII\tGeneration#:\t2",
-             "Board_Type:\tNI USB-6225\tPolarity:\tBipolar",
-             f"Trial_Name:\tt\tTrial#:\t1\tDuration(Sec.):\t{duration:.6f}\t#Channels:\t{len(channels)}",
-             f"BitDepth:\t16\tPreciseRate:\t{rate:.6f}", "", "",
-             "Name\t" + "\t".join(channels) + "\t",
-             "Rate\t" + "\t".join(f"{r:g}" for r in rates) + "\t",
-             "Range\t" + "\t".join("2500" for _ in channels) + "\t"]
+    lines = [
+        "File_Type:\tAnalog R/C ASCII\tGeneration#:\t2",
+        "Board_Type:\tNI USB-6225\tPolarity:\tBipolar",
+        f"Trial_Name:\tt\tTrial#:\t1\tDuration(Sec.):\t{duration:.6f}\t#Channels:\t{len(channels)}",
+        f"BitDepth:\t16\tPreciseRate:\t{rate:.6f}",
+        "",
+        "",
+        "Name\t" + "\t".join(channels) + "\t",
+        "Rate\t" + "\t".join(f"{r:g}" for r in rates) + "\t",
+        "Range\t" + "\t".join("2500" for _ in channels) + "\t",
+    ]
     for k in range(samples):
         lines.append(f"{k / rate:.6f}\t" + "\t".join(str(k + j) for j in range(len(channels))) + "\t")
     return "\n".join(lines) + "\n\n"
@@ -43,6 +57,7 @@ def _write(tmp_path, text):
 
 # --- reader ---------------------------------------------------------------------------------------------------------
 
+
 def test_reader_parses_a_small_file(tmp_path):
     recording = emg.read_anc(_write(tmp_path, _anc_text()))
     assert recording.names == ("F1Z", "SOL", "TA")
@@ -53,16 +68,19 @@ def test_reader_parses_a_small_file(tmp_path):
         recording.channel("GMAX")
 
 
-@pytest.mark.parametrize("mutate, message, line", [
-    (lambda t: t.replace("Analog R/C ASCII", "Something else"), "not an 'Analog R/C ASCII' file", 1),
-    (lambda t: t.replace("\tPreciseRate:\t1000.000000", ""), "lacks 'PreciseRate'", None),
-    (lambda t: t.replace("Name\tF1Z\tSOL\tTA", "Name\tF1Z\tSOL"), "'Name' row has 2 fields for 3", 7),
-    (lambda t: t.replace("Rate\t1000\t1000\t1000", "Rate\t1000\t2000\t1000"), "not sampled at PreciseRate", 8),
-    (lambda t: t.replace("0.002000\t2\t3\t4", "0.002000\t2\t3"), "data row has 3 fields", 12),
-    (lambda t: t.replace("0.002000\t2\t3\t4", "0.002000\t2\tx\t4"), "'x' is not a number", 12),
-    (lambda t: t.replace("0.003000", "0.003500"), "does not follow", 13),
-    (lambda t: t.replace("Duration(Sec.):\t0.004000", "Duration(Sec.):\t0.010000"), "header says Duration", None),
-])
+@pytest.mark.parametrize(
+    "mutate, message, line",
+    [
+        (lambda t: t.replace("Analog R/C ASCII", "Something else"), "not an 'Analog R/C ASCII' file", 1),
+        (lambda t: t.replace("\tPreciseRate:\t1000.000000", ""), "lacks 'PreciseRate'", None),
+        (lambda t: t.replace("Name\tF1Z\tSOL\tTA", "Name\tF1Z\tSOL"), "'Name' row has 2 fields for 3", 7),
+        (lambda t: t.replace("Rate\t1000\t1000\t1000", "Rate\t1000\t2000\t1000"), "not sampled at PreciseRate", 8),
+        (lambda t: t.replace("0.002000\t2\t3\t4", "0.002000\t2\t3"), "data row has 3 fields", 12),
+        (lambda t: t.replace("0.002000\t2\t3\t4", "0.002000\t2\tx\t4"), "'x' is not a number", 12),
+        (lambda t: t.replace("0.003000", "0.003500"), "does not follow", 13),
+        (lambda t: t.replace("Duration(Sec.):\t0.004000", "Duration(Sec.):\t0.010000"), "header says Duration", None),
+    ],
+)
 def test_reader_rejects_malformed_files_naming_file_and_line(tmp_path, mutate, message, line):
     text = _anc_text()
     changed = mutate(text)
@@ -78,30 +96,31 @@ def test_reader_rejects_malformed_files_naming_file_and_line(tmp_path, mutate, m
 def test_reader_on_the_rajagopal_walk_emg():
     recording = emg.read_anc(data_path(emg.EMG_FILE))
     assert recording.n_channels == 28 and recording.rate == 2000.0 and recording.bit_depth == 16
-    assert recording.names[-10:] == tuple(emg.EMG_MUSCLES)          # SOL GAS TA MH BF VL VM RF GMAX GMED
+    assert recording.names[-10:] == tuple(emg.EMG_MUSCLES)  # SOL GAS TA MH BF VL VM RF GMAX GMED
     assert recording.names[:3] == ("F1X", "F1Y", "F1Z")
     assert recording.n_samples == 4780 and recording.duration == pytest.approx(2.3895)
     assert recording.times[0] == 0.0 and recording.times[-1] == pytest.approx(2.3895)
     assert recording.ranges[recording.names.index("SOL")] == 2500
     assert recording.ranges[recording.names.index("GMAX")] == 1000
-    assert np.all(recording.counts == np.round(recording.counts))   # raw integer ADC counts
+    assert np.all(recording.counts == np.round(recording.counts))  # raw integer ADC counts
 
 
 # --- envelopes and on/off -------------------------------------------------------------------------------------------
+
 
 def test_envelope_follows_the_amplitude_of_a_modulated_burst():
     rate = 2000.0
     t = np.arange(0, 2.0, 1 / rate)
     rng = np.random.default_rng(0)
     amplitude = np.where((t > 0.6) & (t < 1.2), 1.0, 0.05)
-    raw = 300.0 + amplitude * rng.standard_normal(t.size) * 100      # DC offset, as raw ADC counts have
+    raw = 300.0 + amplitude * rng.standard_normal(t.size) * 100  # DC offset, as raw ADC counts have
     envelope = emg.emg_envelope(raw, rate)
     assert envelope.min() >= 0
     burst, rest = envelope[(t > 0.75) & (t < 1.05)].mean(), envelope[(t < 0.4) | (t > 1.5)].mean()
-    assert burst > 10 * rest                    # the offset is gone and the burst stands out
+    assert burst > 10 * rest  # the offset is gone and the burst stands out
     on = emg.on_off(envelope, 0.2)
     onset, offset = t[on][0], t[on][-1]
-    assert abs(onset - 0.6) < 0.06 and abs(offset - 1.2) < 0.06   # zero lag: the burst edges stay in place
+    assert abs(onset - 0.6) < 0.06 and abs(offset - 1.2) < 0.06  # zero lag: the burst edges stay in place
     spectrum = np.abs(np.fft.rfft(envelope - envelope.mean()))
     frequencies = np.fft.rfftfreq(t.size, 1 / rate)
     assert spectrum[frequencies > 20].max() < 0.01 * spectrum.max()
@@ -127,7 +146,7 @@ def test_walk_envelopes_are_normalised_and_physiological():
     assert set(envelopes) == set(emg.EMG_MUSCLES)
     for envelope in envelopes.values():
         assert envelope.max() == pytest.approx(1.0) and envelope.min() >= 0
-    stance = np.interp(times, grf.times, grf.force[:, 0, 1]) > 50          # right foot on a plate
+    stance = np.interp(times, grf.times, grf.force[:, 0, 1]) > 50  # right foot on a plate
     for calf in ("SOL", "GAS"):
         assert envelopes[calf][stance].mean() > 2.5 * envelopes[calf][~stance].mean()
     assert envelopes["TA"][~stance].mean() > envelopes["TA"][stance].mean()
@@ -140,6 +159,7 @@ def test_plate_channels_share_the_grf_clock():
 
 
 # --- the check ------------------------------------------------------------------------------------------------------
+
 
 def test_emg_check_skips_cleanly_without_data(tmp_path):
     result = emg.emg_check(tmp_path)
@@ -165,7 +185,7 @@ def test_emg_onoff_agreement_static_optimization(check):
         assert check["emg_per_muscle"][channel] == pytest.approx(value, abs=0.06), channel
     assert check["emg_onoff_agreement"] == pytest.approx(np.mean(list(check["emg_per_muscle"].values())), abs=1e-3)
     assert check["emg_passes"] == (check["emg_onoff_agreement"] >= emg.BAR)
-    assert check["emg_onoff_agreement"] > check["emg_chance_agreement"] + 0.1    # timing, not on-shares alone
+    assert check["emg_onoff_agreement"] > check["emg_chance_agreement"] + 0.1  # timing, not on-shares alone
     assert check["emg_predictions"]["so_converged_share"] == 1.0
     assert check["emg_alignment"]["lag_s"] == 0.0
 

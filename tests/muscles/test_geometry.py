@@ -28,7 +28,7 @@ def test_moment_arms_are_minus_the_length_gradient(name, muscles):
     some = range(0, paths.n_muscles, 7)
     gradient = torch.stack([torch.autograd.grad(lengths[:, m].sum(), q, retain_graph=True)[0] for m in some], 1)
     torch.testing.assert_close(arms[:, list(some)], -gradient, rtol=0, atol=1e-12)
-    assert bool(((lengths > 0.02) & (lengths < 1.0)).all())   # musculotendon lengths of a human leg, in metres
+    assert bool(((lengths > 0.02) & (lengths < 1.0)).all())  # musculotendon lengths of a human leg, in metres
 
 
 def test_rajagopal_spans():
@@ -56,18 +56,37 @@ def test_save_load_round_trip_and_bad_files(tmp_path):
         shipped_paths("nope")
 
 
-@pytest.mark.parametrize("name, model, muscles", [
-    ("rajagopal2016", RAJAGOPAL, ["glmed1_r", "semiten_r", "recfem_r", "bfsh_l", "tibant_r", "iliacus_l",
-                                  "gasmed_r", "glmax1_r", "glmax2_l"]),
-    ("gait2392_subject01", GAIT_MODEL, ["glut_max1_r", "med_gas_r", "rect_fem_r", "vas_int_l", "ercspn_r",
-                                        "iliacus_r", "psoas_l"]),
-])
+@pytest.mark.parametrize(
+    "name, model, muscles",
+    [
+        (
+            "rajagopal2016",
+            RAJAGOPAL,
+            [
+                "glmed1_r",
+                "semiten_r",
+                "recfem_r",
+                "bfsh_l",
+                "tibant_r",
+                "iliacus_l",
+                "gasmed_r",
+                "glmax1_r",
+                "glmax2_l",
+            ],
+        ),
+        (
+            "gait2392_subject01",
+            GAIT_MODEL,
+            ["glut_max1_r", "med_gas_r", "rect_fem_r", "vas_int_l", "ercspn_r", "iliacus_r", "psoas_l"],
+        ),
+    ],
+)
 def test_moment_arms_match_opensim(name, model, muscles):
     pytest.importorskip("opensim")
     from biomotion.validation.muscles import moment_arm_errors
 
     errors = moment_arm_errors(shipped_paths(name), data_path(model), poses=80, seed=7, muscles=muscles)
-    assert {m for m, _ in errors} == set(muscles)         # every muscle has at least one non-zero moment arm
+    assert {m for m, _ in errors} == set(muscles)  # every muscle has at least one non-zero moment arm
     worst = max(errors, key=errors.get)
     assert errors[worst] <= 2e-3, f"{worst}: {errors[worst] * 1000:.2f} mm"
     # gasmed: OpenSim's computeMomentArm (the target) differs from -dL/dq of its length under two wraps;
@@ -77,8 +96,10 @@ def test_moment_arms_match_opensim(name, model, muscles):
 def test_jumping_paths_are_piecewise():
     """Muscles whose OpenSim path jumps (gait2392's conditional via point at the pelvic brim; Rajagopal's
     quadrant-limited gluteus maximus wrap cylinders) get one polynomial per configuration and a gate."""
-    for name, muscles in (("gait2392_subject01", ["iliacus_r", "psoas_l"]),
-                          ("rajagopal2016", ["glmax1_r", "glmax2_l"])):
+    for name, muscles in (
+        ("gait2392_subject01", ["iliacus_r", "psoas_l"]),
+        ("rajagopal2016", ["glmax1_r", "glmax2_l"]),
+    ):
         paths = shipped_paths(name)
         for muscle in muscles:
             m = paths.muscle_names.index(muscle)
@@ -91,12 +112,19 @@ def _two_piece_paths() -> MusclePaths:
     """Muscle 0: L = 0.3 + 0.02 x where x < 0.25 and 0.31 - 0.01 x elsewhere (gate scores 0 and 4x - 1);
     muscle 1: one polynomial 0.2 + 0.01 x^2 in the same group; x = q / 2 on q in [-2, 2]."""
     exponents = torch.tensor([[0], [1], [2]])
-    coefficients = torch.tensor([[0.3, 0.31, 0.2 + 0.005], [0.02, -0.01, 0.0], [0.0, 0.0, 0.005]],
-                                dtype=torch.float64)   # T_2 = 2x^2 - 1, so 0.01 x^2 = 0.005 T_2 + 0.005
+    coefficients = torch.tensor(
+        [[0.3, 0.31, 0.2 + 0.005], [0.02, -0.01, 0.0], [0.0, 0.0, 0.005]], dtype=torch.float64
+    )  # T_2 = 2x^2 - 1, so 0.01 x^2 = 0.005 T_2 + 0.005
     gates = torch.tensor([[0.0, -1.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
-    group = PathGroup(torch.tensor([0]), torch.tensor([0.0], dtype=torch.float64),
-                      torch.tensor([2.0], dtype=torch.float64), exponents, coefficients, torch.tensor([0, 0, 1]),
-                      gates)
+    group = PathGroup(
+        torch.tensor([0]),
+        torch.tensor([0.0], dtype=torch.float64),
+        torch.tensor([2.0], dtype=torch.float64),
+        exponents,
+        coefficients,
+        torch.tensor([0, 0, 1]),
+        gates,
+    )
     return MusclePaths("toy", ("a", "b"), ("q",), (group,), torch.tensor([[-2.0, 2.0]], dtype=torch.float64), {})
 
 
@@ -107,8 +135,8 @@ def test_piecewise_paths_pick_the_gated_piece_and_stay_consistent(tmp_path):
     lengths, arms = paths.lengths_and_moment_arms(q)
     first = x < 0.25
     torch.testing.assert_close(lengths[:, 0], torch.where(first, 0.3 + 0.02 * x, 0.31 - 0.01 * x))
-    torch.testing.assert_close(arms[:, 0, 0], torch.where(first, -0.01, 0.005).to(torch.float64))   # -dL/dq
-    torch.testing.assert_close(lengths[:, 1], 0.2 + 0.01 * x ** 2)
+    torch.testing.assert_close(arms[:, 0, 0], torch.where(first, -0.01, 0.005).to(torch.float64))  # -dL/dq
+    torch.testing.assert_close(lengths[:, 1], 0.2 + 0.01 * x**2)
     q = q.clone().requires_grad_(True)
     lengths, arms = paths.lengths_and_moment_arms(q)
     gradient = torch.autograd.grad(lengths[:, 0].sum(), q)[0]
@@ -124,8 +152,14 @@ def test_format_1_files_still_load(tmp_path):
     from safetensors.torch import save_file
 
     paths = shipped_paths("gait2392_subject01")
-    ungated = MusclePaths(paths.model, paths.muscle_names, paths.coordinate_names,
-                          tuple(g for g in paths.groups if g.gates is None), paths.ranges, {})
+    ungated = MusclePaths(
+        paths.model,
+        paths.muscle_names,
+        paths.coordinate_names,
+        tuple(g for g in paths.groups if g.gates is None),
+        paths.ranges,
+        {},
+    )
     ungated.save(tmp_path / "p.safetensors")
     with safe_open(str(tmp_path / "p.safetensors"), framework="pt") as handle:
         meta, tensors = handle.metadata(), {k: handle.get_tensor(k) for k in handle.keys()}

@@ -30,9 +30,14 @@ def test_squared_activations_match_a_reference_qp_solver():
         b = torch.cat([arms[k].T * forces[k], torch.diag(reserves)], 1).numpy()
         n = b.shape[1]
         bounds = np.concatenate([np.ones(n), np.r_[-0.01 * np.ones(m), np.ones(c)]])
-        solution = cvxopt.solvers.qp(cvxopt.matrix(2 * np.eye(n)), cvxopt.matrix(np.zeros(n)),
-                                     cvxopt.matrix(np.vstack([np.eye(n), -np.eye(n)])), cvxopt.matrix(bounds),
-                                     cvxopt.matrix(b), cvxopt.matrix(torques[k].numpy()))
+        solution = cvxopt.solvers.qp(
+            cvxopt.matrix(2 * np.eye(n)),
+            cvxopt.matrix(np.zeros(n)),
+            cvxopt.matrix(np.vstack([np.eye(n), -np.eye(n)])),
+            cvxopt.matrix(bounds),
+            cvxopt.matrix(b),
+            cvxopt.matrix(torques[k].numpy()),
+        )
         x = np.array(solution["x"]).ravel()
         np.testing.assert_allclose(result.activations[k].numpy(), x[:m], atol=1e-6)
         np.testing.assert_allclose(result.reserve_controls[k].numpy(), x[m:], atol=1e-6)
@@ -47,7 +52,7 @@ def test_cubed_activations_satisfy_the_kkt_conditions():
     # columns; check by least squares that the free muscles' 3 a^2 is reproduced by some lambda
     for k in range(4):
         free = (a[k] > 0.0101) & (a[k] < 0.999)
-        columns = (arms[k] * forces[k][:, None])[free]                 # [free, C]
+        columns = (arms[k] * forces[k][:, None])[free]  # [free, C]
         lam = torch.linalg.lstsq(columns, 3 * a[k][free] ** 2).solution
         torch.testing.assert_close(columns @ lam, 3 * a[k][free] ** 2, rtol=0, atol=1e-6)
 
@@ -56,12 +61,12 @@ def test_a_frame_the_bounds_cannot_balance_stops_early_and_leaves_the_others_unc
     arms, forces, torques, reserves = _feasible_problem()
     alone = solve_static_optimization(arms, forces, torques, reserves)
     impossible = torques.clone()
-    impossible[7] = 1e6   # far beyond every actuator's reach: no activation in [0.01, 1] balances it
+    impossible[7] = 1e6  # far beyond every actuator's reach: no activation in [0.01, 1] balances it
     result = solve_static_optimization(arms, forces, impossible, reserves, max_iterations=100)
     others = torch.arange(len(torques)) != 7
     assert not bool(result.converged[7]) and bool(result.converged[others].all())
     torch.testing.assert_close(result.activations[others], alone.activations[others], rtol=0, atol=1e-12)
-    assert result.iterations < 100   # it stalls out instead of running the whole batch to max_iterations
+    assert result.iterations < 100  # it stalls out instead of running the whole batch to max_iterations
 
 
 def test_bad_shapes_and_unactuated_coordinates_are_refused():
@@ -111,14 +116,15 @@ def test_matches_opensim_static_optimization_on_a_rajagopal_walk_window(tmp_path
     root = data_path("opensim-models/Pipelines/Rajagopal/ExpData/motion_capture_walk.trc").parents[4]
     inputs = rajagopal_walk_inputs(root, tmp_path)
     assert len(inputs.balanced) == 10 and inputs.time_range == (0.0, 2.37)
-    reference = opensim_static_optimization(inputs.model, inputs.coordinates, inputs.external_loads,
-                                            inputs.force_set, 1.0, 1.1)
+    reference = opensim_static_optimization(
+        inputs.model, inputs.coordinates, inputs.external_loads, inputs.force_set, 1.0, 1.1
+    )
     assert len(reference.times) == 11 and len(reference.muscle_names) == 80
     assert {f"reserve_{c}" for c in inputs.balanced} <= set(reference.actuator_controls)
     knee, patella = (reference.coordinate_names.index(c) for c in ("knee_angle_r", "knee_angle_r_beta"))
     np.testing.assert_allclose(reference.qdot[:, patella], reference.qdot[:, knee], atol=1e-9)
     torques, state_error = solver_torques(inputs, reference)
-    assert state_error < 1e-4                                       # measured 2e-8 rad
+    assert state_error < 1e-4  # measured 2e-8 rad
     balanced = [reference.coordinate_names.index(c) for c in inputs.balanced]
     # OpenSim's InverseDynamicsTool on the same file: measured max 0.89 N·m (its own spline derivatives)
     assert np.abs(torques[:, balanced] - reference.torques[:, balanced]).max() < 2.0
@@ -156,8 +162,9 @@ def test_the_oracles_emg_score_uses_the_emg_checks_own_rule():
     envelopes = emg.emg_envelopes(emg.read_anc(path), times)
     names = tuple(m for muscles in emg.EMG_MUSCLES.values() for m in muscles)
     activations = np.stack([envelopes[c] for c, muscles in emg.EMG_MUSCLES.items() for _ in muscles], axis=1)
-    reference = OpenSimStaticOptimization(times, names, activations, (), np.zeros((238, 0)), np.zeros((238, 0)),
-                                          np.zeros((238, 0)), 0.0)
+    reference = OpenSimStaticOptimization(
+        times, names, activations, (), np.zeros((238, 0)), np.zeros((238, 0)), np.zeros((238, 0)), 0.0
+    )
     figures = _emg_same_inputs(root, reference, np.roll(activations, 55, axis=0), names)
     assert figures["emg_onoff_agreement_opensim_so"] == 1.0
     assert figures["emg_onoff_agreement_same_inputs_ours"] < 0.8

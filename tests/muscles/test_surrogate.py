@@ -73,12 +73,13 @@ def test_masked_values_and_nan_placeholders_are_ignored():
 def test_finite_differences_are_exact_on_a_parabola_with_replicated_edges():
     rate = 30.0
     t = torch.arange(10, dtype=torch.float64) / rate
-    q = (3 * t ** 2 + t)[None, :, None].expand(2, 10, 4)
+    q = (3 * t**2 + t)[None, :, None].expand(2, 10, 4)
     velocity, acceleration = finite_differences(q, rate)
     expected = 6 * t + 1
     torch.testing.assert_close(velocity[0, 1:-1, 0], expected[1:-1])
     assert float(velocity[0, 0, 0]) == float(velocity[0, 1, 0]) and float(velocity[0, -1, 0]) == float(
-        velocity[0, -2, 0])
+        velocity[0, -2, 0]
+    )
     torch.testing.assert_close(acceleration, torch.full_like(q, 6.0))
     assert velocity.shape == q.shape
 
@@ -94,13 +95,13 @@ def test_smoothing_is_the_labels_zero_lag_low_pass_as_a_convolution():
     torch.testing.assert_close(taps, taps.flip(0))
     x = np.cumsum(np.random.default_rng(0).normal(size=(90, 3)), axis=0)
     pad = len(x) // 2
-    padded = np.concatenate([2 * x[0] - x[pad:0:-1], x, 2 * x[-1] - x[-2:-pad - 2:-1]])
-    reference = lowpass(padded, 30.0, 6.0, 3)[pad:pad + len(x)]
+    padded = np.concatenate([2 * x[0] - x[pad:0:-1], x, 2 * x[-1] - x[-2 : -pad - 2 : -1]])
+    reference = lowpass(padded, 30.0, 6.0, 3)[pad : pad + len(x)]
     ours = smooth(torch.as_tensor(x)[None], taps.double())[0].numpy()
     assert np.abs(ours - reference).max() < 1e-4 * x.std()
     ramp = torch.linspace(0, 1, 40, dtype=torch.float64)[None, :, None]
     torch.testing.assert_close(smooth(ramp, taps.double()), ramp)
-    assert smooth(ramp[:, :5], taps.double()).shape == (1, 5, 1)   # shorter than the filter: edge padding
+    assert smooth(ramp[:, :5], taps.double()).shape == (1, 5, 1)  # shorter than the filter: edge padding
 
 
 def test_smoothed_features_widen_the_input_and_keep_gradients(tmp_path):
@@ -130,34 +131,36 @@ def test_dilated_blocks_widen_the_receptive_field_to_its_stated_reach():
     moved[:, 30, 3] += 0.5
     changed = (model(moved, mask) - model(q, mask)).abs().amax(dim=(0, 2)) > 0
     assert torch.equal(torch.nonzero(changed).flatten(), torch.arange(19, 42))
-    assert model.config.context == 11                       # what training trims at window cuts
+    assert model.config.context == 11  # what training trims at window cuts
 
 
 def test_training_windows_leave_out_the_frames_a_window_cut_hides_but_keep_the_clips_own_ends():
     from types import SimpleNamespace
 
+    from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS
     from biomotion.training.surrogate_labels import SurrogateLabels
     from biomotion.training.train_surrogate import make_windows
-    from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS
 
     records = [{"offset": 0, "n_frames": 50, "split": "train"}, {"offset": 50, "n_frames": 12, "split": "train"}]
-    cache = SimpleNamespace(values=np.zeros((62, 39)), masks=np.ones((2, 39), bool), records=records,
-                            indices=lambda split: [0, 1])
-    labels = SurrogateLabels(np.zeros((62, 2), np.float32), np.ones(62, bool), ("m1", "m2"), {},
-                             np.zeros((62, max(COM_LABEL_COLUMNS) + 1)))
+    cache = SimpleNamespace(
+        values=np.zeros((62, 39)), masks=np.ones((2, 39), bool), records=records, indices=lambda split: [0, 1]
+    )
+    labels = SurrogateLabels(
+        np.zeros((62, 2), np.float32), np.ones(62, bool), ("m1", "m2"), {}, np.zeros((62, max(COM_LABEL_COLUMNS) + 1))
+    )
     plain = make_windows(cache, labels, "train", 20, 10)
     trimmed = make_windows(cache, labels, "train", 20, 10, cut_margin=3)
-    assert plain[3].shape == trimmed[3].shape == (5, 20)     # starts 0, 10, 20, 30 and the short clip's one window
+    assert plain[3].shape == trimmed[3].shape == (5, 20)  # starts 0, 10, 20, 30 and the short clip's one window
     weight, com_weight = trimmed[3].numpy(), trimmed[5].numpy()
     np.testing.assert_array_equal(weight, com_weight)
-    assert weight[0, :17].all() and not weight[0, 17:].any()                   # the clip's start: kept
+    assert weight[0, :17].all() and not weight[0, 17:].any()  # the clip's start: kept
     assert not weight[1, :3].any() and weight[1, 3:17].all() and not weight[1, 17:].any()
-    assert not weight[3, :3].any() and weight[3, 3:].all()                     # flush with the clip's end: kept
-    assert weight[4, :12].all() and not weight[4, 12:].any()                   # short clip: only its padding out
+    assert not weight[3, :3].any() and weight[3, 3:].all()  # flush with the clip's end: kept
+    assert weight[4, :12].all() and not weight[4, 12:].any()  # short clip: only its padding out
     covered = np.zeros(50, bool)
     for start, row in zip((0, 10, 20, 30), weight[:4]):
-        covered[start:start + 20] |= row.astype(bool)
-    assert covered.all()                                                       # every frame still trained on
+        covered[start : start + 20] |= row.astype(bool)
+    assert covered.all()  # every frame still trained on
     np.testing.assert_array_equal(plain[3].numpy()[4], weight[4])
 
 
@@ -212,12 +215,12 @@ def test_ensemble_members_are_independent_networks_and_predictions_their_mean(tm
     model.set_normalisation(q, mask)
     activations, com = model.predict_members(q, mask)
     assert activations.shape == (2, 2, 20, len(NAMES)) and com.shape == (2, 2, 20, len(COM_OUTPUTS))
-    assert not torch.allclose(activations[:, 0], activations[:, 1])   # each member starts from its own weights
+    assert not torch.allclose(activations[:, 0], activations[:, 1])  # each member starts from its own weights
     mean_activations, mean_com = model.predict(q, mask)
     torch.testing.assert_close(mean_activations, activations.mean(1))
     torch.testing.assert_close(mean_com, com.mean(1))
     torch.testing.assert_close(model(q, mask), activations.mean(1))
-    with torch.no_grad():   # change member 1's blocks and heads (its half of every grouped weight): member 0 stays
+    with torch.no_grad():  # change member 1's blocks and heads (its half of every grouped weight): member 0 stays
         for module in (model.blocks[0].conv, model.blocks[0].mix, model.head, model.com_head):
             half = module.weight.shape[0] // 2
             module.weight[half:] += 1.0
@@ -265,8 +268,9 @@ def _cached_clip(source: str, clip_id: str, rate: float, model):
     spec = next(s for s in src.discover(DATA_ROOT) if s.clip_id == clip_id)
     assert subject_split(spec.source, spec.subject) == "val"  # held out from training
     motion = src.load_motion(spec).resample(rate)
-    return place_clip(motion, model, height=spec.profile.height,
-                      treadmill_speed=spec.labels.speed if src.treadmill else None)
+    return place_clip(
+        motion, model, height=spec.profile.height, treadmill_speed=spec.labels.speed if src.treadmill else None
+    )
 
 
 def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
@@ -288,8 +292,9 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
     labels, com = labeler.label(motion)
     assert labels.muscle_names == model.names
     with torch.no_grad():
-        predicted, com_predicted = model.predict(torch.tensor(motion.values, dtype=torch.float32)[None],
-                                                 torch.tensor(motion.mask)[None])
+        predicted, com_predicted = model.predict(
+            torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None]
+        )
     converged = labels.converged.numpy()
     assert converged.mean() > 0.9
     scores = agreement(predicted[0].numpy()[converged], labels.activations.numpy()[converged], model.names)
@@ -306,7 +311,7 @@ def test_shipped_checkpoint_tracks_static_optimization_on_a_held_out_clip():
     from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS
 
     velocity_error = com_predicted[0, :, :3].numpy() - com[:, COM_LABEL_COLUMNS[:3]]
-    assert float(np.sqrt((velocity_error ** 2).mean())) < 0.15
+    assert float(np.sqrt((velocity_error**2).mean())) < 0.15
 
 
 def test_activation_bounds_use_converged_training_frames_only():
@@ -316,13 +321,16 @@ def test_activation_bounds_use_converged_training_frames_only():
 
     rng = np.random.default_rng(0)
     activations = rng.random((30, 2)).astype(np.float32)
-    activations[20:] = 5.0                                   # a held-out clip: must not count
+    activations[20:] = 5.0  # a held-out clip: must not count
     converged = np.ones(30, bool)
-    converged[:2] = False                                    # unconverged frames must not count either
+    converged[:2] = False  # unconverged frames must not count either
     activations[:2] = -5.0
     records = [{"offset": 0, "n_frames": 20, "split": "train"}, {"offset": 20, "n_frames": 10, "split": "val"}]
-    cache = SimpleNamespace(values=np.zeros((30, 39)), records=records,
-                            indices=lambda split: [i for i, r in enumerate(records) if r["split"] == split])
+    cache = SimpleNamespace(
+        values=np.zeros((30, 39)),
+        records=records,
+        indices=lambda split: [i for i, r in enumerate(records) if r["split"] == split],
+    )
     bounds = activation_bounds(cache, SurrogateLabels(activations, converged, ("m1", "m2"), {}))
     expected = activations[2:20]
     np.testing.assert_allclose(bounds.low, np.percentile(expected, 5, axis=0), rtol=1e-6)
@@ -334,8 +342,8 @@ def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_ro
     COM terms per frame; a run that lost some clips' results recomputes only those."""
     from biomotion.cli import main
     from biomotion.data.registry import DatasetCache, build_cache
-    from biomotion.training.surrogate_labels import SurrogateLabels, compute_labels
     from biomotion.muscles.surrogate import COM_COLUMNS
+    from biomotion.training.surrogate_labels import SurrogateLabels, compute_labels
 
     data_path("Hamner2013")
     data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim")
@@ -349,9 +357,9 @@ def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_ro
     assert labels.info["muscle_curves"] == "Millard2012EquilibriumMuscle"
     assert labels.info["com_columns"] == list(COM_COLUMNS)
     assert labels.activations.min() >= 0.01 - 1e-6 and labels.activations.max() <= 1 + 1e-6
-    assert 0.8 < float(np.median(labels.com[:, 1])) < 1.2            # COM height of a standing-size runner, m
+    assert 0.8 < float(np.median(labels.com[:, 1])) < 1.2  # COM height of a standing-size runner, m
     assert (cache_folder / "bounds_muscle_activations.json").exists()
-    assert not (cache_folder / "surrogate_labels.safetensors.parts").exists()   # cleaned up once complete
+    assert not (cache_folder / "surrogate_labels.safetensors.parts").exists()  # cleaned up once complete
 
     parts = tmp_path / "parts"
     first = compute_labels(cache, data_root, progress=False, parts=parts)
@@ -368,7 +376,7 @@ def test_training_subjects_come_from_the_weights_or_else_the_model_card(tmp_path
     recorded = tmp_path / "recorded.safetensors"
     model.save(recorded, metadata={"train_subjects": json.dumps(["fukuchi/RBDS001", "opencap/Subject4"])})
     assert MuscleSurrogate.training_subjects(recorded) == {"fukuchi/RBDS001", "opencap/Subject4"}
-    older = tmp_path / "older.safetensors"                 # weights saved before they recorded their subjects
+    older = tmp_path / "older.safetensors"  # weights saved before they recorded their subjects
     model.save(older)
     assert MuscleSurrogate.training_subjects(older) is None
     older.with_suffix(".json").write_text(json.dumps({"data": {"train_subjects": ["hamner/subject01"]}}))
@@ -380,8 +388,8 @@ def test_the_shipped_surrogate_names_its_training_subjects_and_no_held_out_one()
 
     subjects = MuscleSurrogate.training_subjects(CHECKPOINT)
     assert subjects is not None and len(subjects) == 36
-    assert all(subject_split(*key.split("/", 1)) == "train" for key in subjects)   # the split it was trained on
-    assert "fukuchi/RBDS012" not in subjects     # the held-out clip of the test above
+    assert all(subject_split(*key.split("/", 1)) == "train" for key in subjects)  # the split it was trained on
+    assert "fukuchi/RBDS012" not in subjects  # the held-out clip of the test above
 
 
 def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
@@ -390,7 +398,7 @@ def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
     from biomotion.body.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 
     torch.manual_seed(0)
-    names = ("soleus_r", "soleus_l", "vaslat_r", "vaslat_l", "glmax1_r")   # glmax1_l absent: maps to itself
+    names = ("soleus_r", "soleus_l", "vaslat_r", "vaslat_l", "glmax1_r")  # glmax1_l absent: maps to itself
     model = MuscleSurrogate(names, TINY).eval()
     q, mask = _batch()
     model.set_normalisation(q, mask)
@@ -403,8 +411,9 @@ def test_the_symmetric_prediction_is_exactly_left_right_equivariant():
     swapped = torch.as_tensor(mirror_labels(activations.numpy(), names))
     assert torch.allclose(mirrored[..., :4], swapped[..., :4], atol=1e-6)
     assert torch.allclose(com_mirrored, torch.as_tensor(mirror_ground_vectors(com.numpy())), atol=1e-5)
-    assert not torch.allclose(one_pass_mirrored[..., :4],
-                              torch.as_tensor(mirror_labels(one_pass.numpy(), names))[..., :4], atol=1e-3)
+    assert not torch.allclose(
+        one_pass_mirrored[..., :4], torch.as_tensor(mirror_labels(one_pass.numpy(), names))[..., :4], atol=1e-3
+    )
     assert activations.shape == one_pass.shape and com.shape == (2, 20, len(COM_OUTPUTS))
 
 
@@ -419,7 +428,7 @@ def test_per_muscle_loss_weights_follow_the_label_spread():
     spread = labels.std(0)
     assert torch.isclose(weight.mean(), torch.tensor(1.0, dtype=torch.float64))
     assert torch.isclose(weight[1] / weight[0], spread[0] / spread[1])
-    assert torch.isclose(weight[2] / weight[0], spread[0] / 0.02)          # the tiny muscle is floored
+    assert torch.isclose(weight[2] / weight[0], spread[0] / 0.02)  # the tiny muscle is floored
 
 
 def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only():
@@ -433,16 +442,15 @@ def test_weight_average_is_an_exponential_moving_average_of_the_parameters_only(
         weight_average(model, 1.0)
     averaged = weight_average(model, 0.9)
     first = [p.detach().clone() for p in model.parameters()]
-    averaged.update_parameters(model)                  # the first update copies the weights
+    averaged.update_parameters(model)  # the first update copies the weights
     with torch.no_grad():
         for p in model.parameters():
             p.add_(1.0)
-        model.mean.add_(5.0)                           # a buffer: copied, not averaged
+        model.mean.add_(5.0)  # a buffer: copied, not averaged
     averaged.update_parameters(model)
     for mean, start in zip(averaged.module.parameters(), first):
         assert torch.allclose(mean, 0.9 * start + 0.1 * (start + 1.0), atol=1e-6)
     assert torch.equal(averaged.module.mean, model.mean)
-
 
 
 def test_activation_loss_is_the_absolute_or_squared_error_and_refuses_others():
@@ -453,6 +461,7 @@ def test_activation_loss_is_the_absolute_or_squared_error_and_refuses_others():
     assert torch.equal(activation_loss("mse")(error), torch.tensor([0.25, 0.0, 4.0]))
     with pytest.raises(ConfigError, match="activation_loss"):
         activation_loss("huber")
+
 
 def test_contact_features_need_the_body_and_keep_the_prediction_left_right_equivariant(data_root):
     from biomotion.body.mirror import mirror_coordinates, mirror_labels

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from biomotion.analysis.activations import check_paths, load_paths
 from biomotion.body.model import BodyModel
 from biomotion.cli import main
 from biomotion.errors import ModelError
 from biomotion.io.mot import read_storage
-from biomotion.analysis.activations import check_paths, load_paths
 from tests.conftest import data_path
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
@@ -23,17 +23,31 @@ def test_analyze_with_muscles_matches_opensim_static_optimization(tmp_path, caps
 
     folder = data_path(GAIT)
     root = folder.parents[2]
-    code = main(["analyze", str(folder / "subject01_walk1_ik.mot"), "--model",
-                 str(folder / "OutputReference/subject01_simbody.osim"), "--grf", str(folder / "subject01_walk1_grf.mot"),
-                 "--forces-trim",   # the plates stop at 2.5 s, the IK at 4 s: only the frames with forces
-                 "--muscles", "gait2392_subject01", "--out", str(tmp_path), "--no-figures"])
+    code = main(
+        [
+            "analyze",
+            str(folder / "subject01_walk1_ik.mot"),
+            "--model",
+            str(folder / "OutputReference/subject01_simbody.osim"),
+            "--grf",
+            str(folder / "subject01_walk1_grf.mot"),
+            "--forces-trim",  # the plates stop at 2.5 s, the IK at 4 s: only the frames with forces
+            "--muscles",
+            "gait2392_subject01",
+            "--out",
+            str(tmp_path),
+            "--no-figures",
+        ]
+    )
     assert code == 0
     assert "92 muscles balance 17 coordinates on 121 of 121 frames" in capsys.readouterr().out
     table = read_storage(tmp_path / "activations.sto")
     assert len(table.labels) == 92 + 17 and table.labels[-1] == "lumbar_rotation_reserve"
     reference = opensim_gait_static_optimization(root, 0.9, 1.15)
-    ours = np.stack([np.interp(reference.times, table.times, table.data[:, table.labels.index(m)])
-                     for m in reference.muscle_names], 1)
+    ours = np.stack(
+        [np.interp(reference.times, table.times, table.data[:, table.labels.index(m)]) for m in reference.muscle_names],
+        1,
+    )
     varying = reference.activations.std(0) > 0.02
     assert varying.sum() >= 20
     assert r_squared(ours[:, varying], reference.activations[:, varying]).mean() >= 0.99

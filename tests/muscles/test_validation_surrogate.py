@@ -28,7 +28,7 @@ def test_every_subject_the_surrogate_never_trained_on_is_scored(tmp_path):
     (root / "opensim-models").symlink_to(data_path("opensim-models"))
     (root / "fukuchi-running/ik/T25/RBDS099_T25_ik_simple.mot").symlink_to(shared / "ik/T25/RBDS010_T25_ik_simple.mot")
     assert "fukuchi/RBDS099" not in MuscleSurrogate.training_subjects(SURROGATE)
-    assert subject_split("fukuchi", "RBDS099") == "train"   # the hash split alone would have left it out
+    assert subject_split("fukuchi", "RBDS099") == "train"  # the hash split alone would have left it out
     skipped: list[str] = []
     figures = surrogate_figures(root, SURROGATE, skipped)
     assert skipped == [] and figures["surrogate_held_out_subjects"] == ["fukuchi/RBDS099"]

@@ -27,14 +27,28 @@ def one_opencap_trial(tmp_path, request):
 def test_validate_dynamics_on_a_single_trial(one_opencap_trial, tmp_path):
     root, subject = one_opencap_trial
     report_path = tmp_path / "dynamics.json"
-    assert main(["validate", "dynamics", "--data-root", str(root), "--json", str(report_path),
-                 "--md", str(tmp_path / "dynamics.md"), "--quiet"]) == 0
+    assert (
+        main(
+            [
+                "validate",
+                "dynamics",
+                "--data-root",
+                str(root),
+                "--json",
+                str(report_path),
+                "--md",
+                str(tmp_path / "dynamics.md"),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     report = json.loads(report_path.read_text())
     assert any(s.startswith("opensim-models") for s in report["skipped"])
     assert list(report["id_solver_per_trial_max_err_nm"]) == [f"opencap/{subject}/DJ2"]
-    assert report["id_solver_max_err_nm"] <= 1e-4             # issue 3 bar, N·m
-    assert report["id_ref_rmse_rel"] <= 0.02                   # issue 3 bar: 2 % of peak
-    assert report["grf_vertical_r2"] >= 0.9                    # measured 0.96 on DJ2
+    assert report["id_solver_max_err_nm"] <= 1e-4  # issue 3 bar, N·m
+    assert report["id_ref_rmse_rel"] <= 0.02  # issue 3 bar: 2 % of peak
+    assert report["grf_vertical_r2"] >= 0.9  # measured 0.96 on DJ2
     assert report["grf_vertical_rmse_bw"] < report["grf_com_baseline_rmse_bw"]
     assert f"| opencap/{subject}/DJ2 |" in (tmp_path / "dynamics.md").read_text()
 
@@ -44,24 +58,43 @@ def test_validate_kinematics_on_one_model_and_an_empty_root(tmp_path):
     target = root / "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
     target.parent.mkdir(parents=True)
     shutil.copy(data_path("opensim-models/Models/Rajagopal/Rajagopal2016.osim"), target)
-    assert main(["validate", "kinematics", "--data-root", str(root), "--json", str(tmp_path / "k.json"),
-                 "--quiet"]) == 0
+    assert (
+        main(["validate", "kinematics", "--data-root", str(root), "--json", str(tmp_path / "k.json"), "--quiet"]) == 0
+    )
     report = json.loads((tmp_path / "k.json").read_text())
     assert report["fk_models"] == 1 and report["fk_max_err_m"] <= 1e-5
-    assert main(["validate", "kinematics", "--data-root", str(tmp_path / "missing"), "--json",
-                 str(tmp_path / "x.json"), "--quiet"]) == 2
+    assert (
+        main(
+            [
+                "validate",
+                "kinematics",
+                "--data-root",
+                str(tmp_path / "missing"),
+                "--json",
+                str(tmp_path / "x.json"),
+                "--quiet",
+            ]
+        )
+        == 2
+    )
 
 
 def test_markdown_lists_the_surrogates_worst_muscles_first():
     from biomotion.validation.run import markdown
 
     per_muscle = {f"m{i}": 0.5 + 0.01 * i for i in range(12)}
-    report = {"check": "muscles", "biomotion": "x", "seconds": 1.0, "skipped": [], "surrogate_r2": 0.6,
-              "surrogate_r2_per_muscle": per_muscle}
+    report = {
+        "check": "muscles",
+        "biomotion": "x",
+        "seconds": 1.0,
+        "skipped": [],
+        "surrogate_r2": 0.6,
+        "surrogate_r2_per_muscle": per_muscle,
+    }
     text = markdown(report, "biomotion validate muscles")
     section = text.split("lowest R²")[1]
     assert "| m0 | 0.500 |" in section and "| m9 | 0.590 |" in section
-    assert "| m10 |" not in section                                 # ten rows only
+    assert "| m10 |" not in section  # ten rows only
 
 
 @pytest.fixture()
@@ -73,8 +106,10 @@ def new_runners(tmp_path):
     shared = data_path("fukuchi-running")
     (base / "c3d").mkdir(parents=True)
     (base / "generic-models").symlink_to(shared / "generic-models")
-    for runner, files in (("RBDS098", [*(shared / "RBDS010").iterdir()]),
-                          ("RBDS097", [shared / "RBDS010/RBDS010_simple.osim"])):
+    for runner, files in (
+        ("RBDS098", [*(shared / "RBDS010").iterdir()]),
+        ("RBDS097", [shared / "RBDS010/RBDS010_simple.osim"]),
+    ):
         (base / runner).mkdir()
         for source in files:
             (base / runner / source.name.replace("RBDS010", runner)).symlink_to(source)
@@ -88,7 +123,8 @@ def test_grf_check_solves_new_runners_from_their_captures_and_names_what_it_cann
 
     report = check_ground_reaction(new_runners, progress=False)
     assert [row["trial"] for row in report["grf_trials"]] == ["fukuchi/RBDS098/T35 (C3D, source chain)"]
-    assert report["skipped"] == ["GRF check: fukuchi-running/RBDS097: no ik/T35 motion, and the chain lacks "
-                                 "scale_setup, ik_setup, static"]
+    assert report["skipped"] == [
+        "GRF check: fukuchi-running/RBDS097: no ik/T35 motion, and the chain lacks scale_setup, ik_setup, static"
+    ]
     # RBDS010's plates against its motion solved by the chain: as with the shipped IK (R^2 0.962, 0.186 BW)
     assert report["grf_vertical_r2"] >= 0.9 and report["grf_vertical_rmse_bw"] == pytest.approx(0.186, abs=0.01)

@@ -9,8 +9,18 @@ from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d
 from biomotion.io.mot import read_ground_reaction
 from biomotion.io.trc import read_trc
-from biomotion.viz.scene import (Body, Capsule, FORCE_SCALE, Mesh, PointSet, Scene, bvh_scene, markers_scene,
-                                 on_clock, parent_links)
+from biomotion.viz.scene import (
+    FORCE_SCALE,
+    Body,
+    Capsule,
+    Mesh,
+    PointSet,
+    Scene,
+    bvh_scene,
+    markers_scene,
+    on_clock,
+    parent_links,
+)
 from tests.conftest import data_path
 
 WALK_BVH = "bandai-namco/dataset-1/dataset-1_walk_normal_001.bvh.gz"
@@ -24,8 +34,9 @@ def _volume(mesh: Mesh) -> float:
 def test_capsule_surface_is_closed_outward_and_at_the_radius():
     start, end, radius = np.array([0.1, 0.0, -0.2]), np.array([0.1, 0.4, 0.1]), 0.05
     mesh = Capsule(start, end, radius).mesh(sides=10, rings=3)
-    edges = np.sort(np.concatenate([mesh.triangles[:, [0, 1]], mesh.triangles[:, [1, 2]],
-                                    mesh.triangles[:, [2, 0]]]), axis=1)
+    edges = np.sort(
+        np.concatenate([mesh.triangles[:, [0, 1]], mesh.triangles[:, [1, 2]], mesh.triangles[:, [2, 0]]]), axis=1
+    )
     _, counts = np.unique(edges, axis=0, return_counts=True)
     assert np.all(counts == 2)  # closed: every edge shared by exactly two triangles
     axis = (end - start) / np.linalg.norm(end - start)
@@ -46,8 +57,13 @@ def test_bvh_bodies_reproduce_the_clip_joint_positions():
     assert "joint_Root" not in names and len(names) == 16  # root placement (joint_Root -> Hips) is no bone
     assert scene.n_frames == clip.n_frames and scene.times[1] == pytest.approx(1 / 30, rel=1e-4)
     for body in scene.bodies:
-        children = [c for c, p in enumerate(skeleton.parents) if p == skeleton.index(body.name)
-                    and not skeleton.end_sites[c] and np.linalg.norm(skeleton.offsets[c]) < 0.75]
+        children = [
+            c
+            for c, p in enumerate(skeleton.parents)
+            if p == skeleton.index(body.name)
+            and not skeleton.end_sites[c]
+            and np.linalg.norm(skeleton.offsets[c]) < 0.75
+        ]
         ends = {tuple(np.round(c.end, 9)) for c in body.capsules}
         assert len(ends) == len(body.capsules)
         for child in children:
@@ -149,7 +165,14 @@ def test_model_scene_puts_the_scaled_feet_on_the_floor():
     np.testing.assert_allclose(scene.bodies[5].positions, forward_kinematics(model, q).positions[:, 5].numpy())
     # the scaled meshes land where the foot is: lowest foot vertex at the floor (IK lets toes sink a few cm)
     feet = [b for b in scene.bodies if b.name.startswith(("calcn", "toes"))]
-    lowest = np.min([np.min(np.einsum("tij,vj->tvi", b.rotations, b.surface().vertices)[..., 1]
-                            + b.positions[:, None, 1], axis=1) for b in feet], axis=0)
+    lowest = np.min(
+        [
+            np.min(
+                np.einsum("tij,vj->tvi", b.rotations, b.surface().vertices)[..., 1] + b.positions[:, None, 1], axis=1
+            )
+            for b in feet
+        ],
+        axis=0,
+    )
     assert np.all((lowest > -0.05) & (lowest < 0.01))
     assert scene.points[0].positions.shape == (motion.n_frames, 62, 3)  # the model's markers

@@ -29,8 +29,9 @@ class _Loads(HTMLParser):
         self.urls: list[str] = []
 
     def handle_starttag(self, tag, attrs):
-        self.urls += [value for name, value in attrs
-                      if name in ("src", "href", "data", "poster", "srcset", "action") and value]
+        self.urls += [
+            value for name, value in attrs if name in ("src", "href", "data", "poster", "srcset", "action") and value
+        ]
 
 
 def _payload(text: str) -> dict:
@@ -39,8 +40,9 @@ def _payload(text: str) -> dict:
 
 
 def _array(entry: dict) -> np.ndarray:
-    return np.frombuffer(base64.b64decode(entry["b64"]), dtype=np.dtype(entry["dtype"]).newbyteorder("<")
-                         ).reshape(entry["shape"])
+    return np.frombuffer(base64.b64decode(entry["b64"]), dtype=np.dtype(entry["dtype"]).newbyteorder("<")).reshape(
+        entry["shape"]
+    )
 
 
 def test_the_page_loads_nothing_from_the_network(tmp_path):
@@ -87,24 +89,41 @@ def test_activations_and_balance_files(tmp_path):
     grf = data_path(GRF)
     times = np.arange(0, 1.3, 0.01)
     activation = 0.5 + 0.4 * np.sin(2 * np.pi * times)
-    write_storage(tmp_path / "so.sto", ["soleus_r", "tibant_r", "FX_reserve"], times,
-                  np.stack([activation, 1 - activation, 50 * activation], axis=1))
+    write_storage(
+        tmp_path / "so.sto",
+        ["soleus_r", "tibant_r", "FX_reserve"],
+        times,
+        np.stack([activation, 1 - activation, 50 * activation], axis=1),
+    )
     com = np.stack([times, np.full_like(times, 0.93), np.zeros_like(times)], axis=1)
     square = np.array([[0, 0, 0], [0.2, 0, 0], [0.2, 0, 0.1], [0, 0, 0.1]], dtype=float)
     support = np.broadcast_to(square, (len(times), 4, 3)) + com[:, None] * [1, 0, 0]
-    labels = ["com_x", "com_y", "com_z", "zmp_x", "zmp_y", "zmp_z"] + \
-        [f"support_{k}_{a}" for k in range(4) for a in "xyz"]
-    write_storage(tmp_path / "balance.sto", labels, times,
-                  np.concatenate([com, com * [1, 0, 1], support.reshape(len(times), -1)], axis=1))
+    labels = ["com_x", "com_y", "com_z", "zmp_x", "zmp_y", "zmp_z"] + [
+        f"support_{k}_{a}" for k in range(4) for a in "xyz"
+    ]
+    write_storage(
+        tmp_path / "balance.sto",
+        labels,
+        times,
+        np.concatenate([com, com * [1, 0, 1], support.reshape(len(times), -1)], axis=1),
+    )
     names = read_activations(tmp_path / "so.sto")[1]
     assert names == ("soleus_r", "tibant_r")  # the reserve actuator (N) is not an activation
-    write_storage(tmp_path / "states.sto", ["/jointset/knee_r/knee_angle_r/value", "/forceset/soleus_r/activation",
-                                            "gasmed_r.activation"], times,
-                  np.stack([0.5 * activation, activation, 1 - activation], axis=1))
+    write_storage(
+        tmp_path / "states.sto",
+        ["/jointset/knee_r/knee_angle_r/value", "/forceset/soleus_r/activation", "gasmed_r.activation"],
+        times,
+        np.stack([0.5 * activation, activation, 1 - activation], axis=1),
+    )
     _, names, values = read_activations(tmp_path / "states.sto")
     assert names == ("soleus_r", "gasmed_r") and values.shape == (len(times), 2)  # a knee angle in [0, 1] rad is not
-    out = view_command(data_path(TRC), grf=grf, activations=tmp_path / "so.sto", com_zmp=tmp_path / "balance.sto",
-                       out=tmp_path / "v.html")
+    out = view_command(
+        data_path(TRC),
+        grf=grf,
+        activations=tmp_path / "so.sto",
+        com_zmp=tmp_path / "balance.sto",
+        out=tmp_path / "v.html",
+    )
     data = _payload(out.read_text())["main"]
     coded = _array(data["activations"]["values"])
     np.testing.assert_array_equal(coded[:130, 0], np.round(activation * 254).astype(np.uint8))
@@ -127,11 +146,13 @@ def test_view_command_errors(tmp_path):
 
 def test_coordinates_through_a_model_with_forces(tmp_path):
     folder = "SchreiberMoissenet2019/2014001"
-    out = view_command(data_path(f"{folder}/C4_05_ik.mot"),
-                       model=data_path(f"{folder}/2014001_scaledModelAdjusted.osim"),
-                       grf=data_path(f"{folder}/2014001_C4_05_grf.mot"),
-                       geometry=[data_path("opensim-models/Models/Rajagopal/Geometry"),
-                                 data_path("opensim-models/Geometry")], out=tmp_path / "model.html")
+    out = view_command(
+        data_path(f"{folder}/C4_05_ik.mot"),
+        model=data_path(f"{folder}/2014001_scaledModelAdjusted.osim"),
+        grf=data_path(f"{folder}/2014001_C4_05_grf.mot"),
+        geometry=[data_path("opensim-models/Models/Rajagopal/Geometry"), data_path("opensim-models/Geometry")],
+        out=tmp_path / "model.html",
+    )
     data = _payload(out.read_text())["main"]
     assert data["bodies"]["count"] == 22 and data["n"] == 53
     assert _array(data["bodies"]["vertices"]).shape[0] > 20000  # Rajagopal's bone meshes, not only capsules

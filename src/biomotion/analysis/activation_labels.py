@@ -29,9 +29,9 @@ class LabelSettings:
 
     cutoff_hz: float = 6.0
     exponent: float = 2.0
-    reserve_optimal_force: float = 10.0   # N·m per unit control
-    reserve_bound: float = 100.0          # |control| <= 100: up to 1000 N·m
-    tolerance: float = 1e-6               # N·m on the torque balance
+    reserve_optimal_force: float = 10.0  # N·m per unit control
+    reserve_bound: float = 100.0  # |control| <= 100: up to 1000 N·m
+    tolerance: float = 1e-6  # N·m on the torque balance
     max_iterations: int = 200
     # the contact gate's width of the inferred ground reaction the torques come from, pinned at the value the
     # shipped surrogate's labels were made with (`ContactSettings.height_scale` became 0.01 afterwards)
@@ -42,10 +42,10 @@ class LabelSettings:
 class Labeler:
     """Everything needed to label one clip: the Rajagopal body model, muscle paths and parameters, settings."""
 
-    model: object                     # biomotion.body.model.BodyModel
+    model: object  # biomotion.body.model.BodyModel
     paths: MusclePaths
     muscles: MuscleParameters
-    coordinates: tuple[str, ...]      # balanced coordinates
+    coordinates: tuple[str, ...]  # balanced coordinates
     curves: str
     settings: LabelSettings
 
@@ -92,9 +92,13 @@ class Labeler:
 
         motion = self.prepare(motion)
         cutoff = self.settings.cutoff_hz
-        result = analyze(motion, self.model, cutoff_hz=cutoff,
-                         contact=ContactSettings(height_scale=self.settings.contact_height_scale))
-        coordinates = model_motion(motion, self.model)    # the same preparation analyze did, for qdot
+        result = analyze(
+            motion,
+            self.model,
+            cutoff_hz=cutoff,
+            contact=ContactSettings(height_scale=self.settings.contact_height_scale),
+        )
+        coordinates = model_motion(motion, self.model)  # the same preparation analyze did, for qdot
         if cutoff and coordinates.n_frames > 15:
             coordinates, qd, _ = coordinates.smoothed(cutoff)
         else:
@@ -108,9 +112,19 @@ class Labeler:
     def solve(self, q: torch.Tensor, qd: torch.Tensor, torques: torch.Tensor) -> StaticOptimizationResult:
         """Static optimization of every frame at once."""
         s = self.settings
-        return optimize_activations(self.paths, self.muscles, q, qd, torques, self.coordinates,
-                                    s.reserve_optimal_force, exponent=s.exponent, reserve_bound=s.reserve_bound,
-                                    tolerance=s.tolerance, max_iterations=s.max_iterations)
+        return optimize_activations(
+            self.paths,
+            self.muscles,
+            q,
+            qd,
+            torques,
+            self.coordinates,
+            s.reserve_optimal_force,
+            exponent=s.exponent,
+            reserve_bound=s.reserve_bound,
+            tolerance=s.tolerance,
+            max_iterations=s.max_iterations,
+        )
 
     def __call__(self, motion: Motion) -> StaticOptimizationResult:
         """Labels of one clip (canonical coordinates, any frame count >= 2)."""

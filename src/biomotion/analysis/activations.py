@@ -5,8 +5,8 @@ reaction otherwise) are balanced by the model's muscles with the batched static 
 `biomotion.muscles.static_optimization` (Crowninshield & Brand 1981; OpenSim's ``StaticOptimization``): squared
 activations, muscle forces from the model's own force-length-velocity curves and pennation (Thelen 2003 or
 Millard 2012, read from the .osim), on every unlocked, independent coordinate some muscle spans, each with a reserve
-actuator that is penalised like a muscle (`TrialSettings`) so the muscles carry what they can. Coordinates no muscle spans (pelvis, arms) are not
-balanced; their torques stay in ``torques.sto``.
+actuator that is penalised like a muscle (`TrialSettings`) so the muscles carry what they can. Coordinates no muscle
+spans (pelvis, arms) are not balanced; their torques stay in ``torques.sto``.
 
 Muscle geometry comes from path functions fitted to the model's own OpenSim geometry
 (`biomotion.training.fit_paths`, minutes per model, once): a scaled model's moment arms differ from the generic
@@ -42,8 +42,8 @@ class TrialSettings:
     the small muscles' torques, and the activations then drift from OpenSim's, which has no joint reserves there.)"""
 
     exponent: float = 2.0
-    reserve_optimal_force: float = 1.0    # N·m (or N) per unit control
-    reserve_bound: float = 1000.0         # |control|
+    reserve_optimal_force: float = 1.0  # N·m (or N) per unit control
+    reserve_bound: float = 1000.0  # |control|
 
 
 @dataclass(frozen=True)
@@ -67,37 +67,52 @@ def load_paths(spec: str | Path) -> tuple[MusclePaths, str]:
     return shipped_paths(str(spec)), f"shipped:{spec}"
 
 
-def check_paths(paths: MusclePaths, label: str, model_path: str | Path, coordinate_names: tuple[str, ...]
-                ) -> PathCheck:
+def check_paths(paths: MusclePaths, label: str, model_path: str | Path, coordinate_names: tuple[str, ...]) -> PathCheck:
     """Refuse paths made for other coordinates; say whether they were fitted on ``model_path`` itself."""
     if tuple(paths.coordinate_names) != tuple(coordinate_names):
         missing = sorted(set(paths.coordinate_names) ^ set(coordinate_names))
-        raise ModelError(f"{label}: its coordinates are not those of {model_path} "
-                         f"(differing: {', '.join(missing) or 'the order'})")
+        raise ModelError(
+            f"{label}: its coordinates are not those of {model_path} (differing: {', '.join(missing) or 'the order'})"
+        )
     source = paths.info.get("source", "an unnamed model")
     recorded = paths.info.get("source_sha256")
     if recorded is None:
         return PathCheck(label, source, False, f"{label} does not record which model file it was fitted on")
     if recorded != hashlib.sha256(Path(model_path).read_bytes()).hexdigest():
-        return PathCheck(label, source, False,
-                         f"{label} was fitted on another model file ({source}); a differently scaled model has other "
-                         f"moment arms: fit paths for this one with `biomotion train paths --model "
-                         f"{model_path} --out PATHS.safetensors`")
+        return PathCheck(
+            label,
+            source,
+            False,
+            f"{label} was fitted on another model file ({source}); a differently scaled model has other "
+            f"moment arms: fit paths for this one with `biomotion train paths --model "
+            f"{model_path} --out PATHS.safetensors`",
+        )
     return PathCheck(label, source, True, None)
 
 
-def trial_activations(result: Analysis, model_path: str | Path, paths: MusclePaths,
-                      settings: TrialSettings = TrialSettings()) -> StaticOptimizationResult:
+def trial_activations(
+    result: Analysis, model_path: str | Path, paths: MusclePaths, settings: TrialSettings = TrialSettings()
+) -> StaticOptimizationResult:
     """Static optimization of every frame of ``result`` at once (see the module docstring)."""
     muscles = read_muscles(model_path).select(paths.muscle_names)
     coordinates = balanced_coordinates(paths, result.model)
     names = result.model.coordinate_names
     q = torch.from_numpy(np.ascontiguousarray(result.motion.values, dtype=np.float64))
     qd = torch.from_numpy(np.ascontiguousarray(result.velocities, dtype=np.float64))
-    torques = torch.from_numpy(np.ascontiguousarray(result.torques[:, [names.index(c) for c in coordinates]],
-                                                    dtype=np.float64))
-    return optimize_activations(paths, muscles, q, qd, torques, coordinates, settings.reserve_optimal_force,
-                                exponent=settings.exponent, reserve_bound=settings.reserve_bound)
+    torques = torch.from_numpy(
+        np.ascontiguousarray(result.torques[:, [names.index(c) for c in coordinates]], dtype=np.float64)
+    )
+    return optimize_activations(
+        paths,
+        muscles,
+        q,
+        qd,
+        torques,
+        coordinates,
+        settings.reserve_optimal_force,
+        exponent=settings.exponent,
+        reserve_bound=settings.reserve_bound,
+    )
 
 
 def write_activations(path: str | Path, result: Analysis, solution: StaticOptimizationResult) -> Path:
@@ -110,10 +125,19 @@ def write_activations(path: str | Path, result: Analysis, solution: StaticOptimi
 
 def activation_summary(solution: StaticOptimizationResult, check: PathCheck, settings: TrialSettings) -> dict:
     """What summary.json says about the muscles: paths used, balanced frames, reserve use per coordinate."""
-    return {"paths": check.paths, "paths_fitted_on": check.fitted_on, "paths_verified_for_model": check.verified,
-            "paths_warning": check.warning, "muscles": len(solution.muscle_names),
-            "balanced_coordinates": list(solution.coordinate_names),
-            "frames_balanced": int(solution.converged.sum()), "frames": int(solution.converged.numel()),
-            "settings": {"exponent": settings.exponent, "reserve_optimal_force": settings.reserve_optimal_force,
-                         "reserve_bound": settings.reserve_bound},
-            "reserve_usage": solution.reserve_usage()}
+    return {
+        "paths": check.paths,
+        "paths_fitted_on": check.fitted_on,
+        "paths_verified_for_model": check.verified,
+        "paths_warning": check.warning,
+        "muscles": len(solution.muscle_names),
+        "balanced_coordinates": list(solution.coordinate_names),
+        "frames_balanced": int(solution.converged.sum()),
+        "frames": int(solution.converged.numel()),
+        "settings": {
+            "exponent": settings.exponent,
+            "reserve_optimal_force": settings.reserve_optimal_force,
+            "reserve_bound": settings.reserve_bound,
+        },
+        "reserve_usage": solution.reserve_usage(),
+    }

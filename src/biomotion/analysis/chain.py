@@ -40,21 +40,21 @@ STANDARD_GRAVITY = 9.80665
 class Analysis:
     """Everything `analyze` computes, on the motion's frames (numpy, SI)."""
 
-    motion: Motion                      # filtered coordinates in model order (couplers applied)
-    velocities: np.ndarray              # [T, n_q] their time derivatives (the ones the torques used)
-    torques: np.ndarray                 # [T, n_q] generalized forces with the loads used
-    torques_source: str                 # "measured" or "inferred"
-    inferred: GroundReaction            # per foot, from kinematics only
-    measured: GroundReaction | None     # per foot, from the plates (assigned to feet), on the motion's frames
-    root_residual: np.ndarray           # [T, 6] root generalized force the inferred contact could not supply
-    com: np.ndarray                     # [T, 3]
-    com_velocity: np.ndarray            # [T, 3]
-    com_acceleration: np.ndarray        # [T, 3]
-    zmp: np.ndarray                     # [T, 3] on y = 0
-    kinetic: np.ndarray                 # [T] J
-    potential: np.ndarray               # [T] J
-    contact_points: np.ndarray          # [T, K, 3] foot contact points of the contact model
-    contact_loaded: np.ndarray          # [T, K] bool, point carries > 10 N of inferred normal force
+    motion: Motion  # filtered coordinates in model order (couplers applied)
+    velocities: np.ndarray  # [T, n_q] their time derivatives (the ones the torques used)
+    torques: np.ndarray  # [T, n_q] generalized forces with the loads used
+    torques_source: str  # "measured" or "inferred"
+    inferred: GroundReaction  # per foot, from kinematics only
+    measured: GroundReaction | None  # per foot, from the plates (assigned to feet), on the motion's frames
+    root_residual: np.ndarray  # [T, 6] root generalized force the inferred contact could not supply
+    com: np.ndarray  # [T, 3]
+    com_velocity: np.ndarray  # [T, 3]
+    com_acceleration: np.ndarray  # [T, 3]
+    zmp: np.ndarray  # [T, 3] on y = 0
+    kinetic: np.ndarray  # [T] J
+    potential: np.ndarray  # [T] J
+    contact_points: np.ndarray  # [T, K, 3] foot contact points of the contact model
+    contact_loaded: np.ndarray  # [T, K] bool, point carries > 10 N of inferred normal force
     model: BodyModel
 
     @property
@@ -66,8 +66,11 @@ def model_motion(motion: Motion, model: BodyModel) -> Motion:
     """The motion's coordinates in model order; coupled coordinates the file lacks are computed from their
     coupler, other absent coordinates are an error (naming them)."""
     dependent = {model.coordinate_names[c.dependent] for c in model.couplers}
-    missing = [n for n in model.coordinate_names if n not in motion.names and n not in dependent
-               and not bool(model.locked[model.coordinate_index(n)])]
+    missing = [
+        n
+        for n in model.coordinate_names
+        if n not in motion.names and n not in dependent and not bool(model.locked[model.coordinate_index(n)])
+    ]
     if missing:
         raise ModelError(f"the motion lacks model coordinates: {', '.join(missing)}")
     selected = motion.select(model.coordinate_names)
@@ -95,8 +98,9 @@ def unwrapped(motion: Motion, model: BodyModel) -> Motion:
     return motion.with_values(values)
 
 
-def _nearest_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float
-                  ) -> tuple[GroundReaction, np.ndarray, np.ndarray]:
+def _nearest_feet(
+    forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float
+) -> tuple[GroundReaction, np.ndarray, np.ndarray]:
     """The plates on the motion's frames, and per frame and channel [T, P] whether the plate is loaded (vertical
     force above ``threshold`` N with a defined centre of pressure) and whether the right foot's contact points are
     nearer its centre of pressure than the left's."""
@@ -113,8 +117,9 @@ def _nearest_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, tim
     return on_frames, loaded, nearest_right
 
 
-def plate_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
-               threshold: float = 20.0) -> dict[str, str]:
+def plate_feet(
+    forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float = 20.0
+) -> dict[str, str]:
     """The foot body (``calcn_r``/``calcn_l``) each plate channel carries: the foot whose contact points are
     nearest the plate's centre of pressure on most of the frames where it bears more than ``threshold`` N (the
     usual stance threshold); channels never loaded so are left out.
@@ -131,8 +136,9 @@ def plate_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times:
     return out
 
 
-def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray,
-                   threshold: float = 1.0) -> GroundReaction:
+def assign_to_feet(
+    forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float = 1.0
+) -> GroundReaction:
     """Per-foot loads from plate channels: at every frame each loaded plate goes to the foot whose contact
     points are nearest its centre of pressure (DESIGN.md: plates to feet, per contact, automatically).
 
@@ -156,8 +162,7 @@ def assign_to_feet(forces: GroundReaction, model: BodyModel, q: torch.Tensor, ti
     with np.errstate(invalid="ignore", divide="ignore"):
         cop = np.where(np.abs(vertical) > threshold, weighted_cop / vertical, np.nan)
     bodies = tuple(f"calcn_{side}" for side in ("r", "l"))
-    return GroundReaction(times=times, names=("r", "l"), force=out_force, cop=cop, moment=out_moment,
-                          bodies=bodies)
+    return GroundReaction(times=times, names=("r", "l"), force=out_force, cop=cop, moment=out_moment, bodies=bodies)
 
 
 def loads_on_frames(forces: GroundReaction, times: np.ndarray) -> GroundReaction:
@@ -165,26 +170,47 @@ def loads_on_frames(forces: GroundReaction, times: np.ndarray) -> GroundReaction
     outside the recording."""
     same_clock = forces.n_frames == len(times) and np.allclose(forces.times, times)
     sampled = forces if same_clock else forces.at(times)
-    return GroundReaction(times=times, names=sampled.names, force=np.nan_to_num(sampled.force), cop=sampled.cop,
-                          moment=np.nan_to_num(sampled.moment), bodies=sampled.bodies)
+    return GroundReaction(
+        times=times,
+        names=sampled.names,
+        force=np.nan_to_num(sampled.force),
+        cop=sampled.cop,
+        moment=np.nan_to_num(sampled.moment),
+        bodies=sampled.bodies,
+    )
 
 
 def _loads(forces: GroundReaction, dtype: torch.dtype) -> list[ExternalLoad]:
-    return [ExternalLoad(forces.bodies[j] or f"calcn_{forces.names[j]}",
-                         torch.tensor(forces.force[:, j], dtype=dtype),
-                         torch.tensor(np.nan_to_num(forces.cop[:, j]), dtype=dtype),
-                         torch.tensor(np.nan_to_num(forces.moment[:, j]), dtype=dtype))
-            for j in range(forces.n_channels)]
+    return [
+        ExternalLoad(
+            forces.bodies[j] or f"calcn_{forces.names[j]}",
+            torch.tensor(forces.force[:, j], dtype=dtype),
+            torch.tensor(np.nan_to_num(forces.cop[:, j]), dtype=dtype),
+            torch.tensor(np.nan_to_num(forces.moment[:, j]), dtype=dtype),
+        )
+        for j in range(forces.n_channels)
+    ]
 
 
 def _as_ground_reaction(inferred: InferredForces, times: np.ndarray) -> GroundReaction:
-    return GroundReaction(times=times, names=("r", "l"), force=inferred.foot_force.numpy(),
-                          cop=inferred.foot_cop.numpy(), moment=inferred.foot_moment.numpy(),
-                          bodies=("calcn_r", "calcn_l"))
+    return GroundReaction(
+        times=times,
+        names=("r", "l"),
+        force=inferred.foot_force.numpy(),
+        cop=inferred.foot_cop.numpy(),
+        moment=inferred.foot_moment.numpy(),
+        bodies=("calcn_r", "calcn_l"),
+    )
 
 
-def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = None, *, cutoff_hz: float = 6.0,
-            contact: ContactSettings = ContactSettings()) -> Analysis:
+def analyze(
+    motion: Motion,
+    model: BodyModel,
+    forces: GroundReaction | None = None,
+    *,
+    cutoff_hz: float = 6.0,
+    contact: ContactSettings = ContactSettings(),
+) -> Analysis:
     """Torques, GRF (inferred always; measured plates assigned to feet when given, or applied to the bodies they
     name when every channel has one), COM, ZMP and energy."""
     coordinates = unwrapped(model_motion(motion, model), model)
@@ -192,14 +218,16 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
         coordinates, qd_np, qdd_np = coordinates.smoothed(cutoff_hz)
     else:
         qd_np, qdd_np = coordinates.derivatives()
-    q, qd, qdd = (torch.tensor(np.ascontiguousarray(a), dtype=model.dtype)
-                  for a in (coordinates.values, qd_np, qdd_np))
+    q, qd, qdd = (torch.tensor(np.ascontiguousarray(a), dtype=model.dtype) for a in (coordinates.values, qd_np, qdd_np))
     inferred = infer_ground_reaction(model, q, qd, qdd, contact)
     measured = None
     with torch.no_grad():
         if forces is not None:
-            measured = (loads_on_frames(forces, coordinates.times) if all(forces.bodies)
-                        else assign_to_feet(forces, model, q, coordinates.times))
+            measured = (
+                loads_on_frames(forces, coordinates.times)
+                if all(forces.bodies)
+                else assign_to_feet(forces, model, q, coordinates.times)
+            )
             torques = inverse_dynamics(model, q, qd, qdd, _loads(measured, model.dtype))
         else:
             torques = inferred.torques
@@ -208,30 +236,44 @@ def analyze(motion: Motion, model: BodyModel, forces: GroundReaction | None = No
         zmp = zero_moment_point(model, q, qd, qdd, bodies=bodies)
         kinetic, potential = mechanical_energy(model, q, qd)
     return Analysis(
-        motion=coordinates, velocities=np.asarray(qd_np), torques=torques.numpy(), torques_source="measured" if forces is not None else "inferred",
-        inferred=_as_ground_reaction(inferred, coordinates.times), measured=measured,
-        root_residual=inferred.root_residual.numpy(), com=com.position.numpy(), com_velocity=com.velocity.numpy(),
-        com_acceleration=com.acceleration.numpy(), zmp=zmp.numpy(), kinetic=kinetic.numpy(),
-        potential=potential.numpy(), contact_points=inferred.point_positions.numpy(),
-        contact_loaded=(inferred.point_forces[..., 1] > 10.0).numpy(), model=model)
+        motion=coordinates,
+        velocities=np.asarray(qd_np),
+        torques=torques.numpy(),
+        torques_source="measured" if forces is not None else "inferred",
+        inferred=_as_ground_reaction(inferred, coordinates.times),
+        measured=measured,
+        root_residual=inferred.root_residual.numpy(),
+        com=com.position.numpy(),
+        com_velocity=com.velocity.numpy(),
+        com_acceleration=com.acceleration.numpy(),
+        zmp=zmp.numpy(),
+        kinetic=kinetic.numpy(),
+        potential=potential.numpy(),
+        contact_points=inferred.point_positions.numpy(),
+        contact_loaded=(inferred.point_forces[..., 1] > 10.0).numpy(),
+        model=model,
+    )
 
 
 def torque_labels(model: BodyModel) -> list[str]:
     """OpenSim's inverse-dynamics column names: ``<coordinate>_moment`` or ``<coordinate>_force``."""
-    return [f"{name}_{'force' if kind == 'translational' else 'moment'}"
-            for name, kind in zip(model.coordinate_names, model.motion_types)]
+    return [
+        f"{name}_{'force' if kind == 'translational' else 'moment'}"
+        for name, kind in zip(model.coordinate_names, model.motion_types)
+    ]
 
 
 def vertical_agreement(predicted: np.ndarray, measured: np.ndarray, body_weight: float) -> dict[str, float]:
     """R² and RMSE (in body weights) of a predicted vertical force against a measured one."""
     residual = predicted - measured
     spread = np.sum((measured - measured.mean()) ** 2)
-    return {"r2": float(1.0 - np.sum(residual ** 2) / spread) if spread > 0 else float("nan"),
-            "rmse_bw": float(np.sqrt(np.mean(residual ** 2)) / body_weight)}
+    return {
+        "r2": float(1.0 - np.sum(residual**2) / spread) if spread > 0 else float("nan"),
+        "rmse_bw": float(np.sqrt(np.mean(residual**2)) / body_weight),
+    }
 
 
-def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 0.2, hold: float = 0.1
-                 ) -> np.ndarray:
+def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 0.2, hold: float = 0.1) -> np.ndarray:
     """[T] bool: frames where every foot the kinematics put on a support is loaded on the plates.
 
     A foot is on the floor when one of its contact points is within ``rest_tolerance`` of its resting height with
@@ -265,8 +307,10 @@ def plate_frames(result: Analysis, rest_tolerance: float = 0.02, speed: float = 
             for k in own:
                 levels = np.sort(height[raised, k])
                 above = np.searchsorted(levels, height[:, k])
-                distance = np.minimum(np.abs(height[:, k] - levels[np.clip(above - 1, 0, len(levels) - 1)]),
-                                      np.abs(height[:, k] - levels[np.clip(above, 0, len(levels) - 1)]))
+                distance = np.minimum(
+                    np.abs(height[:, k] - levels[np.clip(above - 1, 0, len(levels) - 1)]),
+                    np.abs(height[:, k] - levels[np.clip(above, 0, len(levels) - 1)]),
+                )
                 at_level |= (distance < rest_tolerance) & slow[:, k]
             stretches, _ = label(at_level | raised)
             on_support |= np.isin(stretches, stretches[raised])
@@ -278,8 +322,7 @@ def summary(result: Analysis) -> dict:
     """JSON-able figures of an analysis."""
     weight = result.body_weight
     inferred_vertical = result.inferred.force[..., 1].sum(1)
-    peaks = {name: float(np.max(np.abs(result.torques[:, i])))
-             for i, name in enumerate(torque_labels(result.model))}
+    peaks = {name: float(np.max(np.abs(result.torques[:, i]))) for i, name in enumerate(torque_labels(result.model))}
     out = {
         "frames": result.motion.n_frames,
         "rate_hz": result.motion.rate,
@@ -287,8 +330,12 @@ def summary(result: Analysis) -> dict:
         "body_mass_kg": float(result.model.total_mass),
         "torques_from": result.torques_source,
         "peak_inferred_vertical_grf_bw": float(inferred_vertical.max() / weight),
-        "mean_abs_root_residual": dict(zip(["moment_1", "moment_2", "moment_3", "force_1", "force_2", "force_3"],
-                                           np.abs(result.root_residual).mean(0).round(3).tolist())),
+        "mean_abs_root_residual": dict(
+            zip(
+                ["moment_1", "moment_2", "moment_3", "force_1", "force_2", "force_3"],
+                np.abs(result.root_residual).mean(0).round(3).tolist(),
+            )
+        ),
         "peak_abs_generalized_force": dict(sorted(peaks.items(), key=lambda kv: -kv[1])[:10]),
         "com_speed_mean_m_s": float(np.linalg.norm(result.com_velocity[:, [0, 2]], axis=1).mean()),
         "mechanical_energy_std_j": float(np.std(result.kinetic + result.potential)),
@@ -299,15 +346,19 @@ def summary(result: Analysis) -> dict:
         measured_vertical = result.measured.force[..., 1].sum(1)
         com_estimate = float(result.model.total_mass) * (STANDARD_GRAVITY + result.com_acceleration[:, 1])
         out["grf_comparison_frames"] = {"used": int(keep.sum()), "left_out_foot_off_plates": int((~keep).sum())}
-        out["inferred_vs_measured_vertical"] = vertical_agreement(inferred_vertical[keep], measured_vertical[keep],
-                                                                  weight)
-        out["com_baseline_vs_measured_vertical"] = vertical_agreement(com_estimate[keep], measured_vertical[keep],
-                                                                      weight)
+        out["inferred_vs_measured_vertical"] = vertical_agreement(
+            inferred_vertical[keep], measured_vertical[keep], weight
+        )
+        out["com_baseline_vs_measured_vertical"] = vertical_agreement(
+            com_estimate[keep], measured_vertical[keep], weight
+        )
         out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
         distance = zmp_to_plate_cop(result, keep)
-        out["zmp_vs_plate_cop"] = {"frames": int(distance.size),
-                                   "rmse_m": float(np.sqrt(np.mean(distance ** 2))) if distance.size else None,
-                                   "median_m": float(np.median(distance)) if distance.size else None}
+        out["zmp_vs_plate_cop"] = {
+            "frames": int(distance.size),
+            "rmse_m": float(np.sqrt(np.mean(distance**2))) if distance.size else None,
+            "median_m": float(np.median(distance)) if distance.size else None,
+        }
     return out
 
 
@@ -340,8 +391,9 @@ def zmp_inside_support(result: Analysis) -> float:
 
     points = torch.tensor(result.contact_points)
     points = torch.cat([points[..., :1], torch.zeros_like(points[..., 1:2]), points[..., 2:]], dim=-1)
-    share = share_inside_support(torch.tensor(result.zmp), points,
-                                 contact=torch.tensor(result.contact_loaded), margin=0.01)
+    share = share_inside_support(
+        torch.tensor(result.zmp), points, contact=torch.tensor(result.contact_loaded), margin=0.01
+    )
     return float(share)
 
 
@@ -357,12 +409,13 @@ def support_polygons(points: np.ndarray, loaded: np.ndarray) -> np.ndarray:
             order = ConvexHull(ground).vertices if len(ground) >= 3 else np.arange(len(ground))
         except QhullError:  # collinear points: keep them as a segment
             order = np.argsort(ground[:, 0])
-        out[frame, :len(order)] = np.column_stack([ground[order, 0], np.zeros(len(order)), ground[order, 1]])
+        out[frame, : len(order)] = np.column_stack([ground[order, 0], np.zeros(len(order)), ground[order, 1]])
     return out
 
 
-def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_inferred.mot",
-                   extra_summary: dict | None = None) -> dict[str, Path]:
+def write_analysis(
+    result: Analysis, out: str | Path, *, grf_file: str = "grf_inferred.mot", extra_summary: dict | None = None
+) -> dict[str, Path]:
     """Write the analysis files into ``out`` (the inferred ground reaction as ``grf_file``, its ExternalLoads XML
     beside it; ``extra_summary`` sections added to summary.json); returns them by role."""
     out = Path(out)
@@ -370,23 +423,44 @@ def write_analysis(result: Analysis, out: str | Path, *, grf_file: str = "grf_in
     times = result.motion.times
     files = {
         "coordinates": write_motion(out / "coordinates_filtered.mot", result.motion),
-        "torques": write_storage(out / "torques.sto", torque_labels(result.model), times, result.torques,
-                                 name=f"Inverse Dynamics ({result.torques_source} ground reaction)"),
+        "torques": write_storage(
+            out / "torques.sto",
+            torque_labels(result.model),
+            times,
+            result.torques,
+            name=f"Inverse Dynamics ({result.torques_source} ground reaction)",
+        ),
         "grf_inferred": write_ground_reaction(out / grf_file, result.inferred, name=Path(grf_file).stem),
     }
-    files["grf_inferred_loads"] = write_external_loads_xml(out / f"{Path(grf_file).stem}_loads.xml", result.inferred,
-                                                           grf_file)
+    files["grf_inferred_loads"] = write_external_loads_xml(
+        out / f"{Path(grf_file).stem}_loads.xml", result.inferred, grf_file
+    )
     if result.measured is not None:
-        files["grf_measured"] = write_ground_reaction(out / "grf_measured_by_foot.mot", result.measured,
-                                                      name="grf_measured_by_foot")
-        files["grf_measured_loads"] = write_external_loads_xml(out / "grf_measured_loads.xml", result.measured,
-                                                               "grf_measured_by_foot.mot")
+        files["grf_measured"] = write_ground_reaction(
+            out / "grf_measured_by_foot.mot", result.measured, name="grf_measured_by_foot"
+        )
+        files["grf_measured_loads"] = write_external_loads_xml(
+            out / "grf_measured_loads.xml", result.measured, "grf_measured_by_foot.mot"
+        )
     support = support_polygons(result.contact_points, result.contact_loaded)
-    balance = np.column_stack([result.com, result.com_velocity, result.com_acceleration, result.zmp,
-                               result.kinetic, result.potential, support.reshape(len(times), -1)])
-    labels = ([f"com_{a}" for a in "xyz"] + [f"com_{k}_{a}" for k in ("vel", "acc") for a in "xyz"]
-              + [f"zmp_{a}" for a in "xyz"] + ["kinetic_energy", "potential_energy"]
-              + [f"support_{k}_{a}" for k in range(support.shape[1]) for a in "xyz"])
+    balance = np.column_stack(
+        [
+            result.com,
+            result.com_velocity,
+            result.com_acceleration,
+            result.zmp,
+            result.kinetic,
+            result.potential,
+            support.reshape(len(times), -1),
+        ]
+    )
+    labels = (
+        [f"com_{a}" for a in "xyz"]
+        + [f"com_{k}_{a}" for k in ("vel", "acc") for a in "xyz"]
+        + [f"zmp_{a}" for a in "xyz"]
+        + ["kinetic_energy", "potential_energy"]
+        + [f"support_{k}_{a}" for k in range(support.shape[1]) for a in "xyz"]
+    )
     files["com_zmp"] = write_storage(out / "com_zmp.sto", labels, times, balance, name="COM and ZMP")
     with atomic_write(out / "summary.json") as handle:
         json.dump({**summary(result), **(extra_summary or {})}, handle, indent=1)

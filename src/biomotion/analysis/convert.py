@@ -33,7 +33,6 @@ def _on_model(motion: Motion, model_path: Path, source: Path, suffix: str) -> An
     from biomotion.analysis.chain import model_motion
     from biomotion.body.kinematics import marker_positions
     from biomotion.body.model import BodyModel
-
     from biomotion.errors import ModelError
 
     model = BodyModel.from_osim(model_path)
@@ -64,8 +63,9 @@ def convert(source: str | Path, target: str | Path, *, model: str | Path | None 
     suffix = suffix_of(target)
     if model is not None:
         if not isinstance(data, Motion):
-            raise ConfigError(f"{source}: --model is for coordinates (.mot, .sto, .csv); this file holds "
-                              f"{type(data).__name__}")
+            raise ConfigError(
+                f"{source}: --model is for coordinates (.mot, .sto, .csv); this file holds {type(data).__name__}"
+            )
         data = _on_model(data, Path(model), source, suffix)
     if suffix in (".bvh", ".bvh.gz"):
         if isinstance(data, Motion):

@@ -72,12 +72,22 @@ class TrialAnalysis:
         return self.dynamics.model
 
 
-def analyze_trial(trial: Trial, *, model: BodyModel, forces: GroundReaction | None = None,
-                  setup: IKSetup | None = None, marker_weights: Mapping[str, float] | None = None,
-                  marker_filter_hz: float | None = None, skeleton: bool | None = None, joint_map: JointMap | None = None,
-                  muscles: MusclePaths | str | Path | None = None, muscle_model: str | Path | None = None,
-                  forces_trim: bool = False, cutoff_hz: float = 6.0,
-                  contact: ContactSettings = ContactSettings()) -> TrialAnalysis:
+def analyze_trial(
+    trial: Trial,
+    *,
+    model: BodyModel,
+    forces: GroundReaction | None = None,
+    setup: IKSetup | None = None,
+    marker_weights: Mapping[str, float] | None = None,
+    marker_filter_hz: float | None = None,
+    skeleton: bool | None = None,
+    joint_map: JointMap | None = None,
+    muscles: MusclePaths | str | Path | None = None,
+    muscle_model: str | Path | None = None,
+    forces_trim: bool = False,
+    cutoff_hz: float = 6.0,
+    contact: ContactSettings = ContactSettings(),
+) -> TrialAnalysis:
     """The lab chain on ``trial`` (see the module docstring); no file is read or written.
 
     Args:
@@ -122,8 +132,14 @@ def analyze_trial(trial: Trial, *, model: BodyModel, forces: GroundReaction | No
     return TrialAnalysis(dynamics, fit, activations)
 
 
-def forces_cover(trial: Trial, forces: GroundReaction, *, setup: IKSetup | None = None, trim: bool = False,
-                 source: str | Path | None = None) -> Trial:
+def forces_cover(
+    trial: Trial,
+    forces: GroundReaction,
+    *,
+    setup: IKSetup | None = None,
+    trim: bool = False,
+    source: str | Path | None = None,
+) -> Trial:
     """``trial`` if ``forces`` cover its time span (within half a force sample; markers: the ``setup``'s time range),
     else a `DataFormatError` naming both spans (and ``source``, the force file), or with ``trim`` the trial cut to
     the span the forces cover (a `BiomotionWarning` says so)."""
@@ -141,8 +157,11 @@ def forces_cover(trial: Trial, forces: GroundReaction, *, setup: IKSetup | None 
         return trial
     where = f"the ground reaction covers {start:.3f}-{stop:.3f} s but the motion runs {times[0]:.3f}-{times[-1]:.3f} s"
     if not trim:
-        raise DataFormatError(source, f"{where} (frames without force would get none): give forces covering the motion, "
-                              "or trim the motion to them (forces_trim=True, `--forces-trim`)")
+        raise DataFormatError(
+            source,
+            f"{where} (frames without force would get none): give forces covering the motion, "
+            "or trim the motion to them (forces_trim=True, `--forces-trim`)",
+        )
     low, high = max(float(times[0]), start), min(float(times[-1]), stop)
     if low > high:
         raise DataFormatError(source, f"{where}: they do not overlap")

@@ -72,13 +72,17 @@ class CenterOfMass:
     acceleration: torch.Tensor
 
 
-def center_of_mass_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
-                          bodies: BodyMotion | None = None) -> CenterOfMass:
+def center_of_mass_motion(
+    model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor, bodies: BodyMotion | None = None
+) -> CenterOfMass:
     """Mass-weighted mean of the body COM kinematics (Winter 2009, ch. 4)."""
     bodies = body_motion(model, q, qd, qdd) if bodies is None else bodies
     weights = (model.masses / model.total_mass)[:, None]
-    return CenterOfMass((weights * bodies.com).sum(-2), (weights * bodies.com_velocity).sum(-2),
-                        (weights * bodies.com_acceleration).sum(-2))
+    return CenterOfMass(
+        (weights * bodies.com).sum(-2),
+        (weights * bodies.com_velocity).sum(-2),
+        (weights * bodies.com_acceleration).sum(-2),
+    )
 
 
 def _world_inertia(model: BodyModel, rotations: torch.Tensor) -> torch.Tensor:
@@ -93,9 +97,15 @@ lift-off): the ZMP, a horizontal moment over that small vertical force, then lie
 same load of the plates (`biomotion.analysis.chain.zmp_to_plate_cop`)."""
 
 
-def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
-                      ground_height: float = 0.0, bodies: BodyMotion | None = None,
-                      min_load_bw: float = MIN_VERTICAL_LOAD_BW) -> torch.Tensor:
+def zero_moment_point(
+    model: BodyModel,
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    qdd: torch.Tensor,
+    ground_height: float = 0.0,
+    bodies: BodyMotion | None = None,
+    min_load_bw: float = MIN_VERTICAL_LOAD_BW,
+) -> torch.Tensor:
     """[..., 3] zero-moment point on the horizontal ground plane y = ``ground_height`` (y up).
 
     The point where the gravito-inertial wrench of all bodies has no horizontal moment (Vukobratović & Borovac
@@ -115,8 +125,9 @@ def zero_moment_point(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: 
     return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1)
 
 
-def loaded_zero_moment_point(model: BodyModel, bodies: BodyMotion, ground_height: float = 0.0,
-                             min_load_bw: float = MIN_VERTICAL_LOAD_BW) -> tuple[torch.Tensor, torch.Tensor]:
+def loaded_zero_moment_point(
+    model: BodyModel, bodies: BodyMotion, ground_height: float = 0.0, min_load_bw: float = MIN_VERTICAL_LOAD_BW
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(ZMP [..., 3], loaded [...] bool): `zero_moment_point` of given body motion, for a loss. Where the ground
     carries less than ``min_load_bw`` body weights the moment is divided by that load instead, so the result and
     its gradient stay finite everywhere (NaN there would poison the gradients of every frame); ``loaded`` marks the
@@ -131,8 +142,7 @@ def loaded_zero_moment_point(model: BodyModel, bodies: BodyMotion, ground_height
     return torch.stack([x, torch.full_like(x, ground_height), z], dim=-1), loaded
 
 
-def _ground_wrench(model: BodyModel, bodies: BodyMotion,
-                   ground_height: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _ground_wrench(model: BodyModel, bodies: BodyMotion, ground_height: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(force, moment about (0, ground_height, 0)) [..., 3] the ground must apply for the bodies' motion: minus the
     gravito-inertial wrench Σ mᵢ(g − aᵢ), Σ rᵢ × mᵢ(g − aᵢ) − Σ Ḣᵢ (see `zero_moment_point`)."""
     masses = model.masses[:, None].to(bodies.com.dtype)
@@ -141,7 +151,8 @@ def _ground_wrench(model: BodyModel, bodies: BodyMotion,
     inertia = _world_inertia(model, bodies.rotations).to(bodies.com.dtype)
     omega = bodies.angular_velocity
     spin = (inertia @ bodies.angular_acceleration[..., None]).squeeze(-1) + torch.cross(
-        omega, (inertia @ omega[..., None]).squeeze(-1), dim=-1)
+        omega, (inertia @ omega[..., None]).squeeze(-1), dim=-1
+    )
     arm = bodies.com - bodies.com.new_tensor([0.0, ground_height, 0.0])
     force = force_each.sum(-2)
     moment = torch.cross(arm, force_each, dim=-1).sum(-2) - spin.sum(-2)
@@ -157,7 +168,7 @@ def mechanical_energy(model: BodyModel, q: torch.Tensor, qd: torch.Tensor) -> tu
     inertia = _world_inertia(model, bodies.rotations)
     omega = bodies.angular_velocity
     rotational = 0.5 * (omega * (inertia @ omega[..., None]).squeeze(-1)).sum(-1)
-    translational = 0.5 * model.masses * (bodies.com_velocity ** 2).sum(-1)
+    translational = 0.5 * model.masses * (bodies.com_velocity**2).sum(-1)
     kinetic = (translational + rotational).sum(-1)
     potential = -(model.masses[:, None] * model.gravity.to(q.dtype) * bodies.com).sum((-1, -2))
     return kinetic, potential

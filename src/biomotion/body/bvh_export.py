@@ -35,9 +35,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from biomotion.body.canonical import DEFAULT_RATE
 from biomotion.body.kinematics import apply_couplers, forward_kinematics
 from biomotion.body.model import BodyModel
-from biomotion.body.canonical import DEFAULT_RATE
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.bvh import BVHMotion, Skeleton
 from biomotion.motion import Motion
@@ -48,8 +48,14 @@ POSITION_CHANNELS: tuple[str, ...] = ("Xposition", "Yposition", "Zposition")
 _GIMBAL = 1e-9  # |cos(x)| below this: z and y turn about the same axis; y is set to 0
 
 
-def motion_to_bvh(model: BodyModel, motion: Motion, *, couplers: bool = True, joint_translations: bool = True,
-                  frame_time: float | None = None) -> BVHMotion:
+def motion_to_bvh(
+    model: BodyModel,
+    motion: Motion,
+    *,
+    couplers: bool = True,
+    joint_translations: bool = True,
+    frame_time: float | None = None,
+) -> BVHMotion:
     """The BVH clip of ``motion`` on ``model`` (see the module docstring for the skeleton and channels).
 
     Args:
@@ -77,21 +83,23 @@ def motion_to_bvh(model: BodyModel, motion: Motion, *, couplers: bool = True, jo
     rest = forward_kinematics(model64, zero)
     offsets = _in_parent(rest.rotations[index], rest.positions[index], rest.rotations, rest.positions, parent_body)
 
-    poses = forward_kinematics(model64, q)                                                    # [T, B, ...]
+    poses = forward_kinematics(model64, q)  # [T, B, ...]
     rotations, positions = poses.rotations[:, index], poses.positions[:, index]
     relative = _in_parent(rotations, positions, poses.rotations, poses.positions, parent_body, rotate_too=True)
     local_rotation, local_position = relative
-    angles = np.degrees(zxy_euler(local_rotation).numpy())                                   # [T, J, 3]
+    angles = np.degrees(zxy_euler(local_rotation).numpy())  # [T, J, 3]
     angles = np.unwrap(angles, period=360.0, axis=0)
     local_position = local_position.numpy()
 
     translating = [model64.parent[b] < 0 or (joint_translations and _translates(model64, b)) for b in order]
-    channels = tuple((*POSITION_CHANNELS, *ROTATION_CHANNELS) if moves else ROTATION_CHANNELS
-                     for moves in translating)
-    columns = [np.concatenate([local_position[:, j], angles[:, j]], axis=1) if moves else angles[:, j]
-               for j, moves in enumerate(translating)]
-    skeleton = Skeleton(names=tuple(model64.body_names[b] for b in order), parents=parents,
-                        offsets=offsets.numpy(), channels=channels)
+    channels = tuple((*POSITION_CHANNELS, *ROTATION_CHANNELS) if moves else ROTATION_CHANNELS for moves in translating)
+    columns = [
+        np.concatenate([local_position[:, j], angles[:, j]], axis=1) if moves else angles[:, j]
+        for j, moves in enumerate(translating)
+    ]
+    skeleton = Skeleton(
+        names=tuple(model64.body_names[b] for b in order), parents=parents, offsets=offsets.numpy(), channels=channels
+    )
     return BVHMotion(skeleton, np.concatenate(columns, axis=1), _frame_time(motion, frame_time), units="m")
 
 
@@ -115,14 +123,20 @@ def _coordinates(model: BodyModel, motion: Motion) -> torch.Tensor:
     """[T, n_q] float64 model coordinates from the motion's columns (all must be present and finite)."""
     missing = [name for name in model.coordinate_names if name not in motion.names]
     if missing:
-        raise ModelError(f"motion lacks {len(missing)} coordinate(s) of model {model.name!r}: "
-                         f"{', '.join(missing)}; select them (Motion.select fills absent ones) before export")
+        raise ModelError(
+            f"motion lacks {len(missing)} coordinate(s) of model {model.name!r}: "
+            f"{', '.join(missing)}; select them (Motion.select fills absent ones) before export"
+        )
     values = motion.select(model.coordinate_names).values
     bad = ~np.isfinite(values)
     if bad.any():
         frame, column = np.argwhere(bad)[0]
-        raise DataFormatError(None, f"coordinate {model.coordinate_names[column]!r} is {values[frame, column]}; "
-                                    f"BVH needs finite values in every frame", frame=int(frame))
+        raise DataFormatError(
+            None,
+            f"coordinate {model.coordinate_names[column]!r} is {values[frame, column]}; "
+            f"BVH needs finite values in every frame",
+            frame=int(frame),
+        )
     return torch.as_tensor(values, dtype=torch.float64)
 
 
@@ -133,8 +147,11 @@ def _frame_time(motion: Motion, frame_time: float | None) -> float:
         return 1.0 / DEFAULT_RATE
     steps = np.diff(motion.times)
     if np.ptp(steps) > 1e-6 * float(np.mean(steps)) + 1e-9:
-        raise DataFormatError(None, f"motion is not uniformly sampled (steps {steps.min():.6g} to "
-                                    f"{steps.max():.6g} s); resample it (Motion.resample) before BVH export")
+        raise DataFormatError(
+            None,
+            f"motion is not uniformly sampled (steps {steps.min():.6g} to "
+            f"{steps.max():.6g} s); resample it (Motion.resample) before BVH export",
+        )
     return float(np.mean(steps))
 
 
@@ -143,8 +160,10 @@ def _depth_first(model: BodyModel) -> tuple[list[int], tuple[int, ...]]:
     roots = [b for b in range(model.n_bodies) if model.parent[b] < 0]
     if len(roots) != 1:
         names = ", ".join(model.body_names[b] for b in roots)
-        raise ModelError(f"model {model.name!r} has {len(roots)} bodies jointed to ground ({names}); a BVH "
-                         f"skeleton needs exactly one root")
+        raise ModelError(
+            f"model {model.name!r} has {len(roots)} bodies jointed to ground ({names}); a BVH "
+            f"skeleton needs exactly one root"
+        )
     children: list[list[int]] = [[] for _ in range(model.n_bodies)]
     for b, parent in enumerate(model.parent):
         if parent >= 0:
@@ -159,19 +178,26 @@ def _depth_first(model: BodyModel) -> tuple[list[int], tuple[int, ...]]:
     return order, tuple(-1 if model.parent[b] < 0 else place[model.parent[b]] for b in order)
 
 
-def _in_parent(rotations: torch.Tensor, positions: torch.Tensor, all_rotations: torch.Tensor,
-               all_positions: torch.Tensor, parent_body: torch.Tensor, rotate_too: bool = False):
+def _in_parent(
+    rotations: torch.Tensor,
+    positions: torch.Tensor,
+    all_rotations: torch.Tensor,
+    all_positions: torch.Tensor,
+    parent_body: torch.Tensor,
+    rotate_too: bool = False,
+):
     """Pose of bodies ([..., J, 3, 3], [..., J, 3]) in their parent body's frame (ground for the root).
 
     ``all_*`` are the poses of every body (BodySet order) to look parents up in; returns the positions, and
     with ``rotate_too`` (relative rotations, positions).
     """
-    has_parent = (parent_body >= 0)
+    has_parent = parent_body >= 0
     index = parent_body.clamp(min=0)
     eye = torch.eye(3, dtype=rotations.dtype)
     parent_rotation = torch.where(has_parent[:, None, None], all_rotations[..., index, :, :], eye)
-    parent_position = torch.where(has_parent[:, None], all_positions[..., index, :],
-                                  torch.zeros(3, dtype=positions.dtype))
+    parent_position = torch.where(
+        has_parent[:, None], all_positions[..., index, :], torch.zeros(3, dtype=positions.dtype)
+    )
     local_position = (parent_rotation.transpose(-1, -2) @ (positions - parent_position)[..., None])[..., 0]
     if not rotate_too:
         return local_position

@@ -4,9 +4,9 @@ The pelvis (the free-floating root) has no actuator, so whatever generalized for
 follow the motion must come from the ground. `infer_ground_reaction` finds, for every frame at once, non-negative
 friction-bounded forces at a few points under each foot that best produce that root force, while a soft contact
 prior — PhysPT's gate s = σ(−d/δd)·σ(−|v|/δv) on the point's height d and speed |v| (Eq. 4; here the
-vertical speed, see `ContactSettings`) — makes forces at points that are high or moving expensive. The joint torques then follow by inverse dynamics with those loads
-(the Euler-Lagrange equations, PhysPT Eq. 2), and the part of the root force left unexplained is reported as
-the per-frame residual.
+vertical speed, see `ContactSettings`) — makes forces at points that are high or moving expensive. The joint torques
+then follow by inverse dynamics with those loads (the Euler-Lagrange equations, PhysPT Eq. 2), and the part of the root
+force left unexplained is reported as the per-frame residual.
 
 Rules (documented in README; none is fitted on force-plate data):
 - contact points: 5 per foot, placed from the model's own foot geometry (heel medial/lateral, first and fifth
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, point_jacobians, points_in_ground
 from biomotion.body.model import BodyModel
@@ -82,8 +83,10 @@ def root_coordinates(model: BodyModel) -> list[int]:
     """Coordinates of the joint(s) attached to ground: the unactuated floating base."""
     roots = [c for j in model.joints if j.parent < 0 for c in j.coordinates]
     if len(roots) != 6:
-        raise ModelError(f"model {model.name!r} has {len(roots)} root coordinates; force inference needs a "
-                         "6-degree-of-freedom floating base")
+        raise ModelError(
+            f"model {model.name!r} has {len(roots)} root coordinates; force inference needs a "
+            "6-degree-of-freedom floating base"
+        )
     return roots
 
 
@@ -99,14 +102,14 @@ class ContactSettings:
     because a treadmill belt carries the stance foot horizontally.
     """
 
-    height_scale: float = 0.01      # δd (m)
-    height_offset: float = 0.02     # gate centre: 2 cm above the point's resting height
-    speed_scale: float = 0.1        # δv (m/s), on the vertical speed
-    speed_offset: float = 0.3       # gate centre: 0.3 m/s vertical speed
+    height_scale: float = 0.01  # δd (m)
+    height_offset: float = 0.02  # gate centre: 2 cm above the point's resting height
+    speed_scale: float = 0.1  # δv (m/s), on the vertical speed
+    speed_offset: float = 0.3  # gate centre: 0.3 m/s vertical speed
     friction: float = 0.8
-    prior_weight: float = 1e-3      # weight of the "not in contact" penalty (1/s − 1)·|β|² relative to the fit
-    moment_length: float = 1.0      # m: root moments are divided by this to weigh them against root forces
-    iterations: int = 50            # most Newton steps of the force solve (it stops exactly, after 5-7 on OpenCap)
+    prior_weight: float = 1e-3  # weight of the "not in contact" penalty (1/s − 1)·|β|² relative to the fit
+    moment_length: float = 1.0  # m: root moments are divided by this to weigh them against root forces
+    iterations: int = 50  # most Newton steps of the force solve (it stops exactly, after 5-7 on OpenCap)
     rest_percentile: float = 2.0
 
 
@@ -114,19 +117,20 @@ class ContactSettings:
 class InferredForces:
     """Result of `infer_ground_reaction` (all tensors batched over frames)."""
 
-    point_forces: torch.Tensor      # [T, K, 3] N, in ground
-    point_positions: torch.Tensor   # [T, K, 3] m
-    gate: torch.Tensor              # [T, K] contact prior s in (0, 1)
-    foot_force: torch.Tensor        # [T, 2, 3] N, right then left
-    foot_cop: torch.Tensor          # [T, 2, 3] m (NaN when the foot carries < 1 N)
-    foot_moment: torch.Tensor       # [T, 2, 3] N·m free moment about the CoP (vertical part)
-    torques: torch.Tensor           # [T, n_q] generalized forces with the inferred loads
-    root_residual: torch.Tensor     # [T, 6] root generalized force left unexplained (N·m, N)
+    point_forces: torch.Tensor  # [T, K, 3] N, in ground
+    point_positions: torch.Tensor  # [T, K, 3] m
+    gate: torch.Tensor  # [T, K] contact prior s in (0, 1)
+    foot_force: torch.Tensor  # [T, 2, 3] N, right then left
+    foot_cop: torch.Tensor  # [T, 2, 3] m (NaN when the foot carries < 1 N)
+    foot_moment: torch.Tensor  # [T, 2, 3] N·m free moment about the CoP (vertical part)
+    torques: torch.Tensor  # [T, n_q] generalized forces with the inferred loads
+    root_residual: torch.Tensor  # [T, 6] root generalized force left unexplained (N·m, N)
     points: FootPoints
 
 
-def _point_kinematics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, points: FootPoints,
-                      directions: list[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _point_kinematics(
+    model: BodyModel, q: torch.Tensor, qd: torch.Tensor, points: FootPoints, directions: list[int]
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Positions [T, K, 3], velocities [T, K, 3] and Jacobian columns [T, K, 3, D] for ``directions``."""
     poses = forward_kinematics(model, q)
     positions = points_in_ground(poses, points.bodies, points.offsets)
@@ -140,8 +144,9 @@ def _friction_edges(mu: float, dtype: torch.dtype) -> torch.Tensor:
     return torch.tensor([[mu, 1.0, 0.0], [-mu, 1.0, 0.0], [0.0, 1.0, mu], [0.0, 1.0, -mu]], dtype=dtype)
 
 
-def _nonnegative_least_squares(a: torch.Tensor, r: torch.Tensor, d: torch.Tensor, iterations: int,
-                               tolerance: float = 1e-9) -> torch.Tensor:
+def _nonnegative_least_squares(
+    a: torch.Tensor, r: torch.Tensor, d: torch.Tensor, iterations: int, tolerance: float = 1e-9
+) -> torch.Tensor:
     """argmin_{x ≥ 0} ½|Ax − r|² + ½Σᵢ dᵢxᵢ² for a batch of A [T, m, n], r [T, m], d [T, n] > 0 (m ≪ n).
 
     Lagrange dual (Boyd & Vandenberghe 2004, Convex Optimization, Sec. 5.2; λ = r − Ax the residual): the
@@ -166,13 +171,13 @@ def _nonnegative_least_squares(a: torch.Tensor, r: torch.Tensor, d: torch.Tensor
     # the frames still iterating ("live"): their index, A, r, 1/d, rounding floor, λ and s = Aᵀλ
     live, a_live, r_live, inv_d = torch.arange(r.shape[0]), a, r, 1.0 / d
     floor = tolerance * (1.0 + r.abs().amax(-1, keepdim=True))
-    lam, s = r, (a * r[..., None]).sum(-2)                                  # start at x = 0
+    lam, s = r, (a * r[..., None]).sum(-2)  # start at x = 0
     for _ in range(iterations):
         active = s > 0
         h = torch.baddbmm(eye, a_live * (active * inv_d)[..., None, :], a_live.transpose(-1, -2))
         target = torch.cholesky_solve(r_live[..., None], torch.linalg.cholesky_ex(h).L).squeeze(-1)
         delta = target - lam
-        c = (a_live * delta[..., None]).sum(-2)                              # Aᵀδ
+        c = (a_live * delta[..., None]).sum(-2)  # Aᵀδ
         moved = s + c
         crossing = ((active != (moved > 0)) & (torch.maximum(s.abs(), moved.abs()) * inv_d > floor)).any(-1)
         exact = ~crossing
@@ -190,7 +195,7 @@ def _nonnegative_least_squares(a: torch.Tensor, r: torch.Tensor, d: torch.Tensor
         kink = -s / c
         ahead = kink > 0
         kink, order = torch.sort(torch.where(ahead, kink, torch.inf), dim=-1)
-        enters = torch.where(ahead, torch.sign(c), 0.0)                    # +1: a term switches on, −1: off
+        enters = torch.where(ahead, torch.sign(c), 0.0)  # +1: a term switches on, −1: off
         alphas = torch.cat([alpha, alpha + (enters * ws).gather(-1, order).cumsum(-1)], -1)
         betas = torch.cat([beta, beta + (enters * wc).gather(-1, order).cumsum(-1)], -1)
         ends = torch.cat([kink, torch.full_like(alpha, torch.inf)], -1)
@@ -203,20 +208,26 @@ def _nonnegative_least_squares(a: torch.Tensor, r: torch.Tensor, d: torch.Tensor
     return (a * solution[..., None]).sum(-2).clamp(min=0.0) / d
 
 
-def infer_ground_reaction(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
-                          settings: ContactSettings = ContactSettings()) -> InferredForces:
+def infer_ground_reaction(
+    model: BodyModel,
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    qdd: torch.Tensor,
+    settings: ContactSettings = ContactSettings(),
+) -> InferredForces:
     """Ground reaction per foot and joint torques from kinematics only (q, qd, qdd [T, n_q], SI)."""
     points = foot_points(model)
     roots = root_coordinates(model)
     with torch.no_grad():
-        free = inverse_dynamics(model, q, qd, qdd)[..., roots]             # [T, 6] what the ground must supply
+        free = inverse_dynamics(model, q, qd, qdd)[..., roots]  # [T, 6] what the ground must supply
         positions, velocities, jacobian = _point_kinematics(model, q, qd, points, roots)
         rest = torch.quantile(positions[..., 1], settings.rest_percentile / 100.0, dim=0)
         height = positions[..., 1] - rest
         speed = velocities[..., 1].abs()  # vertical only: on a treadmill the stance foot moves with the belt
         gate = torch.sigmoid(-(height - settings.height_offset) / settings.height_scale) * torch.sigmoid(
-            -(speed - settings.speed_offset) / settings.speed_scale)
-        edges = _friction_edges(settings.friction, q.dtype)                # [4, 3]
+            -(speed - settings.speed_offset) / settings.speed_scale
+        )
+        edges = _friction_edges(settings.friction, q.dtype)  # [4, 3]
         # generalized root force of edge e at point k: J_kᵀ e  -> [T, 6, K*4]
         per_edge = torch.einsum("tkcd,ec->tdke", jacobian, edges)
         a = per_edge.reshape(*per_edge.shape[:2], -1)
@@ -224,22 +235,27 @@ def infer_ground_reaction(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, q
         rotational = [i for i, c in enumerate(roots) if model.motion_types[c] == "rotational"]
         scale[rotational] = 1.0 / settings.moment_length
         a_w, r_w = a * scale[:, None], free * scale
-        penalty = settings.prior_weight * (1.0 / gate.clamp(min=1e-6) - 1.0)   # [T, K]
+        penalty = settings.prior_weight * (1.0 / gate.clamp(min=1e-6) - 1.0)  # [T, K]
         # ½|A x − r|² + ½xᵀ diag(penalty per edge + 1e-9) x, x ≥ 0: N along each cone edge
-        coefficients = _nonnegative_least_squares(a_w.contiguous(), r_w, penalty.repeat_interleave(4, dim=-1)
-                                                  + 1e-9, settings.iterations)
+        coefficients = _nonnegative_least_squares(
+            a_w.contiguous(), r_w, penalty.repeat_interleave(4, dim=-1) + 1e-9, settings.iterations
+        )
         beta = coefficients.reshape(*coefficients.shape[:-1], len(points.names), 4)
         point_forces = torch.einsum("tke,ec->tkc", beta, edges)
         residual = free - (a @ coefficients[..., None]).squeeze(-1)
-        loads = [ExternalLoad(model.body_names[int(points.bodies[k])], point_forces[:, k], positions[:, k])
-                 for k in range(len(points.names))]
+        loads = [
+            ExternalLoad(model.body_names[int(points.bodies[k])], point_forces[:, k], positions[:, k])
+            for k in range(len(points.names))
+        ]
         torques = inverse_dynamics(model, q, qd, qdd, loads)
-    return InferredForces(point_forces, positions, gate, *_per_foot(point_forces, positions, points), torques,
-                          residual, points)
+    return InferredForces(
+        point_forces, positions, gate, *_per_foot(point_forces, positions, points), torques, residual, points
+    )
 
 
-def _per_foot(point_forces: torch.Tensor, positions: torch.Tensor, points: FootPoints
-              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _per_foot(
+    point_forces: torch.Tensor, positions: torch.Tensor, points: FootPoints
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Sum point forces per foot; CoP on the ground from the vertical-force-weighted point positions and the
     free moment about it (vertical component of Σ (p_k − cop) × f_k)."""
     forces, cops, moments = [], [], []

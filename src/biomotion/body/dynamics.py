@@ -29,8 +29,16 @@ from dataclasses import dataclass
 
 import torch
 
-from biomotion.body.kinematics import (JointTerms, KinematicTree, TreePoses, _over, joint_terms, motion_to_child,
-                                       to_frames_first, to_frames_last)
+from biomotion.body.kinematics import (
+    JointTerms,
+    KinematicTree,
+    TreePoses,
+    _over,
+    joint_terms,
+    motion_to_child,
+    to_frames_first,
+    to_frames_last,
+)
 from biomotion.body.model import BodyModel, JointModel
 from biomotion.body.spatial import cross_frames_last as _cross
 from biomotion.body.spatial import cross_motion_frames_last, spatial_inertia_frames_last
@@ -44,6 +52,7 @@ from biomotion.errors import ModelError
 class ExternalLoad:
     """A load on one body, all in ground: ``force`` [..., 3] (N) applied at ``point`` [..., 3] (m), plus a free
     ``moment`` [..., 3] (N·m), as an OpenSim ExternalForce with force, point and torque expressed in ground."""
+
     body: str
     force: torch.Tensor
     point: torch.Tensor
@@ -52,8 +61,10 @@ class ExternalLoad:
 
 # ---- joint velocity terms ------------------------------------------------------------------------------------
 
-def joint_velocity(joint: JointModel, q: torch.Tensor, qd: torch.Tensor, hdot: str = "opensim",
-                   terms: JointTerms | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+
+def joint_velocity(
+    joint: JointModel, q: torch.Tensor, qd: torch.Tensor, hdot: str = "opensim", terms: JointTerms | None = None
+) -> tuple[torch.Tensor, torch.Tensor]:
     """(v_J = S q̇, c_J = S̊ q̇) [..., 6] in the child body frame.
 
     With rotation angles theta_k = f_k(q) about axes W_k (axis k after rotations 1..k-1, in F) and translations
@@ -81,15 +92,23 @@ def joint_velocity(joint: JointModel, q: torch.Tensor, qd: torch.Tensor, hdot: s
     simbody = hdot == "opensim" and joint.type == "CustomJoint" and bool(joint.coordinates)
     if simbody:
         first, third = joint.coordinates[0], (joint.coordinates[2] if len(joint.coordinates) > 2 else None)
-        omega_first = sum((w * r[..., None] for w, r, k in zip(terms.rotation_axes, rates, terms.rotation_coordinates)
-                           if k == first), zero)
-        omega_no_third = sum((w * r[..., None] for w, r, k in zip(terms.rotation_axes, rates,
-                                                                   terms.rotation_coordinates)
-                              if third is None or k != third), zero)
+        omega_first = sum(
+            (w * r[..., None] for w, r, k in zip(terms.rotation_axes, rates, terms.rotation_coordinates) if k == first),
+            zero,
+        )
+        omega_no_third = sum(
+            (
+                w * r[..., None]
+                for w, r, k in zip(terms.rotation_axes, rates, terms.rotation_coordinates)
+                if third is None or k != third
+            ),
+            zero,
+        )
     omega_dot = zero
     preceding = zero
-    for w, r, (_, d2), k, slot in zip(terms.rotation_axes, rates, terms.rotation_derivatives,
-                                      terms.rotation_coordinates, terms.rotation_slots):
+    for w, r, (_, d2), k, slot in zip(
+        terms.rotation_axes, rates, terms.rotation_derivatives, terms.rotation_coordinates, terms.rotation_slots
+    ):
         frame_rate = preceding
         if simbody:
             frame_rate = (zero, omega_first, omega_no_third)[slot]
@@ -106,11 +125,13 @@ def joint_velocity(joint: JointModel, q: torch.Tensor, qd: torch.Tensor, hdot: s
 
 # ---- algorithms -----------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class _Motion:
     """One kinematics pass for the dynamics, frames last and in ground orientation about the reference point
     ``origin`` [3, N]: poses, coordinate subspace columns [n_q, 6, N] and, given rates, joint velocities v_J
     and velocity-product terms c_J [B, 6, N]."""
+
     tree: KinematicTree
     poses: TreePoses
     origin: torch.Tensor
@@ -119,8 +140,7 @@ class _Motion:
     joint_bias: torch.Tensor | None = None
 
 
-def _tree_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor | None = None, hdot: str = "opensim"
-                 ) -> _Motion:
+def _tree_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor | None = None, hdot: str = "opensim") -> _Motion:
     """`motion_subspace`'s S and `joint_velocity`'s v_J and c_J of every joint at once (q, qd [n_q, N]), in
     ground orientation and shifted from each joint centre M to the reference point O (v_O = v_M + (M - O) x w)."""
     tree = KinematicTree.of(model, q.dtype)
@@ -129,29 +149,39 @@ def _tree_motion(model: BodyModel, q: torch.Tensor, qd: torch.Tensor | None = No
     poses = tree.poses(frames)
     axes = tree.ground_axes(poses, frames)
     origin = poses.positions[tree.reference]
-    arm = axes.centers - origin                                                       # M - O  [B, 3, N]
+    arm = axes.centers - origin  # M - O  [B, 3, N]
     angular, linear = tree.subspace(axes, slopes)
     subspace = torch.cat([angular, linear + _cross(arm[tree.coordinate_body], angular)], 1)
     if qd is None:
         return _Motion(tree, poses, origin, subspace)
-    rates = torch.cat([qd, qd.new_zeros(1, qd.shape[-1])])                            # axes without coordinate: 0
+    rates = torch.cat([qd, qd.new_zeros(1, qd.shape[-1])])  # axes without coordinate: 0
     rotation_rate = rates[tree.rotation_coordinate]
-    turn = axes.rotation * (slopes[tree.rotation] * rotation_rate)[:, None]           # W_k theta_k'  [A_r, 3, N]
+    turn = axes.rotation * (slopes[tree.rotation] * rotation_rate)[:, None]  # W_k theta_k'  [A_r, 3, N]
     omega = _over(tree.rotation_joint, turn)
-    omega_dot = _over(tree.rotation_joint, _cross(_over(tree.frame_rates[hdot], turn), turn) + axes.rotation * (
-        curvatures[tree.rotation] * rotation_rate ** 2)[:, None])
+    omega_dot = _over(
+        tree.rotation_joint,
+        _cross(_over(tree.frame_rates[hdot], turn), turn)
+        + axes.rotation * (curvatures[tree.rotation] * rotation_rate**2)[:, None],
+    )
     translation_rate = rates[tree.translation_coordinate]
     velocity = _over(tree.translation_joint, axes.translation * (slopes[tree.translation] * translation_rate)[:, None])
-    acceleration = _over(tree.translation_joint, axes.translation * (curvatures[tree.translation]
-                                                                     * translation_rate ** 2)[:, None])
+    acceleration = _over(
+        tree.translation_joint, axes.translation * (curvatures[tree.translation] * translation_rate**2)[:, None]
+    )
     joint_velocity = torch.cat([omega, velocity + _cross(arm, omega)], 1)
     joint_bias = torch.cat([omega_dot, acceleration - _cross(omega, velocity) + _cross(arm, omega_dot)], 1)
     return _Motion(tree, poses, origin, subspace, joint_velocity, joint_bias)
 
 
-def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: torch.Tensor,
-                     loads: tuple[ExternalLoad, ...] | list[ExternalLoad] = (), gravity: bool = True,
-                     hdot: str = "opensim") -> torch.Tensor:
+def inverse_dynamics(
+    model: BodyModel,
+    q: torch.Tensor,
+    qd: torch.Tensor,
+    qdd: torch.Tensor,
+    loads: tuple[ExternalLoad, ...] | list[ExternalLoad] = (),
+    gravity: bool = True,
+    hdot: str = "opensim",
+) -> torch.Tensor:
     """[..., n_q] generalized forces (N·m or N) that produce ``qdd`` at (``q``, ``qd``) under gravity and
     ``loads``: tau = M(q) qdd + C(q, qd) - G(q) - J^T f_ext (recursive Newton-Euler, RBDA Table 5.1).
 
@@ -167,9 +197,12 @@ def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: t
     motion = _tree_motion(model, to_frames_last(q, 1), to_frames_last(qd, 1), hdot)
     tree, poses, origin = motion.tree, motion.poses, motion.origin
     # forward: a body's velocity and acceleration are sums over the body and its ancestors
-    velocity = _over(tree.ancestors, motion.joint_velocity)                             # [B, 6, N]
-    local = motion.joint_bias + _over(tree.owned, motion.subspace * to_frames_last(qdd, 1)[:, None]) + \
-        cross_motion_frames_last(velocity, motion.joint_velocity)
+    velocity = _over(tree.ancestors, motion.joint_velocity)  # [B, 6, N]
+    local = (
+        motion.joint_bias
+        + _over(tree.owned, motion.subspace * to_frames_last(qdd, 1)[:, None])
+        + cross_motion_frames_last(velocity, motion.joint_velocity)
+    )
     acceleration = _over(tree.ancestors, local)
     if gravity:  # the ground's fictitious upward acceleration (RBDA Sec. 5.3)
         acceleration = acceleration - torch.cat([torch.zeros_like(tree.gravity), tree.gravity])
@@ -189,8 +222,9 @@ def inverse_dynamics(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, qdd: t
     return to_frames_first((motion.subspace * carried[tree.coordinate_body]).sum(1), batch)
 
 
-def _load_wrenches(model: BodyModel, loads: tuple[ExternalLoad, ...] | list[ExternalLoad], origin: torch.Tensor,
-                   batch: torch.Size) -> torch.Tensor:
+def _load_wrenches(
+    model: BodyModel, loads: tuple[ExternalLoad, ...] | list[ExternalLoad], origin: torch.Tensor, batch: torch.Size
+) -> torch.Tensor:
     """[B, 6, N] the loads as wrenches about the reference point, summed per body."""
     dtype = origin.dtype
 
@@ -209,8 +243,9 @@ def _load_wrenches(model: BodyModel, loads: tuple[ExternalLoad, ...] | list[Exte
     return _over(on_body, torch.stack(wrenches))
 
 
-def bias_forces(model: BodyModel, q: torch.Tensor, qd: torch.Tensor, gravity: bool = True,
-                hdot: str = "opensim") -> torch.Tensor:
+def bias_forces(
+    model: BodyModel, q: torch.Tensor, qd: torch.Tensor, gravity: bool = True, hdot: str = "opensim"
+) -> torch.Tensor:
     """[..., n_q] C(q, qd) - G(q): inverse dynamics at zero acceleration without external loads."""
     return inverse_dynamics(model, q, qd, torch.zeros_like(q), gravity=gravity, hdot=hdot)
 
@@ -223,13 +258,13 @@ def mass_matrix(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
         raise ModelError(f"q must have {model.n_q} coordinates for model {model.name!r}")
     motion = _tree_motion(model, to_frames_last(q, 1))
     tree, rotations = motion.tree, motion.poses.rotations
-    com = motion.poses.positions + _mv(rotations, tree.coms) - motion.origin                      # [B, 3, N]
+    com = motion.poses.positions + _mv(rotations, tree.coms) - motion.origin  # [B, 3, N]
     inertia = _mm(_mm(rotations, tree.inertias), rotations.transpose(1, 2))
-    body = spatial_inertia_frames_last(tree.masses[:, 0], com, inertia)                            # [B, 6, 6, N]
+    body = spatial_inertia_frames_last(tree.masses[:, 0], com, inertia)  # [B, 6, 6, N]
     composite = _over(tree.ancestors.T, body)
-    s = motion.subspace                                                                   # [n_q, 6, N]
-    moved = (composite[tree.coordinate_body] * s[:, None]).sum(2)                       # I^c_j S_j  [n_q, 6, N]
-    products = (s[:, None] * moved[None]).sum(2)                                         # S_i . I^c_j S_j
+    s = motion.subspace  # [n_q, 6, N]
+    moved = (composite[tree.coordinate_body] * s[:, None]).sum(2)  # I^c_j S_j  [n_q, 6, N]
+    products = (s[:, None] * moved[None]).sum(2)  # S_i . I^c_j S_j
     weights = tree.ancestor_joint.to(s.dtype)[..., None]
     upper = products * weights
     full = upper + upper.transpose(0, 1) + products * tree.same_joint.to(s.dtype)[..., None]

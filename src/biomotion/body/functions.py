@@ -37,7 +37,7 @@ class Function(Protocol):
         """(f, f', f'') at ``x``, each differentiable."""
         ...
 
-    def to(self, dtype: torch.dtype) -> "Function": ...
+    def to(self, dtype: torch.dtype) -> Function: ...
 
 
 class Constant:
@@ -50,7 +50,7 @@ class Constant:
     def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self(x), torch.zeros_like(x), torch.zeros_like(x)
 
-    def to(self, dtype: torch.dtype) -> "Constant":
+    def to(self, dtype: torch.dtype) -> Constant:
         return self
 
 
@@ -64,7 +64,7 @@ class Linear:
     def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self(x), torch.full_like(x, self.slope), torch.zeros_like(x)
 
-    def to(self, dtype: torch.dtype) -> "Linear":
+    def to(self, dtype: torch.dtype) -> Linear:
         return self
 
 
@@ -83,7 +83,7 @@ class Polynomial:
             f = f * x + c
         return f, d1, d2
 
-    def to(self, dtype: torch.dtype) -> "Polynomial":
+    def to(self, dtype: torch.dtype) -> Polynomial:
         return self
 
 
@@ -97,7 +97,7 @@ class Multiplier:
     def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return tuple(self.scale * d for d in self.function.derivatives(x))  # type: ignore[return-value]
 
-    def to(self, dtype: torch.dtype) -> "Multiplier":
+    def to(self, dtype: torch.dtype) -> Multiplier:
         scale = self.scale.to(dtype) if isinstance(self.scale, torch.Tensor) else self.scale
         return Multiplier(self.function.to(dtype), scale)
 
@@ -106,8 +106,15 @@ class PiecewiseCubic:
     """y[k] + dx (b[k] + dx (c[k] + dx d[k])) on knot interval k, dx = x - x[k]; linear beyond the ends with
     slopes b[0] and b[-1] (the extrapolation OpenSim's splines use)."""
 
-    def __init__(self, x: np.ndarray, y: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray,
-                 dtype: torch.dtype = torch.float64) -> None:
+    def __init__(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        b: np.ndarray,
+        c: np.ndarray,
+        d: np.ndarray,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
         self._numpy = (x, y, b, c, d)
         self.x, self.y, self.b, self.c, self.d = (torch.as_tensor(a, dtype=dtype) for a in (x, y, b, c, d))
 
@@ -125,13 +132,16 @@ class PiecewiseCubic:
         curvature = 2.0 * c + 6.0 * dx * d
         below, above = x < knots[0], x > knots[-1]
         b0, bn = self.b[0].to(x.dtype), self.b[-1].to(x.dtype)
-        value = torch.where(below, self.y[0].to(x.dtype) + (x - knots[0]) * b0,
-                            torch.where(above, self.y[-1].to(x.dtype) + (x - knots[-1]) * bn, value))
+        value = torch.where(
+            below,
+            self.y[0].to(x.dtype) + (x - knots[0]) * b0,
+            torch.where(above, self.y[-1].to(x.dtype) + (x - knots[-1]) * bn, value),
+        )
         slope = torch.where(below, b0, torch.where(above, bn, slope))
         curvature = torch.where(below | above, torch.zeros_like(x), curvature)
         return value, slope, curvature
 
-    def to(self, dtype: torch.dtype) -> "PiecewiseCubic":
+    def to(self, dtype: torch.dtype) -> PiecewiseCubic:
         return PiecewiseCubic(*self._numpy, dtype=dtype)
 
 
@@ -188,8 +198,12 @@ class FunctionStack:
     equal the functions' own `derivatives` up to rounding.
     """
 
-    def __init__(self, functions: Sequence[Function], scales: Sequence[float | torch.Tensor] | None = None,
-                 dtype: torch.dtype = torch.float64) -> None:
+    def __init__(
+        self,
+        functions: Sequence[Function],
+        scales: Sequence[float | torch.Tensor] | None = None,
+        dtype: torch.dtype = torch.float64,
+    ) -> None:
         scales = [1.0] * len(functions) if scales is None else list(scales)
         affine, splines, polynomials, others, factors = [], [], [], [], []
         for k, (function, scale) in enumerate(zip(functions, scales)):
@@ -198,8 +212,13 @@ class FunctionStack:
                 function = function.function
             factors.append(scale if isinstance(scale, torch.Tensor) else torch.tensor(float(scale), dtype=_F64))
             if isinstance(function, (Constant, Linear)):
-                affine.append((k, 0.0 if isinstance(function, Constant) else function.slope,
-                               function.value if isinstance(function, Constant) else function.intercept))
+                affine.append(
+                    (
+                        k,
+                        0.0 if isinstance(function, Constant) else function.slope,
+                        function.value if isinstance(function, Constant) else function.intercept,
+                    )
+                )
             elif isinstance(function, PiecewiseCubic):
                 splines.append((k, function))
             elif isinstance(function, Polynomial):
@@ -215,11 +234,13 @@ class FunctionStack:
         self._spline_table(dtype, [f for _, f in splines])
         self.polynomials = torch.tensor([k for k, _ in polynomials], dtype=torch.long)
         degree = max((len(c) for _, c in polynomials), default=0)
-        self.coefficients = torch.tensor([[0.0] * (degree - len(c)) + list(c) for _, c in polynomials],
-                                         dtype=dtype).reshape(len(polynomials), degree)
+        self.coefficients = torch.tensor(
+            [[0.0] * (degree - len(c)) + list(c) for _, c in polynomials], dtype=dtype
+        ).reshape(len(polynomials), degree)
         self.others = others
-        order = torch.cat([self.affine, self.splines, self.polynomials,
-                           torch.tensor([k for k, _ in others], dtype=torch.long)])
+        order = torch.cat(
+            [self.affine, self.splines, self.polynomials, torch.tensor([k for k, _ in others], dtype=torch.long)]
+        )
         self.order = torch.argsort(order)  # row of function k in the concatenated groups
 
     def _spline_table(self, dtype: torch.dtype, splines: list[PiecewiseCubic]) -> None:
@@ -228,14 +249,18 @@ class FunctionStack:
         table = torch.zeros(5, len(splines), width, dtype=dtype)  # knots, y, b, c, d
         for i, f in enumerate(splines):
             n = int(f.x.numel())
-            inner[i, :n - 2] = f.x[1:-1].to(dtype)
+            inner[i, : n - 2] = f.x[1:-1].to(dtype)
             for row, values in enumerate((f.x, f.y, f.b, f.c, f.d)):
                 table[row, i, :n] = values.to(dtype)
         self.inner = inner
         self.table = table.flatten(1)
         self.offset = torch.arange(len(splines)) * width
-        ends = [torch.stack([torch.stack([f.x[i], f.y[i], f.b[i]]) for f in splines], -1).to(dtype) if splines
-                else torch.zeros(3, 0, dtype=dtype) for i in (0, -1)]
+        ends = [
+            torch.stack([torch.stack([f.x[i], f.y[i], f.b[i]]) for f in splines], -1).to(dtype)
+            if splines
+            else torch.zeros(3, 0, dtype=dtype)
+            for i in (0, -1)
+        ]
         self.first, self.last = ends
 
     def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -247,8 +272,9 @@ class FunctionStack:
         if len(self.affine):
             u = x[self.affine]
             slope = self.slope.to(x.dtype).reshape(-1, *trailing)
-            parts.append((slope * u + self.intercept.to(x.dtype).reshape(-1, *trailing), slope.expand_as(u),
-                          torch.zeros_like(u)))
+            parts.append(
+                (slope * u + self.intercept.to(x.dtype).reshape(-1, *trailing), slope.expand_as(u), torch.zeros_like(u))
+            )
         if len(self.splines):
             parts.append(self._evaluate_splines(x[self.splines]))
         if len(self.polynomials):
@@ -266,8 +292,10 @@ class FunctionStack:
             zero = x.new_zeros(x.shape)
             return zero, zero, zero
         scale = self.scale.to(x.dtype).reshape(-1, *trailing)
-        return tuple(scale * torch.cat([p[i] for p in parts])[self.order]  # type: ignore[return-value]
-                     for i in range(3))
+        return tuple(
+            scale * torch.cat([p[i] for p in parts])[self.order]  # type: ignore[return-value]
+            for i in range(3)
+        )
 
     def _evaluate_splines(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         trailing = (1,) * (x.dim() - 1)

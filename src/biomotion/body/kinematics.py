@@ -39,6 +39,7 @@ from biomotion.errors import ModelError
 @dataclass(frozen=True)
 class BodyPoses:
     """Orientation [..., B, 3, 3] and origin [..., B, 3] of every body in ground, in BodySet order."""
+
     rotations: torch.Tensor
     positions: torch.Tensor
 
@@ -124,8 +125,9 @@ def apply_couplers(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
     return torch.stack(columns, dim=-1)
 
 
-def point_jacobians(model: BodyModel, q: torch.Tensor, bodies: torch.Tensor, offsets: torch.Tensor,
-                    poses: BodyPoses | None = None) -> torch.Tensor:
+def point_jacobians(
+    model: BodyModel, q: torch.Tensor, bodies: torch.Tensor, offsets: torch.Tensor, poses: BodyPoses | None = None
+) -> torch.Tensor:
     """[..., P, 3, n_q] d(point in ground)/dq for points fixed at ``offsets`` [P, 3] in ``bodies`` [P].
 
     Column k is v_k + w_k x (p - o_k), with (w_k, v_k) coordinate k's motion subspace column in ground at the
@@ -135,15 +137,18 @@ def point_jacobians(model: BodyModel, q: torch.Tensor, bodies: torch.Tensor, off
     tree = KinematicTree.of(model, q.dtype)
     values, slopes, _ = tree.axis_values(to_frames_last(q, 1))
     frames = tree.joint_frames(values)
-    tree_poses = tree.poses(frames) if poses is None else TreePoses(
-        to_frames_last(poses.rotations, 3), to_frames_last(poses.positions, 2))
+    tree_poses = (
+        tree.poses(frames)
+        if poses is None
+        else TreePoses(to_frames_last(poses.rotations, 3), to_frames_last(poses.positions, 2))
+    )
     axes = tree.ground_axes(tree_poses, frames)
-    angular, linear = tree.subspace(axes, slopes)                                        # [n_q, 3, N] at M
+    angular, linear = tree.subspace(axes, slopes)  # [n_q, 3, N] at M
     index = bodies.clamp(min=0)
-    points = tree.points(tree_poses, bodies, offsets.to(q.dtype))                       # [P, 3, N]
-    lever = points[:, None] - axes.centers[tree.coordinate_body][None]                  # [P, n_q, 3, N]
+    points = tree.points(tree_poses, bodies, offsets.to(q.dtype))  # [P, 3, N]
+    lever = points[:, None] - axes.centers[tree.coordinate_body][None]  # [P, n_q, 3, N]
     columns = linear + _cross(angular, lever)
-    moves = tree.moves[index] & (bodies >= 0)[:, None]                                  # [P, n_q]
+    moves = tree.moves[index] & (bodies >= 0)[:, None]  # [P, n_q]
     columns = columns * moves[..., None, None].to(q.dtype)
     return to_frames_first(columns.transpose(1, 2), q.shape[:-1])
 
@@ -155,15 +160,17 @@ def marker_jacobians(model: BodyModel, q: torch.Tensor) -> torch.Tensor:
 
 # ---- joint motion subspace -------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class JointTerms:
     """Each moving axis of a joint at ``q``: amounts and their derivatives, and the rotation axes W_k in F
     (axis k after rotations 1..k-1), which give the relative angular velocity sum_k W_k dtheta_k/dt."""
-    rotation: torch.Tensor                          # R_FM [..., 3, 3]
-    rotation_axes: tuple[torch.Tensor, ...]         # W_k [..., 3] in F
-    rotation_derivatives: tuple[tuple[torch.Tensor, torch.Tensor], ...]      # (theta', theta'')
-    translation_axes: tuple[torch.Tensor, ...]      # b_m [3] in F
-    translation_derivatives: tuple[tuple[torch.Tensor, torch.Tensor], ...]   # (d', d'')
+
+    rotation: torch.Tensor  # R_FM [..., 3, 3]
+    rotation_axes: tuple[torch.Tensor, ...]  # W_k [..., 3] in F
+    rotation_derivatives: tuple[tuple[torch.Tensor, torch.Tensor], ...]  # (theta', theta'')
+    translation_axes: tuple[torch.Tensor, ...]  # b_m [3] in F
+    translation_derivatives: tuple[tuple[torch.Tensor, torch.Tensor], ...]  # (d', d'')
     rotation_coordinates: tuple[int | None, ...]
     translation_coordinates: tuple[int | None, ...]
     rotation_slots: tuple[int, ...]
@@ -189,8 +196,9 @@ def joint_terms(joint: JointModel, q: torch.Tensor) -> JointTerms:
     return JointTerms(rotation, tuple(w), tuple(rd), tuple(b), tuple(td), tuple(rc), tuple(tc), tuple(slots))
 
 
-def motion_to_child(joint: JointModel, terms: JointTerms, angular_f: torch.Tensor, linear_f: torch.Tensor
-                    ) -> torch.Tensor:
+def motion_to_child(
+    joint: JointModel, terms: JointTerms, angular_f: torch.Tensor, linear_f: torch.Tensor
+) -> torch.Tensor:
     """[..., 6] a relative motion given in F about M's origin ([..., 3] each) as a spatial vector in the child
     body frame about its origin."""
     r_bm, p_bm = joint.child_rotation, joint.child_translation
@@ -210,8 +218,9 @@ def motion_subspace(joint: JointModel, q: torch.Tensor, terms: JointTerms | None
         for w, (d1, _), k in zip(terms.rotation_axes, terms.rotation_derivatives, terms.rotation_coordinates):
             if k == c:
                 angular = angular + w * d1[..., None]
-        for axis, (d1, _), k in zip(terms.translation_axes, terms.translation_derivatives,
-                                    terms.translation_coordinates):
+        for axis, (d1, _), k in zip(
+            terms.translation_axes, terms.translation_derivatives, terms.translation_coordinates
+        ):
             if k == c:
                 linear = linear + axis * d1[..., None]
         columns.append(motion_to_child(joint, terms, angular, linear))
@@ -223,9 +232,10 @@ def motion_subspace(joint: JointModel, q: torch.Tensor, terms: JointTerms | None
 # dims of q flattened), so every 3x3 product is a few element-wise operations along contiguous frames and every
 # sum over the tree is one matrix product; `to_frames_last` and `to_frames_first` convert at the public boundary.
 
+
 def to_frames_last(x: torch.Tensor, dims: int) -> torch.Tensor:
     """[..., *item] (``dims`` trailing item dims) -> [*item, N] with N the flattened leading dims."""
-    item = x.shape[x.dim() - dims:]
+    item = x.shape[x.dim() - dims :]
     return x.reshape(-1, *item).movedim(0, -1)
 
 
@@ -244,6 +254,7 @@ class JointFrames:
     """Every joint at once, indexed by its child body, frames last: X_FM(q) (``r_fm`` [B, 3, 3, N], ``p_fm``
     [B, 3, N]), X_PB(q) (``r_pb``, ``p_pb``), and every rotation axis k in F after the rotations before it,
     W_k [A_r, 3, N] (`JointTerms.rotation_axes`)."""
+
     r_fm: torch.Tensor
     p_fm: torch.Tensor
     r_pb: torch.Tensor
@@ -254,6 +265,7 @@ class JointFrames:
 @dataclass(frozen=True)
 class TreePoses:
     """Body orientations [B, 3, 3, N] and origins [B, 3, N] in ground, frames last."""
+
     rotations: torch.Tensor
     positions: torch.Tensor
 
@@ -265,6 +277,7 @@ class TreePoses:
 class GroundAxes:
     """The moving axes in ground orientation, frames last: rotation axes W_k [A_r, 3, N], translation axes b_m
     [A_t, 3, N], and the joint centres (origin of each joint's frame M) [B, 3, N]."""
+
     rotation: torch.Tensor
     translation: torch.Tensor
     centers: torch.Tensor
@@ -294,7 +307,7 @@ class KinematicTree:
         missing = [model.body_names[j.parent] for j in joints if j.parent >= 0 and j.parent not in local]
         if missing:
             raise ModelError(f"a subtree must hold the parents of its bodies; missing {sorted(set(missing))}")
-        parent_of = [local[j.parent] if j.parent >= 0 else -1 for j in joints]              # tree index, -1 ground
+        parent_of = [local[j.parent] if j.parent >= 0 else -1 for j in joints]  # tree index, -1 ground
         self.bodies = torch.tensor(kept, dtype=torch.long)
         depth: dict[int, int] = {}
         for j in model.joint_order:
@@ -304,11 +317,13 @@ class KinematicTree:
                 depth[b] = 0 if parent_of[b] < 0 else depth[parent_of[b]] + 1
         levels = [[b for b in range(n_b) if depth[b] == d] for d in range(max(depth.values(), default=-1) + 1)]
         place = {b: i for level in levels for i, b in enumerate(level)}
-        self.levels = [(torch.tensor(level), torch.tensor([place[parent_of[b]] for b in level]) if d else None)
-                       for d, level in enumerate(levels)]
+        self.levels = [
+            (torch.tensor(level), torch.tensor([place[parent_of[b]] for b in level]) if d else None)
+            for d, level in enumerate(levels)
+        ]
         self.assemble = torch.argsort(torch.tensor([b for level in levels for b in level], dtype=torch.long))
         self.parent = torch.tensor([p if p >= 0 else n_b for p in parent_of], dtype=torch.long)  # n_b: ground
-        self.reference = levels[0][0] if levels else 0                                      # a root body
+        self.reference = levels[0][0] if levels else 0  # a root body
         ancestors = torch.zeros(n_b, n_b, dtype=torch.bool)  # [b, a]: a is b or on its path to ground
         for b in range(n_b):
             a = b
@@ -316,13 +331,13 @@ class KinematicTree:
                 ancestors[b, a] = True
                 a = parent_of[a]
         coordinate_body = torch.zeros(n_q, dtype=torch.long)
-        owned = torch.zeros(n_b, n_q, dtype=torch.bool)      # [b, c]: c is a coordinate of joint b
+        owned = torch.zeros(n_b, n_q, dtype=torch.bool)  # [b, c]: c is a coordinate of joint b
         for b, joint in enumerate(joints):
             coordinate_body[list(joint.coordinates)] = b
             owned[b, list(joint.coordinates)] = True
         self.coordinate_body = coordinate_body
         has_joint = owned.any(0)
-        self.moves = ancestors[:, coordinate_body] & has_joint                           # [B, n_q]
+        self.moves = ancestors[:, coordinate_body] & has_joint  # [B, n_q]
         both = has_joint[:, None] & has_joint[None, :]
         same = (coordinate_body[:, None] == coordinate_body[None, :]) & both
         above = ancestors[coordinate_body][:, coordinate_body].T & both
@@ -347,8 +362,8 @@ class KinematicTree:
                 arguments.append(coordinate)
                 axis_body.append(b)
         self.functions = FunctionStack(functions, scales, dtype)
-        self.argument = torch.tensor(arguments, dtype=torch.long)      # n_q: the axis has no coordinate
-        self.axis_body = torch.tensor(axis_body, dtype=torch.long)     # every axis's joint, in joint axis order
+        self.argument = torch.tensor(arguments, dtype=torch.long)  # n_q: the axis has no coordinate
+        self.axis_body = torch.tensor(axis_body, dtype=torch.long)  # every axis's joint, in joint axis order
         n_r = len(rotation)
         self.slots = torch.tensor([[n_r if s is None else s for s in row] for row in slots], dtype=torch.long)
 
@@ -357,23 +372,36 @@ class KinematicTree:
             body = torch.tensor([e[1] for e in entries], dtype=torch.long)
             coordinate = torch.tensor([e[4] for e in entries], dtype=torch.long)
             units = torch.stack([e[3].to(dtype) for e in entries]) if entries else torch.zeros(0, 3, dtype=dtype)
-            by_joint = torch.zeros(n_b, len(entries), dtype=dtype)            # [b, a]: axis a moves joint b
+            by_joint = torch.zeros(n_b, len(entries), dtype=dtype)  # [b, a]: axis a moves joint b
             by_joint[body, torch.arange(len(entries))] = 1.0
-            by_coordinate = torch.zeros(n_q, len(entries), dtype=dtype)       # [c, a]: axis a follows c of its joint
+            by_coordinate = torch.zeros(n_q, len(entries), dtype=dtype)  # [c, a]: axis a follows c of its joint
             for a, e in enumerate(entries):
                 if e[4] in e[6].coordinates:
                     by_coordinate[e[4], a] = 1.0
             return index, body, coordinate, units[..., None], by_joint, by_coordinate
 
-        (self.rotation, self.rotation_body, self.rotation_coordinate, self.rotation_units, self.rotation_joint,
-         self.rotation_columns) = columns(rotation)
-        (self.translation, self.translation_body, self.translation_coordinate, self.translation_units,
-         self.translation_joint, self.translation_columns) = columns(translation)
+        (
+            self.rotation,
+            self.rotation_body,
+            self.rotation_coordinate,
+            self.rotation_units,
+            self.rotation_joint,
+            self.rotation_columns,
+        ) = columns(rotation)
+        (
+            self.translation,
+            self.translation_body,
+            self.translation_coordinate,
+            self.translation_units,
+            self.translation_joint,
+            self.translation_columns,
+        ) = columns(translation)
         rank = torch.tensor([e[2] for e in rotation], dtype=torch.long)
-        self.ranked = [torch.nonzero(rank == r).flatten() for r in range(3)]    # rotation axes by rank in joint
+        self.ranked = [torch.nonzero(rank == r).flatten() for r in range(3)]  # rotation axes by rank in joint
         self.unrank = torch.argsort(torch.cat(self.ranked))
-        self.turns = [None] + [torch.tensor([b for b in range(n_b) if slots[b][r] is not None], dtype=torch.long)
-                               for r in (1, 2)]                                # joints with a 2nd, a 3rd rotation
+        self.turns = [None] + [
+            torch.tensor([b for b in range(n_b) if slots[b][r] is not None], dtype=torch.long) for r in (1, 2)
+        ]  # joints with a 2nd, a 3rd rotation
         units = skew(self.rotation_units[..., 0])
         self.skew, self.skew2 = units[..., None], (units @ units)[..., None]
         # which rotation rates carry axis k's frame (see dynamics.joint_velocity): the preceding axes of the
@@ -388,8 +416,13 @@ class KinematicTree:
                 if b2 != b:
                     continue
                 exact[k, m] = float(rank2 < rank)
-                opensim[k, m] = float(rank2 < rank) if not simbody else float(
-                    (slot == 1 and coordinate2 == first) or (slot == 2 and (third is None or coordinate2 != third)))
+                opensim[k, m] = (
+                    float(rank2 < rank)
+                    if not simbody
+                    else float(
+                        (slot == 1 and coordinate2 == first) or (slot == 2 and (third is None or coordinate2 != third))
+                    )
+                )
         self.frame_rates = {"exact": exact, "opensim": opensim}
 
         def stacked(name: str) -> torch.Tensor:
@@ -409,7 +442,7 @@ class KinematicTree:
         self.eye = torch.eye(3, dtype=dtype)[..., None]
 
     @classmethod
-    def of(cls, model: BodyModel, dtype: torch.dtype) -> "KinematicTree":
+    def of(cls, model: BodyModel, dtype: torch.dtype) -> KinematicTree:
         """The model's tree in ``dtype``, cached on the (immutable) model unless it requires grad."""
         cache = model.__dict__.get("_kinematic_trees")
         if cache is not None and dtype in cache:
@@ -434,7 +467,7 @@ class KinematicTree:
         n = values.shape[-1]
         angle = values[self.rotation, None, None, :]
         rotations = self.eye + torch.sin(angle) * self.skew + (1.0 - torch.cos(angle)) * self.skew2  # axis_angle
-        rotations = torch.cat([rotations, self.eye.expand(3, 3, n)[None]])      # last: identity (no rotation)
+        rotations = torch.cat([rotations, self.eye.expand(3, 3, n)[None]])  # last: identity (no rotation)
         first = rotations[self.slots[:, 0]]
         second, third = self.turns[1], self.turns[2]
         first_two = first.index_put((second,), _mm(first[second], rotations[self.slots[second, 1]]))
@@ -443,9 +476,13 @@ class KinematicTree:
         r_pb = _mm(_mm(self.r_pf, r_fm), self.r_mb)
         p_pb = self.p_pf + _mv(self.r_pf, p_fm + _mv(r_fm, self.p_mb))
         ranked = self.ranked
-        axes = torch.cat([self.rotation_units[ranked[0]].expand(-1, 3, n),
-                          _mv(first[self.rotation_body[ranked[1]]], self.rotation_units[ranked[1]]),
-                          _mv(first_two[self.rotation_body[ranked[2]]], self.rotation_units[ranked[2]])])
+        axes = torch.cat(
+            [
+                self.rotation_units[ranked[0]].expand(-1, 3, n),
+                _mv(first[self.rotation_body[ranked[1]]], self.rotation_units[ranked[1]]),
+                _mv(first_two[self.rotation_body[ranked[2]]], self.rotation_units[ranked[2]]),
+            ]
+        )
         return JointFrames(r_fm, p_fm, r_pb, p_pb, axes[self.unrank])
 
     def poses(self, frames: JointFrames) -> TreePoses:

@@ -36,8 +36,9 @@ def mirror_permutation(names: Sequence[str]) -> np.ndarray:
     return np.array([index.get(other_side(n), i) for i, n in enumerate(names)])
 
 
-def mirror_coordinates(values: np.ndarray, mask: np.ndarray | None = None,
-                       names: Sequence[str] = CANONICAL_COORDINATES) -> tuple[np.ndarray, np.ndarray | None]:
+def mirror_coordinates(
+    values: np.ndarray, mask: np.ndarray | None = None, names: Sequence[str] = CANONICAL_COORDINATES
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Mirror image of coordinates [..., n] (and of the per-coordinate mask [..., n])."""
     p = mirror_permutation(names)
     sign = np.array([-1.0 if n in NEGATED else 1.0 for n in names], dtype=values.dtype)

@@ -33,12 +33,13 @@ from biomotion.io import osim
 @dataclass(frozen=True)
 class Axis:
     """One non-trivial transform axis: amount = ``scale * function(q[coordinate])`` (rad or m) along ``axis``."""
+
     rotation: bool
-    axis: torch.Tensor          # [3], unit
+    axis: torch.Tensor  # [3], unit
     function: Function
-    coordinate: int | None      # None: the function is a constant
-    scale: torch.Tensor         # [], OpenSim's MultiplierFunction scale applied by scaling
-    slot: int                   # which TransformAxis: 0-2 rotation1-3, 3-5 translation1-3
+    coordinate: int | None  # None: the function is a constant
+    scale: torch.Tensor  # [], OpenSim's MultiplierFunction scale applied by scaling
+    slot: int  # which TransformAxis: 0-2 rotation1-3, 3-5 translation1-3
 
     def amount(self, q: torch.Tensor) -> torch.Tensor:
         """[...] amount at coordinates ``q`` [..., n_q]."""
@@ -57,19 +58,20 @@ class Axis:
 class JointModel:
     name: str
     type: str
-    parent: int                 # body index, -1 = ground
-    child: int                  # body index
-    parent_rotation: torch.Tensor     # [3, 3] R_PF: frame F in the parent body
+    parent: int  # body index, -1 = ground
+    child: int  # body index
+    parent_rotation: torch.Tensor  # [3, 3] R_PF: frame F in the parent body
     parent_translation: torch.Tensor  # [3]    p_PF
-    child_rotation: torch.Tensor      # [3, 3] R_BM: frame M in the child body
-    child_translation: torch.Tensor   # [3]    p_BM
+    child_rotation: torch.Tensor  # [3, 3] R_BM: frame M in the child body
+    child_translation: torch.Tensor  # [3]    p_BM
     coordinates: tuple[int, ...]
-    axes: tuple[Axis, ...]            # rotations (in order) first, then translations
+    axes: tuple[Axis, ...]  # rotations (in order) first, then translations
 
 
 @dataclass(frozen=True)
 class Coupler:
     """``q[dependent] = scale_factor * function(q[independent])`` (OpenSim's CoordinateCouplerConstraint)."""
+
     name: str
     dependent: int
     independent: int
@@ -81,37 +83,38 @@ class Coupler:
 class BodyModel:
     """An OpenSim model as tensors (see the module docstring for conventions). ``spec`` is the parsed file as
     loaded; after scaling, the tensors (and ``body_scales``) hold the scaled values and ``spec`` does not."""
+
     name: str
     spec: osim.ModelSpec
     body_names: tuple[str, ...]
     parent: tuple[int, ...]
-    masses: torch.Tensor        # [B]
-    coms: torch.Tensor          # [B, 3] in the body frame
-    inertias: torch.Tensor      # [B, 3, 3] about the COM, body frame
-    joints: tuple[JointModel, ...]          # JointSet order
-    joint_order: tuple[int, ...]            # indices into joints, parents first
+    masses: torch.Tensor  # [B]
+    coms: torch.Tensor  # [B, 3] in the body frame
+    inertias: torch.Tensor  # [B, 3, 3] about the COM, body frame
+    joints: tuple[JointModel, ...]  # JointSet order
+    joint_order: tuple[int, ...]  # indices into joints, parents first
     coordinate_names: tuple[str, ...]
-    coordinate_joint: tuple[int, ...]       # joint index of each coordinate
+    coordinate_joint: tuple[int, ...]  # joint index of each coordinate
     motion_types: tuple[str, ...]
-    ranges: torch.Tensor        # [n_q, 2]
-    defaults: torch.Tensor      # [n_q]
-    clamped: torch.Tensor       # [n_q] bool
-    locked: torch.Tensor        # [n_q] bool
-    couplers: tuple[Coupler, ...]           # dependency order
+    ranges: torch.Tensor  # [n_q, 2]
+    defaults: torch.Tensor  # [n_q]
+    clamped: torch.Tensor  # [n_q] bool
+    locked: torch.Tensor  # [n_q] bool
+    couplers: tuple[Coupler, ...]  # dependency order
     marker_names: tuple[str, ...]
     marker_bodies: torch.Tensor  # [M] long, -1 = ground
     marker_offsets: torch.Tensor  # [M, 3] in the body frame
-    gravity: torch.Tensor       # [3]
-    body_scales: torch.Tensor   # [B, 3] scale factors applied since loading (for meshes); ones when unscaled
+    gravity: torch.Tensor  # [3]
+    body_scales: torch.Tensor  # [B, 3] scale factors applied since loading (for meshes); ones when unscaled
 
     # ---- construction ------------------------------------------------------------------------------------------
     @classmethod
-    def from_osim(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> "BodyModel":
+    def from_osim(cls, path: str | Path, dtype: torch.dtype = torch.float64) -> BodyModel:
         """Load an OpenSim 4 model file."""
         return cls.from_spec(osim.read_osim(path), dtype)
 
     @classmethod
-    def from_spec(cls, spec: osim.ModelSpec, dtype: torch.dtype = torch.float64) -> "BodyModel":
+    def from_spec(cls, spec: osim.ModelSpec, dtype: torch.dtype = torch.float64) -> BodyModel:
         return _build(spec).to(dtype)
 
     # ---- look-ups ----------------------------------------------------------------------------------------------
@@ -166,7 +169,7 @@ class BodyModel:
         return body, rotation.to(self.dtype), translation
 
     # ---- conversion --------------------------------------------------------------------------------------------
-    def to(self, dtype: torch.dtype) -> "BodyModel":
+    def to(self, dtype: torch.dtype) -> BodyModel:
         """The same model with every floating tensor in ``dtype``."""
         return _map_tensors(self, dtype)
 
@@ -177,14 +180,16 @@ def _map_tensors(obj, dtype: torch.dtype):
     if isinstance(obj, tuple):
         return tuple(_map_tensors(o, dtype) for o in obj)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, osim.ModelSpec) and not isinstance(obj, type):
-        return dataclasses.replace(obj, **{f.name: _map_tensors(getattr(obj, f.name), dtype)
-                                           for f in dataclasses.fields(obj) if f.init})
+        return dataclasses.replace(
+            obj, **{f.name: _map_tensors(getattr(obj, f.name), dtype) for f in dataclasses.fields(obj) if f.init}
+        )
     if hasattr(obj, "to") and callable(obj) and not isinstance(obj, torch.Tensor):  # torch functions
         return obj.to(dtype)
     return obj
 
 
 # ---- building -------------------------------------------------------------------------------------------------
+
 
 class _FrameResolver:
     def __init__(self, spec: osim.ModelSpec) -> None:
@@ -198,8 +203,9 @@ class _FrameResolver:
         if path in self.bodies:
             return self.bodies[path], torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
         if path not in self.offsets or depth > 32:
-            raise ModelError(f"{self.spec.path}: frame {path!r} is not a body, ground or offset frame "
-                             f"(or its offset chain loops)")
+            raise ModelError(
+                f"{self.spec.path}: frame {path!r} is not a body, ground or offset frame (or its offset chain loops)"
+            )
         frame = self.offsets[path]
         body, r_parent, p_parent = self.resolve(frame.parent, depth + 1)
         r_local = body_fixed_xyz(torch.tensor(frame.orientation, dtype=torch.float64))
@@ -218,9 +224,16 @@ def _axes(spec: osim.ModelSpec, joint: osim.JointSpec, coordinate_index: dict[st
         if isinstance(function, Constant) and function.value == 0.0:
             continue  # no motion along this axis
         axis = torch.tensor(t.axis, dtype=torch.float64)
-        axes.append(Axis(t.name.startswith("rotation"), axis / torch.linalg.vector_norm(axis), function,
-                         coordinate_index[t.coordinates[0]] if t.coordinates else None,
-                         torch.tensor(1.0, dtype=torch.float64), slot))
+        axes.append(
+            Axis(
+                t.name.startswith("rotation"),
+                axis / torch.linalg.vector_norm(axis),
+                function,
+                coordinate_index[t.coordinates[0]] if t.coordinates else None,
+                torch.tensor(1.0, dtype=torch.float64),
+                slot,
+            )
+        )
     return tuple(axes)
 
 
@@ -262,17 +275,31 @@ def _build(spec: osim.ModelSpec) -> BodyModel:
         parent, r_pf, p_pf = frames.resolve(joint.parent_frame)
         child, r_bm, p_bm = frames.resolve(joint.child_frame)
         if child < 0:
-            raise ModelError(f"{spec.path}: joint {joint.name!r} has ground as its child (reversed joints are not "
-                             f"supported)")
+            raise ModelError(
+                f"{spec.path}: joint {joint.name!r} has ground as its child (reversed joints are not supported)"
+            )
         if child in joint_of_child:
-            raise ModelError(f"{spec.path}: body {spec.bodies[child].name!r} is the child of joints "
-                             f"{joint_of_child[child]!r} and {joint.name!r} (kinematic loops are not supported)")
+            raise ModelError(
+                f"{spec.path}: body {spec.bodies[child].name!r} is the child of joints "
+                f"{joint_of_child[child]!r} and {joint.name!r} (kinematic loops are not supported)"
+            )
         if child == parent:
             raise ModelError(f"{spec.path}: joint {joint.name!r} connects body {spec.bodies[child].name!r} to itself")
         joint_of_child[child] = joint.name
-        joints.append(JointModel(joint.name, joint.type, parent, child, r_pf, p_pf, r_bm, p_bm,
-                                 tuple(coordinate_index[c] for c in joint.coordinates),
-                                 _axes(spec, joint, coordinate_index)))
+        joints.append(
+            JointModel(
+                joint.name,
+                joint.type,
+                parent,
+                child,
+                r_pf,
+                p_pf,
+                r_bm,
+                p_bm,
+                tuple(coordinate_index[c] for c in joint.coordinates),
+                _axes(spec, joint, coordinate_index),
+            )
+        )
         parents.append(parent)
         children.append(child)
     loose = [b.name for i, b in enumerate(spec.bodies) if i not in joint_of_child]
@@ -283,8 +310,16 @@ def _build(spec: osim.ModelSpec) -> BodyModel:
     for joint in joints:
         parent_of_body[joint.child] = joint.parent
 
-    couplers = [Coupler(c.name, coordinate_index[c.dependent], coordinate_index[c.independent[0]],
-                        build_function(c.function), c.scale_factor) for c in spec.couplers]
+    couplers = [
+        Coupler(
+            c.name,
+            coordinate_index[c.dependent],
+            coordinate_index[c.independent[0]],
+            build_function(c.function),
+            c.scale_factor,
+        )
+        for c in spec.couplers
+    ]
     marker_bodies, marker_offsets = [], []
     for marker in spec.markers:
         body, rotation, translation = frames.resolve(marker.frame)
@@ -293,11 +328,15 @@ def _build(spec: osim.ModelSpec) -> BodyModel:
     joint_index = {j.name: i for i, j in enumerate(spec.joints)}
     f64 = torch.float64
     return BodyModel(
-        name=spec.name, spec=spec, body_names=tuple(b.name for b in spec.bodies), parent=tuple(parent_of_body),
+        name=spec.name,
+        spec=spec,
+        body_names=tuple(b.name for b in spec.bodies),
+        parent=tuple(parent_of_body),
         masses=torch.tensor([b.mass for b in spec.bodies], dtype=f64),
         coms=torch.tensor([b.mass_center for b in spec.bodies], dtype=f64).reshape(-1, 3),
         inertias=torch.tensor([_inertia_matrix(b.inertia) for b in spec.bodies], dtype=f64).reshape(-1, 3, 3),
-        joints=tuple(joints), joint_order=order,
+        joints=tuple(joints),
+        joint_order=order,
         coordinate_names=tuple(c.name for c in spec.coordinates),
         coordinate_joint=tuple(joint_index[c.joint] for c in spec.coordinates),
         motion_types=tuple(c.motion_type for c in spec.coordinates),
@@ -310,4 +349,5 @@ def _build(spec: osim.ModelSpec) -> BodyModel:
         marker_bodies=torch.tensor(marker_bodies, dtype=torch.long),
         marker_offsets=torch.stack(marker_offsets) if marker_offsets else torch.zeros(0, 3, dtype=f64),
         gravity=torch.tensor(spec.gravity, dtype=f64),
-        body_scales=torch.ones(len(spec.bodies), 3, dtype=f64))
+        body_scales=torch.ones(len(spec.bodies), 3, dtype=f64),
+    )

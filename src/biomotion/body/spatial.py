@@ -28,15 +28,17 @@ def skew(v: torch.Tensor) -> torch.Tensor:
     ch. 2's 3D cross operator)."""
     x, y, z = v.unbind(-1)
     zero = torch.zeros_like(x)
-    return torch.stack([torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1),
-                        torch.stack([-y, x, zero], -1)], -2)
+    return torch.stack(
+        [torch.stack([zero, -z, y], -1), torch.stack([z, zero, -x], -1), torch.stack([-y, x, zero], -1)], -2
+    )
 
 
 def vee(m: torch.Tensor) -> torch.Tensor:
     """[..., 3] the vector of the skew-symmetric part of ``m`` [..., 3, 3]: the inverse of `skew` on skew
     matrices, ``vee(skew(v)) == v``. Used for angular velocity from a rotation's rate, [w]x = dR/dt R^T."""
-    return 0.5 * torch.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0],
-                              m[..., 1, 0] - m[..., 0, 1]], dim=-1)
+    return 0.5 * torch.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], dim=-1
+    )
 
 
 def axis_angle(axis: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
@@ -54,8 +56,7 @@ def body_fixed_xyz(angles: torch.Tensor) -> torch.Tensor:
     """[..., 3, 3] R = Rx(a) Ry(b) Rz(c) of ``angles`` [..., 3] (rad): body-fixed X-Y-Z Euler angles, OpenSim's
     orientation convention for offset frames (PhysicalOffsetFrame ``orientation``)."""
     eye = torch.eye(3, dtype=angles.dtype)
-    return axis_angle(eye[0], angles[..., 0]) @ axis_angle(eye[1], angles[..., 1]) @ axis_angle(eye[2],
-                                                                                               angles[..., 2])
+    return axis_angle(eye[0], angles[..., 0]) @ axis_angle(eye[1], angles[..., 1]) @ axis_angle(eye[2], angles[..., 2])
 
 
 # ---- 6D operators (frames first) -------------------------------------------------------------------------------
@@ -97,8 +98,9 @@ def skew_frames_last(v: torch.Tensor) -> torch.Tensor:
     """[..., 3, 3, N] `skew` of ``v`` [..., 3, N]."""
     x, y, z = v.unbind(-2)
     zero = torch.zeros_like(x)
-    return torch.stack([torch.stack([zero, -z, y], -2), torch.stack([z, zero, -x], -2),
-                        torch.stack([-y, x, zero], -2)], -3)
+    return torch.stack(
+        [torch.stack([zero, -z, y], -2), torch.stack([z, zero, -x], -2), torch.stack([-y, x, zero], -2)], -3
+    )
 
 
 def cross_frames_last(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -127,8 +129,13 @@ def cross_motion_frames_last(v: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
     """[..., 6, N] v x m of motion vectors [..., 6, N], `cross_motion` (RBDA eq. 2.31) applied without forming the
     6x6 operator: (w x m_w; w x m_u + u x m_w) for v = (w; u)."""
     w = v[..., :3, :]
-    return torch.cat([cross_frames_last(w, m[..., :3, :]),
-                      cross_frames_last(w, m[..., 3:, :]) + cross_frames_last(v[..., 3:, :], m[..., :3, :])], -2)
+    return torch.cat(
+        [
+            cross_frames_last(w, m[..., :3, :]),
+            cross_frames_last(w, m[..., 3:, :]) + cross_frames_last(v[..., 3:, :], m[..., :3, :]),
+        ],
+        -2,
+    )
 
 
 def spatial_inertia_frames_last(mass: torch.Tensor, com: torch.Tensor, inertia: torch.Tensor) -> torch.Tensor:
@@ -137,5 +144,10 @@ def spatial_inertia_frames_last(mass: torch.Tensor, com: torch.Tensor, inertia: 
     c = skew_frames_last(com)
     m = mass[..., None, None, :]
     eye = torch.eye(3, dtype=com.dtype)[..., None].expand_as(c)
-    return torch.cat([torch.cat([inertia + m * matmul_frames_last(c, c.transpose(-3, -2)), m * c], -2),
-                      torch.cat([m * c.transpose(-3, -2), m * eye], -2)], -3)
+    return torch.cat(
+        [
+            torch.cat([inertia + m * matmul_frames_last(c, c.transpose(-3, -2)), m * c], -2),
+            torch.cat([m * c.transpose(-3, -2), m * eye], -2),
+        ],
+        -3,
+    )

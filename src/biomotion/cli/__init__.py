@@ -30,10 +30,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="biomotion",
         description="Personalized, biomechanically plausible human motion: read captured motion, analyse it on a "
-                    "musculoskeletal model, generate motion for a person and an action, evaluate and view it.",
+        "musculoskeletal model, generate motion for a person and an action, evaluate and view it.",
         epilog=f"Commands that read the datasets take --data-root DIR; without it they read ${DATA_ROOT_VARIABLE} "
-               f"when set, else ../shared/data from the working directory (now: {default_data_root()}). "
-               "`biomotion VERB --help` explains each verb.")
+        f"when set, else ../shared/data from the working directory (now: {default_data_root()}). "
+        "`biomotion VERB --help` explains each verb.",
+    )
     parser.add_argument("--version", action="version", version=f"biomotion {__version__}")
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an unexpected error")
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
@@ -52,6 +53,7 @@ def _one_line_warnings(showwarning):
             print(f"warning: {message}", file=sys.stderr if file is None else file)
         else:
             showwarning(message, category, filename, lineno, file, line)
+
     return show
 
 
@@ -59,10 +61,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``biomotion ARGS``; returns the exit status (0 done or help shown, 1 bug, 2 bad input or arguments,
     130 interrupted)."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    debug = "--debug" in argv        # accepted anywhere on the line, not only before the verb
+    debug = "--debug" in argv  # accepted anywhere on the line, not only before the verb
     try:
         args = build_parser().parse_args([a for a in argv if a != "--debug"])
-    except SystemExit as done:   # --help, --version (0) or an argument error (2, already printed by argparse)
+    except SystemExit as done:  # --help, --version (0) or an argument error (2, already printed by argparse)
         return done.code if isinstance(done.code, int) else 2
     import warnings
 
@@ -81,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
-    except BrokenPipeError:   # `biomotion inspect X | head`: the reader left; say nothing more
+    except BrokenPipeError:  # `biomotion inspect X | head`: the reader left; say nothing more
         sys.stdout = open(os.devnull, "w")
         return 141
     except OSError as error:  # the file system refused: a full disk, a permission, a path that is too long
@@ -93,8 +95,9 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as error:  # noqa: BLE001 - the last resort: one line, not a traceback, unless --debug
         if debug:
             raise
-        print(f"internal error: {type(error).__name__}: {error} (a bug in biomotion; rerun with --debug for the "
-              "traceback and report it)", file=sys.stderr)
+        print(
+            f"internal error: {type(error).__name__}: {error} (a bug in biomotion; rerun with --debug for the "
+            "traceback and report it)",
+            file=sys.stderr,
+        )
         return 1
-
-

@@ -28,12 +28,12 @@ def default_data_root() -> Path:
 
 
 def add_data_root(parser: argparse.ArgumentParser, what: str = "folder laid out like ../shared/data") -> None:
-    parser.add_argument("--data-root", type=Path, default=default_data_root(),
-                        help=f"{what} (default: %(default)s)")
+    parser.add_argument("--data-root", type=Path, default=default_data_root(), help=f"{what} (default: %(default)s)")
 
 
 def number(low: float | None = None, high: float | None = None, *, integer: bool = False, low_open: bool = False):
     """An argparse type: a finite number within [low, high] (``low_open``: low excluded); the error names the range."""
+
     def parse(text: str) -> float | int:
         try:
             value = int(text) if integer else float(text)
@@ -46,6 +46,7 @@ def number(low: float | None = None, high: float | None = None, *, integer: bool
         if high is not None and value > high:
             raise argparse.ArgumentTypeError(f"{text}: must be at most {high:g}")
         return value
+
     return parse
 
 
@@ -55,8 +56,11 @@ def command_line(argv: list[str] | None = None) -> str:
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--overwrite", action="store_true",
-                        help="replace an existing, non-empty --out folder as a whole (default: refuse it)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing, non-empty --out folder as a whole (default: refuse it)",
+    )
 
 
 @contextmanager
@@ -72,8 +76,9 @@ def fresh_folder(out: Path, overwrite: bool) -> Iterator[Path]:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out}: --out names a file; give a folder")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise ConfigError(f"{out}: the output folder exists and is not empty; choose another --out or pass "
-                          "--overwrite to replace it")
+        raise ConfigError(
+            f"{out}: the output folder exists and is not empty; choose another --out or pass --overwrite to replace it"
+        )
     parent = out.absolute().parent
     try:
         parent.mkdir(parents=True, exist_ok=True)

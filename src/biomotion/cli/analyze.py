@@ -20,51 +20,83 @@ DESCRIPTION = (
     "exactly as `biomotion retarget` does; with --static and --scale-setup a generic MODEL is first scaled to the "
     "subject's static trial (as `biomotion scale`). The IK result (and the scaled model) is kept in --out/ik and "
     "summarised in summary.json, so one command runs the whole chain from the lab's files. Python: "
-    "biomotion.analyze_trial.")
+    "biomotion.analyze_trial."
+)
 EPILOG = (
     "examples, with G=../shared/data/opensim-models/Pipelines/Gait2392_Simbody: biomotion analyze "
     "$G/subject01_walk1_ik.mot --model $G/OutputReference/subject01_simbody.osim --grf $G/subject01_walk1_grf.mot "
     "--muscles gait2392_subject01 --out out/walk; from the markers: biomotion analyze $G/subject01_walk1.trc "
     "--setup $G/subject01_Setup_IK.xml --model $G/OutputReference/subject01_simbody.osim --grf "
-    "$G/subject01_walk1_grf.mot --out out/walk_markers")
+    "$G/subject01_walk1_grf.mot --out out/walk_markers"
+)
 MARKER_SUFFIXES = (".trc", ".c3d")
 SKELETON_SUFFIXES = (".bvh", ".bvh.gz")
 
 
 def add_parser(verbs) -> None:
-    parser = verbs.add_parser("analyze", help="joint angles, torques, ground forces, COM, ZMP, energy and (with "
-                                              "--muscles) activations of a trial on a model",
-                              description=DESCRIPTION, epilog=EPILOG)
-    parser.add_argument("trial", type=Path,
-                        help="coordinates (.mot/.sto), e.g. an IK result; or markers (.trc/.c3d) or a skeleton "
-                             "(.bvh/.bvh.gz), solved by inverse kinematics first")
-    parser.add_argument("--model", type=Path, required=True,
-                        help="the subject's scaled .osim model (for a skeleton: the generic model to scale)")
-    parser.add_argument("--setup", type=Path,
-                        help="markers only: OpenSim IK setup XML (marker weights, coordinate tasks, time range)")
-    parser.add_argument("--static", type=Path,
-                        help="markers only: a static trial; MODEL is then the generic model, scaled to it by "
-                             "--scale-setup first (as `biomotion scale`; kept in --out/ik)")
+    parser = verbs.add_parser(
+        "analyze",
+        help="joint angles, torques, ground forces, COM, ZMP, energy and (with "
+        "--muscles) activations of a trial on a model",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+    )
+    parser.add_argument(
+        "trial",
+        type=Path,
+        help="coordinates (.mot/.sto), e.g. an IK result; or markers (.trc/.c3d) or a skeleton "
+        "(.bvh/.bvh.gz), solved by inverse kinematics first",
+    )
+    parser.add_argument(
+        "--model",
+        type=Path,
+        required=True,
+        help="the subject's scaled .osim model (for a skeleton: the generic model to scale)",
+    )
+    parser.add_argument(
+        "--setup", type=Path, help="markers only: OpenSim IK setup XML (marker weights, coordinate tasks, time range)"
+    )
+    parser.add_argument(
+        "--static",
+        type=Path,
+        help="markers only: a static trial; MODEL is then the generic model, scaled to it by "
+        "--scale-setup first (as `biomotion scale`; kept in --out/ik)",
+    )
     parser.add_argument("--scale-setup", type=Path, help="OpenSim ScaleTool setup XML for --static")
-    parser.add_argument("--marker-filter", type=number(0, low_open=True), metavar="HZ",
-                        help="markers: low-pass them before IK; skeletons: the coordinates (default 10 Hz, as "
-                             "`biomotion retarget --filter`)")
+    parser.add_argument(
+        "--marker-filter",
+        type=number(0, low_open=True),
+        metavar="HZ",
+        help="markers: low-pass them before IK; skeletons: the coordinates (default 10 Hz, as "
+        "`biomotion retarget --filter`)",
+    )
     parser.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
-    parser.add_argument("--forces-trim", action="store_true",
-                        help="analyse only the frames the --grf file covers when it is shorter than the motion "
-                             "(default: refuse a force file that does not cover the motion)")
-    parser.add_argument("--cutoff", type=number(0, 200), default=6.0,
-                        help="low-pass cutoff of the coordinates in Hz, 0 for none (default: %(default)s)")
-    parser.add_argument("--muscles", metavar="PATHS",
-                        help="also muscle activations by static optimization (activations.sto): muscle path "
-                             "functions fitted on MODEL, a file from `biomotion train paths --model MODEL --out "
-                             "PATHS.safetensors` (minutes, once per model; needs opensim, the validate extra), or "
-                             "a shipped name: rajagopal2016 (the generic Rajagopal 2016 model), gait2392_subject01 "
-                             "(OpenSim's gait2392 subject01_simbody)")
+    parser.add_argument(
+        "--forces-trim",
+        action="store_true",
+        help="analyse only the frames the --grf file covers when it is shorter than the motion "
+        "(default: refuse a force file that does not cover the motion)",
+    )
+    parser.add_argument(
+        "--cutoff",
+        type=number(0, 200),
+        default=6.0,
+        help="low-pass cutoff of the coordinates in Hz, 0 for none (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--muscles",
+        metavar="PATHS",
+        help="also muscle activations by static optimization (activations.sto): muscle path "
+        "functions fitted on MODEL, a file from `biomotion train paths --model MODEL --out "
+        "PATHS.safetensors` (minutes, once per model; needs opensim, the validate extra), or "
+        "a shipped name: rajagopal2016 (the generic Rajagopal 2016 model), gait2392_subject01 "
+        "(OpenSim's gait2392 subject01_simbody)",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output folder (created; must be new or empty)")
     add_overwrite(parser)
-    parser.add_argument("--geometry", type=Path, action="append",
-                        help="extra folder of .vtp bone meshes for the viewer (repeatable)")
+    parser.add_argument(
+        "--geometry", type=Path, action="append", help="extra folder of .vtp bone meshes for the viewer (repeatable)"
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip viewer.html and the PNG/SVG plots")
     parser.set_defaults(run=run)
 
@@ -77,11 +109,15 @@ def _check_options(args: argparse.Namespace, captured: bool) -> None:
     if not args.model.is_file():
         raise ConfigError(f"{args.model}: --model is not a file")
     if not captured and (args.setup or args.marker_filter or args.static or args.scale_setup):
-        raise ConfigError(f"{args.trial}: --setup, --marker-filter, --static and --scale-setup are for captured "
-                          f"motion (.trc/.c3d markers, .bvh skeletons); a coordinates file is analysed as it is")
+        raise ConfigError(
+            f"{args.trial}: --setup, --marker-filter, --static and --scale-setup are for captured "
+            f"motion (.trc/.c3d markers, .bvh skeletons); a coordinates file is analysed as it is"
+        )
     if args.static is not None and args.scale_setup is None:
-        raise ConfigError("--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
-                          "--scale-setup XML too (`biomotion scale --help`)")
+        raise ConfigError(
+            "--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
+            "--scale-setup XML too (`biomotion scale --help`)"
+        )
     skeleton = args.trial.name.lower().endswith(SKELETON_SUFFIXES)
     if skeleton and (args.setup is not None or args.scale_setup is not None):
         raise ConfigError(f"{args.trial} is a skeleton: IK and Scale setups weigh and measure markers")
@@ -116,8 +152,13 @@ def run(args: argparse.Namespace) -> int:
 def _analyze(args: argparse.Namespace, captured: bool, scratch: Path):
     import numpy as np
 
-    from biomotion.analysis.activations import (TrialSettings, activation_summary, check_paths, load_paths,
-                                                write_activations)
+    from biomotion.analysis.activations import (
+        TrialSettings,
+        activation_summary,
+        check_paths,
+        load_paths,
+        write_activations,
+    )
     from biomotion.analysis.chain import summary, write_analysis
     from biomotion.analysis.trial import analyze_trial, forces_cover
     from biomotion.body.model import BodyModel
@@ -131,8 +172,9 @@ def _analyze(args: argparse.Namespace, captured: bool, scratch: Path):
         from biomotion.cli.scale import print_calibration
         from biomotion.ik.calibrate import calibrate
 
-        done = calibrate(args.scale_setup, ik_folder, model=args.model, static=args.static,
-                         filter_hz=args.marker_filter)
+        done = calibrate(
+            args.scale_setup, ik_folder, model=args.model, static=args.static, filter_hz=args.marker_filter
+        )
         print_calibration(done, files=False)
         model_path = done.model
     setup = read_ik_setup(args.setup) if args.setup else None
@@ -143,24 +185,36 @@ def _analyze(args: argparse.Namespace, captured: bool, scratch: Path):
     if trial.motion is not None:
         ignored = [name for name in trial.motion.names if name not in model.coordinate_names]
         if ignored:
-            print(f"warning: {args.trial}: {len(ignored)} column(s) name no coordinate of {model.name} and are "
-                  f"ignored: {', '.join(ignored)}", file=sys.stderr)
+            print(
+                f"warning: {args.trial}: {len(ignored)} column(s) name no coordinate of {model.name} and are "
+                f"ignored: {', '.join(ignored)}",
+                file=sys.stderr,
+            )
     forces = _forces(args)
     if forces is not None:
         trial = forces_cover(trial, forces, setup=setup, trim=args.forces_trim, source=args.grf)
     paths = check = None
-    if args.muscles is not None:   # before the analysis: a wrong path file fails fast and writes nothing
+    if args.muscles is not None:  # before the analysis: a wrong path file fails fast and writes nothing
         paths, label = load_paths(args.muscles)
         check = check_paths(paths, label, model_path, model.coordinate_names)
         if check.warning:
             print(f"warning: {check.warning}", file=sys.stderr)
-    result = analyze_trial(trial, model=model, forces=forces, setup=setup, marker_filter_hz=args.marker_filter,
-                           muscles=paths, muscle_model=model_path, cutoff_hz=args.cutoff)
+    result = analyze_trial(
+        trial,
+        model=model,
+        forces=forces,
+        setup=setup,
+        marker_filter_hz=args.marker_filter,
+        muscles=paths,
+        muscle_model=model_path,
+        cutoff_hz=args.cutoff,
+    )
     files: dict[str, Path] = {}
     coordinates, analysed_model = args.trial, model_path
     if result.fit is not None:
-        coordinates, analysed_model, extra["inverse_kinematics"] = _write_fit(args, result, model, model_path,
-                                                                              ik_folder)
+        coordinates, analysed_model, extra["inverse_kinematics"] = _write_fit(
+            args, result, model, model_path, ik_folder
+        )
         files["inverse_kinematics"] = ik_folder
     if result.activations is not None:
         extra["muscles"] = activation_summary(result.activations, check, TrialSettings())
@@ -191,14 +245,22 @@ def _write_fit(args: argparse.Namespace, result, generic, model_path: Path, fold
     row = fit.summary(name, coordinates.name)
     write_csv(folder / "summary.csv", SUMMARY_COLUMNS, [row.row()])
     kind = fit.point_kind
-    print(f"inverse kinematics: {row.frames} frames, RMS {kind} error {100 * row.rms_error_m:.2f} cm "
-          f"(max {100 * row.max_error_m:.2f} cm, {row.frames_dropped} frames without a tracked point)")
+    print(
+        f"inverse kinematics: {row.frames} frames, RMS {kind} error {100 * row.rms_error_m:.2f} cm "
+        f"(max {100 * row.max_error_m:.2f} cm, {row.frames_dropped} frames without a tracked point)"
+    )
     point = kind.replace(" ", "_")
-    section = {"source": str(args.trial), "setup": str(args.setup) if args.setup else None,
-               "filter_hz": args.marker_filter, "frames": row.frames, f"rms_{point}_error_m": row.rms_error_m,
-               f"max_{point}_error_m": row.max_error_m, "frames_dropped": row.frames_dropped,
-               "coordinates": f"ik/{coordinates.name}",
-               "model": f"ik/{Path(model_file).name}" if Path(model_file) != args.model else str(args.model)}
+    section = {
+        "source": str(args.trial),
+        "setup": str(args.setup) if args.setup else None,
+        "filter_hz": args.marker_filter,
+        "frames": row.frames,
+        f"rms_{point}_error_m": row.rms_error_m,
+        f"max_{point}_error_m": row.max_error_m,
+        "frames_dropped": row.frames_dropped,
+        "coordinates": f"ik/{coordinates.name}",
+        "model": f"ik/{Path(model_file).name}" if Path(model_file) != args.model else str(args.model),
+    }
     if args.scale_setup is not None:
         section["scaling"] = f"ik/{Path(model_path).stem}_scale.json"
     return coordinates, model_file, section
@@ -214,33 +276,59 @@ def _figures(args: argparse.Namespace, coordinates: Path, model: Path, result, f
     dynamics = result.dynamics
     # a model scaled here lies in the output's ik folder: its meshes are where the generic model's are
     generic = geometry_folders(args.model) if Path(model) != Path(args.model) else []
-    out = {"viewer": view_command(coordinates, model=model, grf=args.grf, com_zmp=files["com_zmp"],
-                                  out=scratch / "viewer.html", geometry=[*(args.geometry or ()), *generic])}
+    out = {
+        "viewer": view_command(
+            coordinates,
+            model=model,
+            grf=args.grf,
+            com_zmp=files["com_zmp"],
+            out=scratch / "viewer.html",
+            geometry=[*(args.geometry or ()), *generic],
+        )
+    }
     out["plot_joint_angles"] = plot_joint_angles(dynamics.motion, scratch / "joint_angles")[0]
     reaction = dynamics.measured if dynamics.measured is not None else dynamics.inferred
-    out["plot_grf"] = plot_ground_reaction(reaction, scratch / "grf", body_weight=dynamics.body_weight,
-                                           inferred=dynamics.inferred if dynamics.measured is not None else None,
-                                           label="measured" if dynamics.measured is not None else "inferred")[0]
-    out["plot_balance"] = plot_balance(dynamics.com, dynamics.zmp, scratch / "balance",
-                                       support=support_polygons(dynamics.contact_points, dynamics.contact_loaded))[0]
+    out["plot_grf"] = plot_ground_reaction(
+        reaction,
+        scratch / "grf",
+        body_weight=dynamics.body_weight,
+        inferred=dynamics.inferred if dynamics.measured is not None else None,
+        label="measured" if dynamics.measured is not None else "inferred",
+    )[0]
+    out["plot_balance"] = plot_balance(
+        dynamics.com,
+        dynamics.zmp,
+        scratch / "balance",
+        support=support_polygons(dynamics.contact_points, dynamics.contact_loaded),
+    )[0]
     if result.activations is not None:
         solution = result.activations
-        out["plot_activations"] = plot_activations(dynamics.motion.times, solution.muscle_names,
-                                                   solution.activations.numpy(), scratch / "activations",
-                                                   title="static optimization")[0]
+        out["plot_activations"] = plot_activations(
+            dynamics.motion.times,
+            solution.muscle_names,
+            solution.activations.numpy(),
+            scratch / "activations",
+            title="static optimization",
+        )[0]
     return out
 
 
 def _report(figures: dict, extra: dict, model_name: str, solution, files: dict) -> None:
-    print(f"analysed {figures['frames']} frames at {figures['rate_hz']:.0f} Hz on {model_name} "
-          f"({figures['body_mass_kg']:.1f} kg); torques from {figures['torques_from']} ground reaction")
+    print(
+        f"analysed {figures['frames']} frames at {figures['rate_hz']:.0f} Hz on {model_name} "
+        f"({figures['body_mass_kg']:.1f} kg); torques from {figures['torques_from']} ground reaction"
+    )
     if "inferred_vs_measured_vertical" in figures:
         ours, base = figures["inferred_vs_measured_vertical"], figures["com_baseline_vs_measured_vertical"]
-        print(f"  vertical GRF from kinematics vs plates: R2 {ours['r2']:.3f}, RMSE {ours['rmse_bw']:.3f} BW "
-              f"(COM baseline: R2 {base['r2']:.3f}, RMSE {base['rmse_bw']:.3f} BW)")
+        print(
+            f"  vertical GRF from kinematics vs plates: R2 {ours['r2']:.3f}, RMSE {ours['rmse_bw']:.3f} BW "
+            f"(COM baseline: R2 {base['r2']:.3f}, RMSE {base['rmse_bw']:.3f} BW)"
+        )
     if solution is not None:
         muscles = extra["muscles"]
-        print(f"  muscle activations: {muscles['muscles']} muscles balance {len(muscles['balanced_coordinates'])} "
-              f"coordinates on {muscles['frames_balanced']} of {muscles['frames']} frames")
+        print(
+            f"  muscle activations: {muscles['muscles']} muscles balance {len(muscles['balanced_coordinates'])} "
+            f"coordinates on {muscles['frames_balanced']} of {muscles['frames']} frames"
+        )
     for role, path in files.items():
         print(f"  {role:20s} {path}")

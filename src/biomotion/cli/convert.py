@@ -12,12 +12,14 @@ DESCRIPTION = (
     ".mot/.sto/.csv, markers .trc/.c3d/.csv (from .trc, .c3d or BVH joint positions; .c3d output holds the markers "
     "only, in mm), skeletons .bvh/.bvh.gz. With --model, INPUT holds coordinates of that model, which become a BVH "
     "skeleton of its bodies (.bvh), its markers by forward kinematics (.trc, .c3d) or the coordinates in model "
-    "order (.mot, .sto, .csv). An existing OUTPUT is refused unless --overwrite. Python: biomotion.convert.")
+    "order (.mot, .sto, .csv). An existing OUTPUT is refused unless --overwrite. Python: biomotion.convert."
+)
 
 
 def add_parser(verbs) -> None:
-    parser = verbs.add_parser("convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)",
-                              description=DESCRIPTION)
+    parser = verbs.add_parser(
+        "convert", help="convert between motion/marker formats (.mot .sto .trc .c3d .bvh .csv)", description=DESCRIPTION
+    )
     parser.add_argument("input", type=Path)
     parser.add_argument("output", type=Path)
     parser.add_argument("--model", type=Path, help="the .osim model whose coordinates INPUT holds")
@@ -29,8 +31,11 @@ def run(args: argparse.Namespace) -> int:
     from biomotion.errors import ConfigError
 
     if not args.input.is_file():
-        raise ConfigError(f"{args.input}: no such file" if not args.input.exists() else
-                          f"{args.input}: INPUT is a folder; give a file")
+        raise ConfigError(
+            f"{args.input}: no such file"
+            if not args.input.exists()
+            else f"{args.input}: INPUT is a folder; give a file"
+        )
     writable_file(args.output, "OUTPUT")
     if args.output.exists() and not args.overwrite:
         raise ConfigError(f"{args.output}: exists; choose another OUTPUT or pass --overwrite to replace it")

@@ -10,16 +10,21 @@ from biomotion.cli._common import add_data_root, add_overwrite, command_line, fr
 
 
 def add_parser(verbs) -> None:
-    data = verbs.add_parser("data", help="build and inspect the cached training set",
-                            description="The dataset registry: every source under a data root mapped onto the "
-                                        "canonical Rajagopal 2016 coordinates, one rate, subject-level splits. "
-                                        "Python: biomotion.build_cache, biomotion.DatasetCache.")
+    data = verbs.add_parser(
+        "data",
+        help="build and inspect the cached training set",
+        description="The dataset registry: every source under a data root mapped onto the "
+        "canonical Rajagopal 2016 coordinates, one rate, subject-level splits. "
+        "Python: biomotion.build_cache, biomotion.DatasetCache.",
+    )
     actions = data.add_subparsers(dest="data_verb", metavar="ACTION", required=True)
     build = actions.add_parser(
-        "build", help="build the cache (clips.safetensors + manifest.json)",
+        "build",
+        help="build the cache (clips.safetensors + manifest.json)",
         description="Read every registered source present under --data-root, resample to --rate with an "
-                    "anti-alias filter, map coordinates by name onto Rajagopal 2016 (masks for absent ones), and "
-                    "write clips.safetensors and manifest.json (counts per source, subject, action; splits).")
+        "anti-alias filter, map coordinates by name onto Rajagopal 2016 (masks for absent ones), and "
+        "write clips.safetensors and manifest.json (counts per source, subject, action; splits).",
+    )
     add_data_root(build)
     build.add_argument("--out", type=Path, required=True, help="cache folder to write (new or empty)")
     add_overwrite(build)
@@ -29,27 +34,52 @@ def add_parser(verbs) -> None:
     build.add_argument("--quiet", action="store_true", help="no progress bar")
     build.set_defaults(run=_build)
     augment = actions.add_parser(
-        "augment", help="add time-warped and posture-offset copies of the training clips (for the muscle surrogate)",
+        "augment",
+        help="add time-warped and posture-offset copies of the training clips (for the muscle surrogate)",
         description="Copy a cache and append its training-split clips played faster or slower (--time-warp "
-                    "factors; 1.25 = 25 % faster), resampled at the cache rate, and with random marker-placement "
-                    "posture offsets (--posture-copies: pelvis turned, thighs and trunk kept, hip axial rotation "
-                    "offset; see biomotion.data.posture). Validation and test clips are left as they are. Label the "
-                    "result with `biomotion train labels` and train the surrogate on it (see biomotion.data.augment).")
+        "factors; 1.25 = 25 % faster), resampled at the cache rate, and with random marker-placement "
+        "posture offsets (--posture-copies: pelvis turned, thighs and trunk kept, hip axial rotation "
+        "offset; see biomotion.data.posture). Validation and test clips are left as they are. Label the "
+        "result with `biomotion train labels` and train the surrogate on it (see biomotion.data.augment).",
+    )
     augment.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
     augment.add_argument("--out", type=Path, required=True, help="new cache folder to write (new or empty)")
     add_overwrite(augment)
-    augment.add_argument("--time-warp", type=number(0.1, 10), nargs="*", default=[0.8, 0.9, 1.1, 1.25], metavar="F",
-                         help="speed factors of the copies; none for no time-warped copies (default: %(default)s)")
-    augment.add_argument("--posture-copies", type=number(0, 100, integer=True), default=0, metavar="N",
-                         help="posture-offset copies per clip (default: %(default)s)")
-    augment.add_argument("--seed", type=number(0, 2**63 - 1, integer=True), default=0,
-                         help="seed of the posture offsets (default: %(default)s)")
+    augment.add_argument(
+        "--time-warp",
+        type=number(0.1, 10),
+        nargs="*",
+        default=[0.8, 0.9, 1.1, 1.25],
+        metavar="F",
+        help="speed factors of the copies; none for no time-warped copies (default: %(default)s)",
+    )
+    augment.add_argument(
+        "--posture-copies",
+        type=number(0, 100, integer=True),
+        default=0,
+        metavar="N",
+        help="posture-offset copies per clip (default: %(default)s)",
+    )
+    augment.add_argument(
+        "--seed",
+        type=number(0, 2**63 - 1, integer=True),
+        default=0,
+        help="seed of the posture offsets (default: %(default)s)",
+    )
     add_data_root(augment, "data root holding the canonical model, for posture copies")
-    augment.add_argument("--split", default="train", choices=("train", "val", "test"),
-                         help="split whose clips are copied (default: %(default)s)")
-    augment.add_argument("--source", action="append", metavar="NAME",
-                         help="copy only the clips of this source (repeatable; default: every source); the other "
-                              "sources' clips are kept without copies")
+    augment.add_argument(
+        "--split",
+        default="train",
+        choices=("train", "val", "test"),
+        help="split whose clips are copied (default: %(default)s)",
+    )
+    augment.add_argument(
+        "--source",
+        action="append",
+        metavar="NAME",
+        help="copy only the clips of this source (repeatable; default: every source); the other "
+        "sources' clips are kept without copies",
+    )
     augment.add_argument("--quiet", action="store_true", help="no progress bar")
     augment.set_defaults(run=_augment)
     sources = actions.add_parser("sources", help="list registered sources and whether the data root has them")
@@ -65,11 +95,14 @@ def _build(args: argparse.Namespace) -> int:
     if not args.data_root.is_dir():
         raise ConfigError(f"{args.data_root}: --data-root is not a folder")
     with fresh_folder(args.out, args.overwrite) as scratch:
-        manifest = build_cache(args.data_root, scratch, rate=args.rate, sources=args.source or None,
-                               progress=not args.quiet)
+        manifest = build_cache(
+            args.data_root, scratch, rate=args.rate, sources=args.source or None, progress=not args.quiet
+        )
     counts = manifest["counts"]
-    print(f"cached {counts['clips']} clips ({counts['frames']} frames at {manifest['rate_hz']:g} Hz) "
-          f"from {len(counts['per_source'])} sources in {manifest['build_seconds']:.1f} s -> {args.out}")
+    print(
+        f"cached {counts['clips']} clips ({counts['frames']} frames at {manifest['rate_hz']:g} Hz) "
+        f"from {len(counts['per_source'])} sources in {manifest['build_seconds']:.1f} s -> {args.out}"
+    )
     for source, n in counts["per_source"].items():
         print(f"  {source:10s} {n:5d} clips  {counts['subjects_per_source'][source]:3d} subjects")
     print(f"  splits: {counts['per_split']}")
@@ -91,14 +124,24 @@ def _augment(args: argparse.Namespace) -> int:
 
         model = body_model(args.data_root)
     with fresh_folder(args.out, args.overwrite) as scratch:
-        manifest = augmented_cache(args.cache, scratch, args.time_warp, posture_copies=args.posture_copies,
-                                   model=model, seed=args.seed, split=args.split, sources=args.source or (),
-                                   progress=not args.quiet)
+        manifest = augmented_cache(
+            args.cache,
+            scratch,
+            args.time_warp,
+            posture_copies=args.posture_copies,
+            model=model,
+            seed=args.seed,
+            split=args.split,
+            sources=args.source or (),
+            progress=not args.quiet,
+        )
     counts = manifest["counts"]
     kinds = [f"time-warped x{', x'.join(f'{f:g}' for f in args.time_warp)}"] if args.time_warp else []
     kinds += [f"{args.posture_copies} posture offset(s) each"] if args.posture_copies > 0 else []
-    print(f"wrote {counts['clips']} clips ({manifest['augmentation']['copies']} copies of the {args.split} split: "
-          f"{'; '.join(kinds)}) in {manifest['build_seconds']:.1f} s -> {args.out}")
+    print(
+        f"wrote {counts['clips']} clips ({manifest['augmentation']['copies']} copies of the {args.split} split: "
+        f"{'; '.join(kinds)}) in {manifest['build_seconds']:.1f} s -> {args.out}"
+    )
     return 0
 
 

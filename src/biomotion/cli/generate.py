@@ -20,60 +20,105 @@ DESCRIPTION = (
     "motion.mot (coordinates of the person's scaled model), motion.bvh, grf.mot + grf_loads.xml and torques.sto "
     "(inferred from the motion), activations.sto (surrogate), com_zmp.sto, metrics.json (with the request, the "
     "profile, the seed and the versions), plots and viewer.html; and model.osim (the generic Rajagopal 2016 model "
-    "scaled to the person's height and mass). Python: biomotion.generate.")
-EPILOG = ("example: biomotion generate --profile examples/runner_52_acl.yaml --action \"running at 3.5 m/s\" "
-          "--seconds 3 --out out/runner")
+    "scaled to the person's height and mass). Python: biomotion.generate."
+)
+EPILOG = (
+    'example: biomotion generate --profile examples/runner_52_acl.yaml --action "running at 3.5 m/s" '
+    "--seconds 3 --out out/runner"
+)
 
 
 def add_parser(verbs) -> None:
-    parser = verbs.add_parser("generate", help="generate personalised, biomechanically guided motion for a person "
-                                               "and an action (PG-BIG)", description=DESCRIPTION, epilog=EPILOG)
+    parser = verbs.add_parser(
+        "generate",
+        help="generate personalised, biomechanically guided motion for a person and an action (PG-BIG)",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+    )
     person = parser.add_argument_group("who (optional: without a profile the motion is population-level)")
-    person.add_argument("--profile", type=Path, help="profile file (YAML/JSON: age, sex, height, mass, sport, "
-                                                     "level, experience_years, injuries)")
+    person.add_argument(
+        "--profile",
+        type=Path,
+        help="profile file (YAML/JSON: age, sex, height, mass, sport, level, experience_years, injuries)",
+    )
     person.add_argument("--subject-table", type=Path, help="subject table (CSV/XLSX) holding the person")
     person.add_argument("--subject-id", help="the person's id in --subject-table")
-    person.add_argument("--reference", type=Path, action="append",
-                        help="a clip of the person (OpenSim coordinates .mot/.sto, Rajagopal-family names); "
-                             "repeatable. The clips condition the prior and centre the motion on the person's "
-                             "posture (their mean deviation from the population's for the clip's action and speed; "
-                             "metrics.json lists the offset)")
-    person.add_argument("--reference-action", action="append", metavar="TEXT",
-                        help="what a --reference clip shows, free text like --action (\"run at 2.5 m/s\"); one per "
-                             "--reference, in order. Without it, each clip's action is the one whose population "
-                             "posture is nearest and its speed that action's mean")
-    parser.add_argument("--action",
-                        help="(required) what to do, free text mapped to the nearest dataset label (\"run at "
-                             "3.5 m/s\", \"squat\", \"drop jump\", \"walk with toes out\"; without a number, the "
-                             "label's median training speed, or its lower/upper quartile for \"slowly\", \"fast\" "
-                             "...); the Bandai-Namco contents and styles (\"wave both hands\", \"bow\", "
-                             "\"walk, elderly\") go to the full-body bundle, with the profile's biodata masked "
-                             "(docs/generation.md). Text that matches no known action is refused with the "
-                             "closest ones")
-    parser.add_argument("--seconds", type=number(0.5, MAX_SECONDS), default=3.0,
-                        help=f"clip length, 0.5 to {MAX_SECONDS:g} s (default: %(default)s)")
-    parser.add_argument("--samples", type=number(1, MAX_SAMPLES, integer=True), default=1,
-                        help=f"clips to draw, 1 to {MAX_SAMPLES} (default: %(default)s)")
-    parser.add_argument("--seed", type=number(0, 2**63 - 1, integer=True), default=0,
-                        help="random seed; the same seed gives the same files (default: %(default)s)")
+    person.add_argument(
+        "--reference",
+        type=Path,
+        action="append",
+        help="a clip of the person (OpenSim coordinates .mot/.sto, Rajagopal-family names); "
+        "repeatable. The clips condition the prior and centre the motion on the person's "
+        "posture (their mean deviation from the population's for the clip's action and speed; "
+        "metrics.json lists the offset)",
+    )
+    person.add_argument(
+        "--reference-action",
+        action="append",
+        metavar="TEXT",
+        help='what a --reference clip shows, free text like --action ("run at 2.5 m/s"); one per '
+        "--reference, in order. Without it, each clip's action is the one whose population "
+        "posture is nearest and its speed that action's mean",
+    )
+    parser.add_argument(
+        "--action",
+        help='(required) what to do, free text mapped to the nearest dataset label ("run at '
+        '3.5 m/s", "squat", "drop jump", "walk with toes out"; without a number, the '
+        'label\'s median training speed, or its lower/upper quartile for "slowly", "fast" '
+        '...); the Bandai-Namco contents and styles ("wave both hands", "bow", '
+        '"walk, elderly") go to the full-body bundle, with the profile\'s biodata masked '
+        "(docs/generation.md). Text that matches no known action is refused with the "
+        "closest ones",
+    )
+    parser.add_argument(
+        "--seconds",
+        type=number(0.5, MAX_SECONDS),
+        default=3.0,
+        help=f"clip length, 0.5 to {MAX_SECONDS:g} s (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--samples",
+        type=number(1, MAX_SAMPLES, integer=True),
+        default=1,
+        help=f"clips to draw, 1 to {MAX_SAMPLES} (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=number(0, 2**63 - 1, integer=True),
+        default=0,
+        help="random seed; the same seed gives the same files (default: %(default)s)",
+    )
     parser.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
-    parser.add_argument("--smooth", type=number(0, low_open=True), metavar="HZ",
-                        help="low-pass the guided coordinates at HZ (zero-lag Butterworth, below 15 Hz at the "
-                             "generator's 30 Hz) before the feet are planted: 6 Hz brings jerk to the real clips' "
-                             "level and lowers muscle-limit violations, at a little more foot sliding "
-                             "(docs/results/dev_guidance_skim.md). Default: off")
+    parser.add_argument(
+        "--smooth",
+        type=number(0, low_open=True),
+        metavar="HZ",
+        help="low-pass the guided coordinates at HZ (zero-lag Butterworth, below 15 Hz at the "
+        "generator's 30 Hz) before the feet are planted: 6 Hz brings jerk to the real clips' "
+        "level and lowers muscle-limit violations, at a little more foot sliding "
+        "(docs/results/dev_guidance_skim.md). Default: off",
+    )
     parser.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
     parser.add_argument("--no-figures", action="store_true", help="no plots or viewer")
-    parser.add_argument("--threads", type=number(1, 256, integer=True),
-                        help="torch threads for sampling and guidance (default: 2, or the machine's cores if fewer)")
+    parser.add_argument(
+        "--threads",
+        type=number(1, 256, integer=True),
+        help="torch threads for sampling and guidance (default: 2, or the machine's cores if fewer)",
+    )
     add_data_root(parser, "folder with opensim-models/ (the canonical Rajagopal model)")
-    parser.add_argument("--checkpoints", type=Path,
-                        help="folder of trained weights (default: the shipped lab bundle, or the shipped full-body "
-                             "bundle checkpoints/full-body for the labels only it knows)")
+    parser.add_argument(
+        "--checkpoints",
+        type=Path,
+        help="folder of trained weights (default: the shipped lab bundle, or the shipped full-body "
+        "bundle checkpoints/full-body for the labels only it knows)",
+    )
     parser.add_argument("--out", type=Path, help="(required) output folder (created; must be new or empty)")
     add_overwrite(parser)
-    parser.add_argument("--list-actions", action="store_true",
-                        help="list the actions, styles and typical speeds each shipped bundle knows, and exit")
+    parser.add_argument(
+        "--list-actions",
+        action="store_true",
+        help="list the actions, styles and typical speeds each shipped bundle knows, and exit",
+    )
     parser.set_defaults(run=run)
 
 
@@ -95,30 +140,51 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--subject-table and --subject-id go together")
     references = args.reference or ()
     if args.reference_action and len(args.reference_action) != len(references):
-        raise ConfigError(f"--reference-action given {len(args.reference_action)} times for {len(references)} "
-                          "--reference clips: give one per clip, in the same order, or none")
-    for path, flag in [(args.profile, "--profile"), (args.subject_table, "--subject-table"),
-                       *((p, "--reference") for p in args.reference or ())]:
+        raise ConfigError(
+            f"--reference-action given {len(args.reference_action)} times for {len(references)} "
+            "--reference clips: give one per clip, in the same order, or none"
+        )
+    for path, flag in [
+        (args.profile, "--profile"),
+        (args.subject_table, "--subject-table"),
+        *((p, "--reference") for p in args.reference or ()),
+    ]:
         if path is not None and not path.is_file():
             raise ConfigError(f"{path}: {flag} is not a file")
     from biomotion.generation.request import generate
 
     with fresh_folder(args.out, args.overwrite) as scratch:
         result = generate(
-            action=args.action, out=scratch, data_root=args.data_root, checkpoints=args.checkpoints,
-            profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
-            references=args.reference or (), reference_actions=args.reference_action or (), seconds=args.seconds,
-            seed=args.seed, samples=args.samples, guidance=not args.no_guidance, personalised=not args.no_profile,
-            figures=not args.no_figures, command=command_line(), threads=args.threads, smooth_hz=args.smooth)
+            action=args.action,
+            out=scratch,
+            data_root=args.data_root,
+            checkpoints=args.checkpoints,
+            profile_file=args.profile,
+            subject_table=args.subject_table,
+            subject_id=args.subject_id,
+            references=args.reference or (),
+            reference_actions=args.reference_action or (),
+            seconds=args.seconds,
+            seed=args.seed,
+            samples=args.samples,
+            guidance=not args.no_guidance,
+            personalised=not args.no_profile,
+            figures=not args.no_figures,
+            command=command_line(),
+            threads=args.threads,
+            smooth_hz=args.smooth,
+        )
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")
     for note in result["notes"]:
         print(f"note: {note}")
     speed = "" if a.speed is None else f" at {a.speed:g} m/s"
     style = "" if a.style is None else f" ({a.style})"
-    print(f"generated {args.samples} x {args.seconds:g} s of {a.action!r}{style}{speed} in "
-          f"{result['generate_seconds']:.2f} s (models loaded in {result['load_seconds']:.1f} s; outputs written in "
-          f"{result['write_seconds']:.1f} s) -> {args.out}")
+    print(
+        f"generated {args.samples} x {args.seconds:g} s of {a.action!r}{style}{speed} in "
+        f"{result['generate_seconds']:.2f} s (models loaded in {result['load_seconds']:.1f} s; outputs written in "
+        f"{result['write_seconds']:.1f} s) -> {args.out}"
+    )
     for sample, files in result["files"].items():
         for role, path in files.items():
             print(f"  {sample + '/' if len(result['files']) > 1 else ''}{role:18s} {moved(path, scratch, args.out)}")

@@ -13,55 +13,77 @@ from pathlib import Path
 
 from biomotion.cli._common import add_data_root, command_line, number, writable_file
 
-FITTING = ("training time and iterations: training stops at whichever of --minutes and --iterations comes first; "
-           "the seed fixes data order and initialisation")
+FITTING = (
+    "training time and iterations: training stops at whichever of --minutes and --iterations comes first; "
+    "the seed fixes data order and initialisation"
+)
 
 
 def add_parser(verbs) -> None:
-    train = verbs.add_parser("train", help="train the tokenizer, generator and muscle surrogate; label the cache; "
-                                           "fit muscle paths and ANSUR segment lines",
-                             description="Fit biomotion's learned parts from data. Each writes .safetensors weights "
-                                         "and a model card (.json, .md) beside them. " + FITTING)
+    train = verbs.add_parser(
+        "train",
+        help="train the tokenizer, generator and muscle surrogate; label the cache; "
+        "fit muscle paths and ANSUR segment lines",
+        description="Fit biomotion's learned parts from data. Each writes .safetensors weights "
+        "and a model card (.json, .md) beside them. " + FITTING,
+    )
     models = train.add_subparsers(dest="train_verb", metavar="MODEL", required=True)
 
-    tokenizer = models.add_parser("tokenizer", help="the motion tokenizer (PG-BIG Sec. 3.1 VQ-VAE)",
-                                  description="Train the motion tokenizer on a dataset cache (`biomotion data build`)."
-                                              " Python: biomotion.training.train_tokenizer.train.")
+    tokenizer = models.add_parser(
+        "tokenizer",
+        help="the motion tokenizer (PG-BIG Sec. 3.1 VQ-VAE)",
+        description="Train the motion tokenizer on a dataset cache (`biomotion data build`)."
+        " Python: biomotion.training.train_tokenizer.train.",
+    )
     _common(tokenizer)
     tokenizer.set_defaults(run=_tokenizer)
 
-    generator = models.add_parser("generator", help="the profile-action prior with its subject profiler (PG-BIG "
-                                                    "Sec. 3.2, A.6)",
-                                  description="Train the prior over tokenizer codes, conditioned on the profile and "
-                                              "the action, on a dataset cache. Python: "
-                                              "biomotion.training.train_generator.train.")
+    generator = models.add_parser(
+        "generator",
+        help="the profile-action prior with its subject profiler (PG-BIG Sec. 3.2, A.6)",
+        description="Train the prior over tokenizer codes, conditioned on the profile and "
+        "the action, on a dataset cache. Python: "
+        "biomotion.training.train_generator.train.",
+    )
     _common(generator)
     generator.add_argument("--tokenizer", type=Path, required=True, help="trained tokenizer .safetensors")
     generator.add_argument("--population", action="store_true", help="train the action-only baseline prior")
-    generator.add_argument("--statistics-only", action="store_true",
-                           help="recompute the per-action statistics of the trained --out from --cache, keeping its "
-                                "weights (--tokenizer is then not read)")
+    generator.add_argument(
+        "--statistics-only",
+        action="store_true",
+        help="recompute the per-action statistics of the trained --out from --cache, keeping its "
+        "weights (--tokenizer is then not read)",
+    )
     generator.set_defaults(run=_generator)
 
-    surrogate = models.add_parser("surrogate", help="the muscle-activation surrogate (PG-BIG Sec. 3.3, A.8)",
-                                  description="Train the surrogate on static-optimization labels of a cache "
-                                              "(`biomotion train labels`). Python: "
-                                              "biomotion.training.train_surrogate.train.")
+    surrogate = models.add_parser(
+        "surrogate",
+        help="the muscle-activation surrogate (PG-BIG Sec. 3.3, A.8)",
+        description="Train the surrogate on static-optimization labels of a cache "
+        "(`biomotion train labels`). Python: "
+        "biomotion.training.train_surrogate.train.",
+    )
     _common(surrogate)
     surrogate.add_argument("--labels", type=Path, help="labels file (default: <cache>/surrogate_labels.safetensors)")
-    surrogate.add_argument("--threads", type=number(1, 256, integer=True), default=1,
-                           help="torch CPU threads for training (default: %(default)s)")
+    surrogate.add_argument(
+        "--threads",
+        type=number(1, 256, integer=True),
+        default=1,
+        help="torch CPU threads for training (default: %(default)s)",
+    )
     surrogate.set_defaults(run=_surrogate)
 
     labels = models.add_parser(
-        "labels", help="static-optimization activations (80 Rajagopal muscles) and COM terms for every cached clip",
+        "labels",
+        help="static-optimization activations (80 Rajagopal muscles) and COM terms for every cached clip",
         description="For every clip of the cache: inverse dynamics on the generic Rajagopal 2016 model with the "
-                    "ground reaction inferred from the motion, batched static optimization (squared activations, "
-                    "the model's Millard 2012 muscles, reserves), and the whole-body COM position, velocity and "
-                    "acceleration. Writes <cache>/surrogate_labels.safetensors and bounds_muscle_activations.json. "
-                    "Each finished clip is kept beside the output until all are done, so an interrupted run "
-                    "resumes; labels already made from this very cache are reused. Python: "
-                    "biomotion.training.surrogate_labels.labels_for_cache.")
+        "ground reaction inferred from the motion, batched static optimization (squared activations, "
+        "the model's Millard 2012 muscles, reserves), and the whole-body COM position, velocity and "
+        "acceleration. Writes <cache>/surrogate_labels.safetensors and bounds_muscle_activations.json. "
+        "Each finished clip is kept beside the output until all are done, so an interrupted run "
+        "resumes; labels already made from this very cache are reused. Python: "
+        "biomotion.training.surrogate_labels.labels_for_cache.",
+    )
     labels.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
     add_data_root(labels, "folder holding opensim-models/ (the Rajagopal model)")
     labels.add_argument("--out", type=Path, help="labels file (default: <cache>/surrogate_labels.safetensors)")
@@ -69,24 +91,37 @@ def add_parser(verbs) -> None:
     labels.set_defaults(run=_labels)
 
     paths = models.add_parser(
-        "paths", help="muscle path functions fitted to OpenSim's geometry of a model (needs opensim)",
+        "paths",
+        help="muscle path functions fitted to OpenSim's geometry of a model (needs opensim)",
         description="Sample OpenSim's musculotendon lengths and moment arms of MODEL at random poses and fit one "
-                    "polynomial (or a gated piecewise one) per muscle; `biomotion analyze --muscles` uses the file. "
-                    "Minutes per model. Python: biomotion.training.fit_paths.fit_paths.")
+        "polynomial (or a gated piecewise one) per muscle; `biomotion analyze --muscles` uses the file. "
+        "Minutes per model. Python: biomotion.training.fit_paths.fit_paths.",
+    )
     paths.add_argument("--model", type=Path, required=True, help=".osim model")
     paths.add_argument("--out", type=Path, required=True, help="output .safetensors")
-    paths.add_argument("--samples", type=number(100, 10**6, integer=True), default=6000,
-                       help="training poses (plus 25%% held out) (default: %(default)s)")
+    paths.add_argument(
+        "--samples",
+        type=number(100, 10**6, integer=True),
+        default=6000,
+        help="training poses (plus 25%% held out) (default: %(default)s)",
+    )
     paths.add_argument("--seed", type=number(0, 2**63 - 1, integer=True), default=0)
-    paths.add_argument("--range", action="append", default=[], metavar="COORD=LO:HI",
-                       help="sample COORD in [LO, HI] (rad or m) instead of its model range")
+    paths.add_argument(
+        "--range",
+        action="append",
+        default=[],
+        metavar="COORD=LO:HI",
+        help="sample COORD in [LO, HI] (rad or m) instead of its model range",
+    )
     paths.set_defaults(run=_paths)
 
     segments = models.add_parser(
-        "segments", help="the ANSUR II segment-length lines that scale a model to a person's measures",
+        "segments",
+        help="the ANSUR II segment-length lines that scale a model to a person's measures",
         description="Least-squares line of each segment's length against stature over the ANSUR II men; writes the "
-                    "JSON that biomotion.body.scaling.segments ships. Python: "
-                    "biomotion.training.fit_segments.fit_lines.")
+        "JSON that biomotion.body.scaling.segments ships. Python: "
+        "biomotion.training.fit_segments.fit_lines.",
+    )
     add_data_root(segments, "folder holding anthropometry/ANSUR_II_MALE_Public.csv")
     segments.add_argument("--out", type=Path, required=True, help="output .json")
     segments.set_defaults(run=_segments)
@@ -99,8 +134,9 @@ def _common(parser: argparse.ArgumentParser) -> None:
     add_data_root(parser, "folder with opensim-models/ (the canonical Rajagopal model)")
     parser.add_argument("--minutes", type=number(0, low_open=True), help="stop after this much training time")
     parser.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
-    parser.add_argument("--seed", type=number(0, 2**63 - 1, integer=True), default=0,
-                        help="random seed (default: %(default)s)")
+    parser.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
 
 
 def _config(args: argparse.Namespace) -> dict:
@@ -115,8 +151,11 @@ def _config(args: argparse.Namespace) -> dict:
         config = yaml.safe_load(args.config.read_text())
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(args.config, f"not valid YAML: {getattr(error, 'problem', error)}",
-                              line=None if mark is None else mark.line + 1) from None
+        raise DataFormatError(
+            args.config,
+            f"not valid YAML: {getattr(error, 'problem', error)}",
+            line=None if mark is None else mark.line + 1,
+        ) from None
     if not isinstance(config, dict):
         raise DataFormatError(args.config, "a training config is a mapping (model:, data:, train: ...)")
     writable_file(args.out)
@@ -128,8 +167,16 @@ def _tokenizer(args: argparse.Namespace) -> int:
 
     from biomotion.training.train_tokenizer import train
 
-    card = train(_config(args), args.cache, args.out, data_root=args.data_root, minutes=args.minutes,
-                 iterations=args.iterations, seed=args.seed, command=command_line())
+    card = train(
+        _config(args),
+        args.cache,
+        args.out,
+        data_root=args.data_root,
+        minutes=args.minutes,
+        iterations=args.iterations,
+        seed=args.seed,
+        command=command_line(),
+    )
     print(json.dumps({"before": card["metrics_val_before"], "after": card["metrics_val"]}, indent=1))
     return 0
 
@@ -144,8 +191,18 @@ def _generator(args: argparse.Namespace) -> int:
         card = refresh_statistics(config, args.cache, args.data_root, args.out, command=command_line())
         print(f"{args.out}: statistics recomputed, SHA-256 {card['sha256']}")
         return 0
-    card = train(config, args.cache, args.tokenizer, args.data_root, args.out, population=args.population,
-                 minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command_line())
+    card = train(
+        config,
+        args.cache,
+        args.tokenizer,
+        args.data_root,
+        args.out,
+        population=args.population,
+        minutes=args.minutes,
+        iterations=args.iterations,
+        seed=args.seed,
+        command=command_line(),
+    )
     print(json.dumps({"held_out": card["metrics_held_out"], "train": card["metrics_train"]}, indent=1))
     return 0
 
@@ -158,10 +215,26 @@ def _surrogate(args: argparse.Namespace) -> int:
 
     config = _config(args)
     with torch_threads(args.threads):
-        card = train(config, args.cache, args.out, data_root=args.data_root, labels_path=args.labels,
-                     minutes=args.minutes, iterations=args.iterations, seed=args.seed, command=command_line())
-    print(json.dumps({"val": {k: v for k, v in card["metrics_val"].items() if k != "per_muscle_r2"},
-                      "speed_3s_clip": card["speed_3s_clip"]}, indent=1))
+        card = train(
+            config,
+            args.cache,
+            args.out,
+            data_root=args.data_root,
+            labels_path=args.labels,
+            minutes=args.minutes,
+            iterations=args.iterations,
+            seed=args.seed,
+            command=command_line(),
+        )
+    print(
+        json.dumps(
+            {
+                "val": {k: v for k, v in card["metrics_val"].items() if k != "per_muscle_r2"},
+                "speed_3s_clip": card["speed_3s_clip"],
+            },
+            indent=1,
+        )
+    )
     return 0
 
 
@@ -174,9 +247,11 @@ def _labels(args: argparse.Namespace) -> int:
     writable_file(out)
     labels = labels_for_cache(cache, args.data_root, out, progress=not args.quiet)
     info = labels.info
-    print(f"labelled {info['clips']} clips ({info['frames']} frames; {info.get('clips_resumed', 0)} resumed) with "
-          f"{info['muscle_curves']} muscles: converged {100 * info['converged_share']:.1f} % of frames, reserve RMS "
-          f"{info['reserve_rms_nm']:.2f} N·m -> {out}")
+    print(
+        f"labelled {info['clips']} clips ({info['frames']} frames; {info.get('clips_resumed', 0)} resumed) with "
+        f"{info['muscle_curves']} muscles: converged {100 * info['converged_share']:.1f} % of frames, reserve RMS "
+        f"{info['reserve_rms_nm']:.2f} N·m -> {out}"
+    )
     return 0
 
 
@@ -190,8 +265,10 @@ def _paths(args: argparse.Namespace) -> int:
     paths = fit_paths(args.model, args.samples, args.seed, ranges, log=tqdm.write)
     paths.save(args.out)
     info = paths.info
-    print(f"{paths.n_muscles} muscles, {len(paths.groups)} groups; worst held-out moment-arm RMSE "
-          f"{info['worst_held_out_moment_arm_rmse_m'] * 1000:.3f} mm ({info['fit_seconds']} s) -> {args.out}")
+    print(
+        f"{paths.n_muscles} muscles, {len(paths.groups)} groups; worst held-out moment-arm RMSE "
+        f"{info['worst_held_out_moment_arm_rmse_m'] * 1000:.3f} mm ({info['fit_seconds']} s) -> {args.out}"
+    )
     return 0
 
 

@@ -13,12 +13,14 @@ DESCRIPTION = (
     "inverse dynamics vs OpenSim's solver and ID tool, and ground reaction inferred from kinematics vs force "
     "plates; ik = marker IK and scaling vs OpenSim's InverseKinematicsTool and ScaleTool; muscles = moment arms and "
     "static optimization vs OpenSim, activations vs EMG. Needs the validate extra (opensim). Python: "
-    "biomotion.run_validation.")
+    "biomotion.run_validation."
+)
 
 
 def add_parser(verbs) -> None:
-    parser = verbs.add_parser("validate", help="check biomotion against OpenSim and measured data; JSON report",
-                              description=DESCRIPTION)
+    parser = verbs.add_parser(
+        "validate", help="check biomotion against OpenSim and measured data; JSON report", description=DESCRIPTION
+    )
     parser.add_argument("what", choices=("kinematics", "dynamics", "ik", "muscles"))
     add_data_root(parser)
     parser.add_argument("--json", type=Path, required=True, help="report file to write")
@@ -37,8 +39,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.data_root}: --data-root is not a folder")
     from biomotion.validation.run import run_validation
 
-    report = run_validation(args.what, args.data_root, args.json, progress=not args.quiet, md_path=args.md,
-                            command=command_line())
+    report = run_validation(
+        args.what, args.data_root, args.json, progress=not args.quiet, md_path=args.md, command=command_line()
+    )
     for key, value in report.items():
         if not isinstance(value, (dict, list)):
             print(f"  {key}: {value}")

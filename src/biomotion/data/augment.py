@@ -51,9 +51,18 @@ MIN_FRAMES = 20
 """Copies shorter than this (frames) are not written: too short for the surrogate's training windows to mean much."""
 
 
-def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float] = (), *, posture_copies: int = 0,
-                    model: BodyModel | None = None, seed: int = 0, split: str = "train", sources: Sequence[str] = (),
-                    progress: bool = True) -> dict:
+def augmented_cache(
+    cache: str | Path,
+    out: str | Path,
+    factors: Sequence[float] = (),
+    *,
+    posture_copies: int = 0,
+    model: BodyModel | None = None,
+    seed: int = 0,
+    split: str = "train",
+    sources: Sequence[str] = (),
+    progress: bool = True,
+) -> dict:
     """Write to ``out`` the clips of ``cache`` followed by copies of its ``split`` clips (of ``sources`` only, when
     given; the other clips are kept as they are): played ``factors`` times
     faster, and ``posture_copies`` with random marker-placement offsets (`biomotion.data.posture`, needs the
@@ -88,19 +97,33 @@ def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float]
         copies = []
         for factor in factors:
             warped = replace(motion, times=motion.times[0] + (motion.times - motion.times[0]) / factor)
-            copies.append((warped.resample(source.rate), f"@x{factor:g}", {"time_warp": factor},
-                           factor, f" (time-warped x{factor:g})"))
-        filled = motion if model is None else motion.with_values(np.where(motion.mask[None], motion.values,
-                                                                          defaults[None]))
+            copies.append(
+                (
+                    warped.resample(source.rate),
+                    f"@x{factor:g}",
+                    {"time_warp": factor},
+                    factor,
+                    f" (time-warped x{factor:g})",
+                )
+            )
+        filled = (
+            motion if model is None else motion.with_values(np.where(motion.mask[None], motion.values, defaults[None]))
+        )
         for k in range(posture_copies):
             for _ in range(POSTURE_DRAWS):
                 offsets = random_offsets(rng)
                 moved = posture_offset(filled, model, offsets)
                 if keeps_ranges(filled, moved, model):
                     kept = np.where(motion.mask[None], moved.values, motion.values)
-                    copies.append((motion.with_values(kept), f"@posture{k + 1}",
-                                   {"posture_deg": {n: round(v, 3) for n, v in offsets.items()}}, 1.0,
-                                   f" (posture offset {k + 1})"))
+                    copies.append(
+                        (
+                            motion.with_values(kept),
+                            f"@posture{k + 1}",
+                            {"posture_deg": {n: round(v, 3) for n, v in offsets.items()}},
+                            1.0,
+                            f" (posture offset {k + 1})",
+                        )
+                    )
                     break
         for copy, suffix, how, factor, note in copies:
             if copy.n_frames < MIN_FRAMES:
@@ -110,9 +133,17 @@ def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float]
                 labels["speed"] = round(labels["speed"] * factor, 4)
             if labels.get("text"):
                 labels["text"] = f"{labels['text']}{note}"
-            records.append({**record, "clip_id": f"{record['clip_id']}{suffix}", "labels": labels,
-                            "offset": offset, "n_frames": copy.n_frames, "start_time": float(copy.times[0]),
-                            "augmentation": {**how, "from": record["clip_id"]}})
+            records.append(
+                {
+                    **record,
+                    "clip_id": f"{record['clip_id']}{suffix}",
+                    "labels": labels,
+                    "offset": offset,
+                    "n_frames": copy.n_frames,
+                    "start_time": float(copy.times[0]),
+                    "augmentation": {**how, "from": record["clip_id"]},
+                }
+            )
             values.append(copy.values.astype(np.float32))
             masks.append(source.masks[index].astype(np.uint8)[None])
             offset += copy.n_frames
@@ -123,15 +154,24 @@ def augmented_cache(cache: str | Path, out: str | Path, factors: Sequence[float]
     save_file({"values": np.concatenate(values), "masks": np.concatenate(masks)}, str(tmp))
     tmp.replace(out / ARRAYS)
     for bounds in source.folder.glob("bounds_*.json"):
-        if bounds.name != "bounds_muscle_activations.json":   # written with the labels of this cache
+        if bounds.name != "bounds_muscle_activations.json":  # written with the labels of this cache
             shutil.copyfile(bounds, out / bounds.name)
     fields = ClipRecord.__dataclass_fields__
-    manifest = {**source.manifest, "clips": records,
-                "counts": _counts([ClipRecord(**{k: r[k] for k in fields}) for r in records]),
-                "augmentation": {"time_warp": list(factors), "posture_copies": posture_copies, "seed": seed,
-                                 "split": split, "sources": sorted(sources) or "all", "from": str(source.folder),
-                                 "copies": len(records) - len(source.records)},
-                "build_seconds": round(time.perf_counter() - started, 2)}
+    manifest = {
+        **source.manifest,
+        "clips": records,
+        "counts": _counts([ClipRecord(**{k: r[k] for k in fields}) for r in records]),
+        "augmentation": {
+            "time_warp": list(factors),
+            "posture_copies": posture_copies,
+            "seed": seed,
+            "split": split,
+            "sources": sorted(sources) or "all",
+            "from": str(source.folder),
+            "copies": len(records) - len(source.records),
+        },
+        "build_seconds": round(time.perf_counter() - started, 2),
+    }
     with atomic_write(out / MANIFEST) as handle:
         json.dump(manifest, handle, indent=1)
     return manifest

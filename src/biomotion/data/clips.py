@@ -37,12 +37,18 @@ BVH_ROOT = "Hips"  # the pelvis; Bandai-Namco's first joint, joint_Root, is its 
 BVH_MASS = 70.0  # kg, a nominal body mass for the point-mass energy of skeleton-only clips
 # Winter (2009) Table 4.1: (proximal, distal, mass fraction, COM fraction from proximal); trunk 0.497 at 0.50.
 WINTER_SEGMENTS = (
-    ("Hand_L", "Hand_L", 0.006, 0.0), ("Hand_R", "Hand_R", 0.006, 0.0),
-    ("LowerArm_L", "Hand_L", 0.016, 0.430), ("LowerArm_R", "Hand_R", 0.016, 0.430),
-    ("UpperArm_L", "LowerArm_L", 0.028, 0.436), ("UpperArm_R", "LowerArm_R", 0.028, 0.436),
-    ("Foot_L", "Toes_L", 0.0145, 0.5), ("Foot_R", "Toes_R", 0.0145, 0.5),
-    ("LowerLeg_L", "Foot_L", 0.0465, 0.433), ("LowerLeg_R", "Foot_R", 0.0465, 0.433),
-    ("UpperLeg_L", "LowerLeg_L", 0.100, 0.433), ("UpperLeg_R", "LowerLeg_R", 0.100, 0.433),
+    ("Hand_L", "Hand_L", 0.006, 0.0),
+    ("Hand_R", "Hand_R", 0.006, 0.0),
+    ("LowerArm_L", "Hand_L", 0.016, 0.430),
+    ("LowerArm_R", "Hand_R", 0.016, 0.430),
+    ("UpperArm_L", "LowerArm_L", 0.028, 0.436),
+    ("UpperArm_R", "LowerArm_R", 0.028, 0.436),
+    ("Foot_L", "Toes_L", 0.0145, 0.5),
+    ("Foot_R", "Toes_R", 0.0145, 0.5),
+    ("LowerLeg_L", "Foot_L", 0.0465, 0.433),
+    ("LowerLeg_R", "Foot_R", 0.0465, 0.433),
+    ("UpperLeg_L", "LowerLeg_L", 0.100, 0.433),
+    ("UpperLeg_R", "LowerLeg_R", 0.100, 0.433),
     ("Head", "Head", 0.081, 0.0),
 )
 TRUNK_FRACTION = 0.497
@@ -75,12 +81,16 @@ def body_model(data_root: str | Path):
 
     path = Path(data_root) / MODEL_FILE
     if not path.exists():
-        raise BiomotionError(f"canonical model not found: {path} (pass --data-root, or set BIOMOTION_DATA_ROOT, to a folder with opensim-models/)")
+        raise BiomotionError(
+            f"canonical model not found: {path} (pass --data-root, or set BIOMOTION_DATA_ROOT, to a folder with "
+            "opensim-models/)"
+        )
     return BodyModel.from_osim(path)
 
 
-def coordinate_set(clips: Sequence[CoordinateClip], model, rate: float = DEFAULT_RATE, *,
-                   derivatives: bool = False) -> ClipSet:
+def coordinate_set(
+    clips: Sequence[CoordinateClip], model, rate: float = DEFAULT_RATE, *, derivatives: bool = False
+) -> ClipSet:
     """Kinematics of coordinate clips through ``model``: one forward-kinematics call over every valid frame.
     ``derivatives`` adds qd and qdd (quintic spline, `Motion.derivatives`) for the full-body energy and ZMP."""
     from biomotion.body.contact import foot_points
@@ -103,9 +113,11 @@ def coordinate_set(clips: Sequence[CoordinateClip], model, rate: float = DEFAULT
     feet_spec = foot_points(model)
     with torch_threads(1), torch.no_grad():
         poses = forward_kinematics(model, frames)
-        flat = {"points": joint_centers(model, frames, poses),
-                "feet": points_in_ground(poses, feet_spec.bodies, feet_spec.offsets),
-                "com": center_of_mass(model, frames, poses)}
+        flat = {
+            "points": joint_centers(model, frames, poses),
+            "feet": points_in_ground(poses, feet_spec.bodies, feet_spec.offsets),
+            "com": center_of_mass(model, frames, poses),
+        }
     padded = {}
     for key, value in flat.items():
         out = value.new_zeros(*valid_t.shape, *value.shape[1:])
@@ -116,8 +128,21 @@ def coordinate_set(clips: Sequence[CoordinateClip], model, rate: float = DEFAULT
     if derivatives:
         rates = [m.with_values(v).derivatives() for m, v in zip(motions, values)]
         qd, qdd = (torch.from_numpy(_pad([r[k] for r in rates])[0]) for k in (0, 1))
-    return ClipSet("coordinates", tuple(c.name for c in clips), tuple(c.group for c in clips), rate, valid_t,
-                   padded["points"], padded["feet"], padded["com"], float(model.total_mass), q_t, mask, qd, qdd)
+    return ClipSet(
+        "coordinates",
+        tuple(c.name for c in clips),
+        tuple(c.group for c in clips),
+        rate,
+        valid_t,
+        padded["points"],
+        padded["feet"],
+        padded["com"],
+        float(model.total_mass),
+        q_t,
+        mask,
+        qd,
+        qdd,
+    )
 
 
 def _winter_com(joints: np.ndarray, names: Sequence[str]) -> np.ndarray:
@@ -146,8 +171,9 @@ def bvh_set(paths: Sequence[Path], rate: float = DEFAULT_RATE) -> ClipSet:
             raise DataFormatError(path, "skeleton differs from the first BVH of the set", field="HIERARCHY")
         missing = [n for n in BVH_FEET if n not in names]
         if missing:
-            raise DataFormatError(path, f"no joint {', '.join(missing)} to place the foot contact points",
-                                  field="HIERARCHY")
+            raise DataFormatError(
+                path, f"no joint {', '.join(missing)} to place the foot contact points", field="HIERARCHY"
+            )
         positions = markers.positions
         sole = positions[:, [names.index(n) for n in BVH_FEET]].copy()
         sole[..., 1] -= np.asarray(BVH_SOLE_HEIGHTS)
@@ -160,9 +186,18 @@ def bvh_set(paths: Sequence[Path], rate: float = DEFAULT_RATE) -> ClipSet:
     feet_padded, _ = _pad(feet)
     com, _ = _pad(coms)
     labels = tuple(_stem(p) for p in paths)
-    return ClipSet("bvh", labels, tuple(_bvh_group(n) for n in labels), rate, torch.from_numpy(valid),
-                   torch.from_numpy(points), torch.from_numpy(feet_padded), torch.from_numpy(com), BVH_MASS,
-                   root=names.index(BVH_ROOT) if BVH_ROOT in names else 0)
+    return ClipSet(
+        "bvh",
+        labels,
+        tuple(_bvh_group(n) for n in labels),
+        rate,
+        torch.from_numpy(valid),
+        torch.from_numpy(points),
+        torch.from_numpy(feet_padded),
+        torch.from_numpy(com),
+        BVH_MASS,
+        root=names.index(BVH_ROOT) if BVH_ROOT in names else 0,
+    )
 
 
 def _stem(path: Path) -> str:
@@ -174,7 +209,7 @@ def _stem(path: Path) -> str:
 
 
 def _bvh_group(name: str) -> str:
-    """"bandai-namco/<content>" from a Bandai-Namco clip name (``dataset-N_<content>_<style>_<take>``), else "bvh"."""
+    """ "bandai-namco/<content>" from a Bandai-Namco clip name (``dataset-N_<content>_<style>_<take>``), else "bvh"."""
     parts = name.split("_")
     return f"bandai-namco/{parts[1]}" if len(parts) >= 4 and parts[0].startswith("dataset-") else "bvh"
 
@@ -182,9 +217,14 @@ def _bvh_group(name: str) -> str:
 def cache_clips(cache, indices: Sequence[int] | None = None) -> list[CoordinateClip]:
     """Clips of a `DatasetCache` (all, or ``indices``), grouped by "source/action"."""
     indices = range(len(cache)) if indices is None else indices
-    return [CoordinateClip(cache.records[i]["clip_id"],
-                           f"{cache.records[i]['source']}/{cache.records[i]['labels']['action']}",
-                           cache.motion(i)) for i in indices]
+    return [
+        CoordinateClip(
+            cache.records[i]["clip_id"],
+            f"{cache.records[i]['source']}/{cache.records[i]['labels']['action']}",
+            cache.motion(i),
+        )
+        for i in indices
+    ]
 
 
 def coordinate_file_clips(paths: Sequence[Path]) -> list[CoordinateClip]:
@@ -196,8 +236,11 @@ def coordinate_file_clips(paths: Sequence[Path]) -> list[CoordinateClip]:
     for path in paths:
         motion = to_canonical(read_motion(path))
         if not motion.mask.any():
-            raise DataFormatError(path, f"no canonical coordinate among its columns (expects "
-                                        f"{', '.join(CANONICAL_COORDINATES[:3])} ...)", field="columns")
+            raise DataFormatError(
+                path,
+                f"no canonical coordinate among its columns (expects {', '.join(CANONICAL_COORDINATES[:3])} ...)",
+                field="columns",
+            )
         clips.append(CoordinateClip(_stem(path), "mot", motion))
     return clips
 
@@ -207,8 +250,9 @@ def _files(spec: str | Path | Sequence[str | Path]) -> list[Path]:
     files: list[Path] = []
     for item in map(Path, items):
         if item.is_dir():
-            files += sorted(p for p in item.rglob("*") if p.is_file()
-                            and p.name.endswith((*COORDINATE_SUFFIXES, *BVH_SUFFIXES)))
+            files += sorted(
+                p for p in item.rglob("*") if p.is_file() and p.name.endswith((*COORDINATE_SUFFIXES, *BVH_SUFFIXES))
+            )
         elif item.is_file():
             files.append(item)
         else:
@@ -216,8 +260,14 @@ def _files(spec: str | Path | Sequence[str | Path]) -> list[Path]:
     return files
 
 
-def load_clip_set(spec: str | Path | Sequence[str | Path], data_root: str | Path, *, model=None,
-                  rate: float = DEFAULT_RATE, derivatives: bool = False) -> ClipSet:
+def load_clip_set(
+    spec: str | Path | Sequence[str | Path],
+    data_root: str | Path,
+    *,
+    model=None,
+    rate: float = DEFAULT_RATE,
+    derivatives: bool = False,
+) -> ClipSet:
     """A folder or files as a `ClipSet`: a dataset cache folder (with ``manifest.json``), OpenSim ``.mot``/``.sto``
     files or BVH files (one kind per set; folders are searched recursively)."""
     from biomotion.data.registry import MANIFEST, DatasetCache
@@ -238,8 +288,9 @@ def load_clip_set(spec: str | Path | Sequence[str | Path], data_root: str | Path
     return coordinate_set(coordinate_file_clips(files), model, rate, derivatives=derivatives)
 
 
-def build_temporary_cache(data_root: str | Path, sources: Sequence[str] | None = None,
-                          exclude_subjects: Collection[str] = ()) -> tuple[tempfile.TemporaryDirectory, object]:
+def build_temporary_cache(
+    data_root: str | Path, sources: Sequence[str] | None = None, exclude_subjects: Collection[str] = ()
+) -> tuple[tempfile.TemporaryDirectory, object]:
     """A dataset cache of every registered source under ``data_root`` (or only ``sources``), without the
     ``exclude_subjects`` ("source/subject"), in a temporary folder (kept alive by the returned handle)."""
     from biomotion.data.registry import DatasetCache, build_cache

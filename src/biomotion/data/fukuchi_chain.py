@@ -62,43 +62,50 @@ from biomotion.body.model import BodyModel
 from biomotion.errors import DataFormatError
 from biomotion.ik.markers import IKResult, solve_ik
 from biomotion.ik.scaling import scale_static
-from biomotion.io.setup import Measurement, ScaleSetup, read_ik_setup, read_scale_setup
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion
+from biomotion.io.setup import Measurement, ScaleSetup, read_ik_setup, read_scale_setup
 from biomotion.io.tables import read_subject_table
 from biomotion.motion import Markers, Motion, is_translation, lowpass
 
 FUKUCHI = "fukuchi-running"
 COMPLEX_MODEL = "generic-models/Uhlrich2022_LowerLimb_Fukuchi2017.osim"
 SUBJECTS = "participantInfo.csv"
-MARKER_FILTER_HZ = 10.0          # the source's marker low-pass
-SPLINE_SMOOTHING_MM2 = 2.0       # the source's UnivariateSpline ``s``, on data in mm
+MARKER_FILTER_HZ = 10.0  # the source's marker low-pass
+SPLINE_SMOOTHING_MM2 = 2.0  # the source's UnivariateSpline ``s``, on data in mm
 WELDED = ("mtp_angle_r", "mtp_angle_l", "subtalar_angle_r", "subtalar_angle_l")
 KNEES = ("knee_angle_r", "knee_angle_l")
 #: the complex setup's measurements that the simple one leaves out (source ``process_data.py``)
-PATELLA = (Measurement("r_patella", (("R.GTR", "R.Knee"),), (("patella_r", "XYZ"),)),
-           Measurement("l_patella", (("L.GTR", "L.Knee"),), (("patella_l", "XYZ"),)))
+PATELLA = (
+    Measurement("r_patella", (("R.GTR", "R.Knee"),), (("patella_r", "XYZ"),)),
+    Measurement("l_patella", (("L.GTR", "L.Knee"),), (("patella_l", "XYZ"),)),
+)
 
 
 def runner_files(base: Path, runner: str, speed: str = "T35") -> dict[str, Path]:
     """The files the chain needs for one runner's trial at ``speed`` (``T25``, ``T35``, ``T45``), under the
     ``fukuchi-running`` folder ``base``; ``reference`` is the shipped IK it is compared with."""
-    return {"generic": base / COMPLEX_MODEL, "scale_setup": base / runner / f"{runner}_scaleSetup_simple.xml",
-            "ik_setup": base / runner / f"{runner}_{speed}_ikSetup.xml",
-            "static": base / "c3d" / f"{runner}static.c3d", "trial": base / "c3d" / f"{runner}run{speed}.c3d",
-            "reference": base / "ik" / speed / f"{runner}_{speed}_ik_simple.mot"}
+    return {
+        "generic": base / COMPLEX_MODEL,
+        "scale_setup": base / runner / f"{runner}_scaleSetup_simple.xml",
+        "ik_setup": base / runner / f"{runner}_{speed}_ikSetup.xml",
+        "static": base / "c3d" / f"{runner}static.c3d",
+        "trial": base / "c3d" / f"{runner}run{speed}.c3d",
+        "reference": base / "ik" / speed / f"{runner}_{speed}_ik_simple.mot",
+    }
 
 
 def running_markers(path: Path, cutoff_hz: float = MARKER_FILTER_HZ) -> Markers:
     """A running C3D's markers as the source's TRC had them: spline-filled gaps, 10 Hz low-pass (step 5);
     ``cutoff_hz`` sets another low-pass (the chain keeps the source's)."""
     markers = read_c3d_markers(path, zero_is_missing=True)
-    flat = markers.positions.reshape(markers.n_frames, -1) * 1000.0      # mm, one column per coordinate
+    flat = markers.positions.reshape(markers.n_frames, -1) * 1000.0  # mm, one column per coordinate
     for column in np.flatnonzero(np.isnan(flat).any(axis=0)):
         seen = np.isfinite(flat[:, column])
         if seen.sum() > 3:
-            spline = scipy.interpolate.UnivariateSpline(markers.times[seen], flat[seen, column], k=3,
-                                                        s=SPLINE_SMOOTHING_MM2)
+            spline = scipy.interpolate.UnivariateSpline(
+                markers.times[seen], flat[seen, column], k=3, s=SPLINE_SMOOTHING_MM2
+            )
             flat[~seen, column] = spline(markers.times[~seen])
     smooth = lowpass(flat, markers.rate, cutoff_hz) / 1000.0
     return dataclasses.replace(markers, positions=smooth.reshape(markers.positions.shape))
@@ -154,16 +161,22 @@ def as_simple(motion: Motion) -> Motion:
     return out.with_values(out.values * np.where(np.isin(kept, KNEES), -1.0, 1.0))
 
 
-def solve_trial(base: Path, runner: str, speed: str = "T35", marker_cutoff_hz: float = MARKER_FILTER_HZ
-                ) -> tuple[IKResult, BodyModel]:
+def solve_trial(
+    base: Path, runner: str, speed: str = "T35", marker_cutoff_hz: float = MARKER_FILTER_HZ
+) -> tuple[IKResult, BodyModel]:
     """Steps 1-6 for one running trial: the IK result on the runner's complex model, and that model
     (``marker_cutoff_hz``: the markers' low-pass, the source's 10 Hz unless given)."""
     files = runner_files(base, runner, speed)
     model = complex_model(base, runner)
     setup = read_ik_setup(files["ik_setup"])
     markers = running_markers(files["trial"], marker_cutoff_hz)
-    return solve_ik(model, markers, weights=setup.marker_weights, coordinate_tasks=setup.coordinate_tasks,
-                    time_range=window(markers.times, setup.time_range)), model
+    return solve_ik(
+        model,
+        markers,
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=window(markers.times, setup.time_range),
+    ), model
 
 
 def fukuchi_chain(data_root: Path, runner: str) -> dict:
@@ -183,22 +196,29 @@ def fukuchi_chain(data_root: Path, runner: str) -> dict:
     reference = read_motion(files["reference"])
     ours = as_simple(ik.motion).select(reference.names)
     if ours.n_frames != reference.n_frames or not np.allclose(ours.times, reference.times, atol=1e-4):
-        raise DataFormatError(files["reference"], f"its {reference.n_frames} frames "
-                                                  f"({reference.times[0]}-{reference.times[-1]} s) are not the "
-                                                  f"{ours.n_frames} frames the IK setup's window selects")
+        raise DataFormatError(
+            files["reference"],
+            f"its {reference.n_frames} frames "
+            f"({reference.times[0]}-{reference.times[-1]} s) are not the "
+            f"{ours.n_frames} frames the IK setup's window selects",
+        )
     error = ours.values - reference.values
     translational = np.array([is_translation(name) for name in reference.names])
     unit = np.where(translational, 1.0, np.degrees(1.0))
-    rmse = np.sqrt(np.mean(error ** 2, axis=0)) * unit
+    rmse = np.sqrt(np.mean(error**2, axis=0)) * unit
     bias = error.mean(axis=0) * unit
     knees = [model.coordinate_index(name) for name in KNEES]
     at_limit = (ik.motion.values[:, knees] >= model.ranges[knees, 1].numpy() - 1e-6).any(axis=1)
-    return {"coordinate_rmse": {name: round(float(v), 6) for name, v in zip(reference.names, rmse)},
-            "coordinate_bias": {name: round(float(v), 6) for name, v in zip(reference.names, bias)},
-            "rmse_deg": round(float(rmse[~translational].max()), 4),
-            "rmse_m": round(float(rmse[translational].max()), 6),
-            "marker_rmse_m": round(ik.rmse, 6), "knee_clamped_frames": int(at_limit.sum()),
-            "frames": int(reference.n_frames), "seconds": round(time.perf_counter() - began, 2)}
+    return {
+        "coordinate_rmse": {name: round(float(v), 6) for name, v in zip(reference.names, rmse)},
+        "coordinate_bias": {name: round(float(v), 6) for name, v in zip(reference.names, bias)},
+        "rmse_deg": round(float(rmse[~translational].max()), 4),
+        "rmse_m": round(float(rmse[translational].max()), 6),
+        "marker_rmse_m": round(ik.rmse, 6),
+        "knee_clamped_frames": int(at_limit.sum()),
+        "frames": int(reference.n_frames),
+        "seconds": round(time.perf_counter() - began, 2),
+    }
 
 
 def validate_fukuchi_chain(data_root: Path, runners: list[str] | None = None) -> dict:
@@ -219,6 +239,9 @@ def validate_fukuchi_chain(data_root: Path, runners: list[str] | None = None) ->
             skipped.append(f"{FUKUCHI}/{runner}: no {', '.join(missing)}")
             continue
         detail[runner] = fukuchi_chain(data_root, runner)
-    return {"fukuchi_ik_rmse_deg": max((d["rmse_deg"] for d in detail.values()), default=None),
-            "fukuchi_ik_rmse_m": max((d["rmse_m"] for d in detail.values()), default=None),
-            "fukuchi_chain": detail, "skipped": skipped}
+    return {
+        "fukuchi_ik_rmse_deg": max((d["rmse_deg"] for d in detail.values()), default=None),
+        "fukuchi_ik_rmse_m": max((d["rmse_m"] for d in detail.values()), default=None),
+        "fukuchi_chain": detail,
+        "skipped": skipped,
+    }

@@ -29,12 +29,17 @@ from biomotion.errors import ModelError
 from biomotion.motion import Motion
 
 PELVIS = "ground_pelvis"
-TURNED_BACK = ("hip_r", "hip_l", "back")   # the joints whose child keeps its ground orientation
-AXIAL = ("hip_rotation_r", "hip_rotation_l")   # offset about each femur's own long axis
+TURNED_BACK = ("hip_r", "hip_l", "back")  # the joints whose child keeps its ground orientation
+AXIAL = ("hip_rotation_r", "hip_rotation_l")  # offset about each femur's own long axis
 #: half-widths (deg) of the uniform offsets `random_offsets` draws: about twice the standard deviation of the
 #: Fukuchi runners' per-runner means (module docstring); list and rotation about the same share of their ranges
-SPREAD_DEG = {"pelvis_tilt": 8.0, "pelvis_list": 2.0, "pelvis_rotation": 3.0, "hip_rotation_r": 6.0,
-              "hip_rotation_l": 6.0}
+SPREAD_DEG = {
+    "pelvis_tilt": 8.0,
+    "pelvis_list": 2.0,
+    "pelvis_rotation": 3.0,
+    "hip_rotation_r": 6.0,
+    "hip_rotation_l": 6.0,
+}
 
 
 def _joint(model: BodyModel, name: str):
@@ -52,8 +57,9 @@ def _rotation_axes(model: BodyModel, name: str) -> tuple[list[int], np.ndarray, 
     rotations = [axis for axis in joint.axes if axis.rotation]
     if len(rotations) != 3 or any(not hasattr(a.function, "slope") for a in rotations):
         raise ModelError(f"joint {name!r} is not three linear rotations: no posture offset for it")
-    if not (np.allclose(joint.parent_rotation.numpy(), np.eye(3)) and np.allclose(joint.child_rotation.numpy(),
-                                                                                  np.eye(3))):
+    if not (
+        np.allclose(joint.parent_rotation.numpy(), np.eye(3)) and np.allclose(joint.child_rotation.numpy(), np.eye(3))
+    ):
         raise ModelError(f"joint {name!r} has rotated frames: no posture offset for it")
     letters = []
     for axis in rotations:
@@ -62,8 +68,12 @@ def _rotation_axes(model: BodyModel, name: str) -> tuple[list[int], np.ndarray, 
         if not np.isclose(abs(direction[k]), 1.0) or direction[k] < 0:
             raise ModelError(f"joint {name!r} turns about {direction}, not a positive coordinate axis")
         letters.append("XYZ"[k])
-    return ([a.coordinate for a in rotations], np.array([a.function.slope for a in rotations]),
-            np.array([a.function.intercept for a in rotations]), "".join(letters))
+    return (
+        [a.coordinate for a in rotations],
+        np.array([a.function.slope for a in rotations]),
+        np.array([a.function.intercept for a in rotations]),
+        "".join(letters),
+    )
 
 
 def _amounts(values: np.ndarray, axes) -> np.ndarray:
@@ -81,11 +91,10 @@ def posture_offset(motion: Motion, model: BodyModel, offsets_deg: Mapping[str, f
     values = motion.values.copy()
     pelvis = _rotation_axes(model, PELVIS)
     old = Rotation.from_euler(pelvis[3], _amounts(values, pelvis))
-    turned = _amounts(values, pelvis) + np.radians([offsets_deg.get(model.coordinate_names[c], 0.0)
-                                                     for c in pelvis[0]])
+    turned = _amounts(values, pelvis) + np.radians([offsets_deg.get(model.coordinate_names[c], 0.0) for c in pelvis[0]])
     new = Rotation.from_euler(pelvis[3], turned)
     values[:, pelvis[0]] = (turned - pelvis[2]) / pelvis[1]
-    change = new.inv() * old                                          # R_pelvis'ᵀ R_pelvis
+    change = new.inv() * old  # R_pelvis'ᵀ R_pelvis
     for name in TURNED_BACK:
         axes = _rotation_axes(model, name)
         if not motion.mask[axes[0]].all():

@@ -106,7 +106,7 @@ def _motions(specs: list, workers: int, progress: bool) -> Iterable[Motion]:
     heavy = sum(spec.retargeted for spec in specs)
     bar = tqdm(total=len(specs), desc="building dataset cache", unit="clip", disable=not progress)
     if workers > 1 and heavy > workers:
-        context = multiprocessing.get_context("spawn")   # torch's thread pools do not survive a fork
+        context = multiprocessing.get_context("spawn")  # torch's thread pools do not survive a fork
         with ProcessPoolExecutor(workers, mp_context=context) as pool:
             for motion in pool.map(_load_thread_limited, specs, chunksize=4):
                 bar.update()
@@ -118,9 +118,16 @@ def _motions(specs: list, workers: int, progress: bool) -> Iterable[Motion]:
     bar.close()
 
 
-def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT_RATE,
-                sources: Iterable[str] | None = None, progress: bool = True, workers: int | None = None,
-                exclude_subjects: Collection[str] = ()) -> dict:
+def build_cache(
+    data_root: str | Path,
+    out: str | Path,
+    *,
+    rate: float = DEFAULT_RATE,
+    sources: Iterable[str] | None = None,
+    progress: bool = True,
+    workers: int | None = None,
+    exclude_subjects: Collection[str] = (),
+) -> dict:
     """Build the cache in ``out`` from every source present under ``data_root``; returns the manifest.
 
     ``exclude_subjects`` ("source/subject" keys) leaves those people's clips out unread (`biomotion eval
@@ -153,17 +160,27 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
             labels = replace(labels, speed=round(forward_speed(motion), 3))
         clip = motion.resample(rate) if abs(motion.rate - rate) > 1e-6 else motion
         if model is not None:
-            clip = place_clip(clip, model, height=spec.profile.height,
-                              treadmill_speed=labels.speed if source.treadmill else None)
+            clip = place_clip(
+                clip, model, height=spec.profile.height, treadmill_speed=labels.speed if source.treadmill else None
+            )
         if not np.all(np.isfinite(clip.values[:, clip.mask])):
             raise DataFormatError(spec.path, "non-finite coordinate values after resampling")
         chunks.append(clip.values.astype(np.float32))
         masks.append(clip.mask.astype(np.uint8))
-        records.append(ClipRecord(
-            clip_id=spec.clip_id, source=spec.source, subject=spec.subject,
-            split=subject_split(spec.source, spec.subject), labels=asdict(labels), profile=spec.profile.to_dict(),
-            offset=offset, n_frames=clip.n_frames, start_time=float(clip.times[0]),
-            file=_relative(spec.path, data_root)))
+        records.append(
+            ClipRecord(
+                clip_id=spec.clip_id,
+                source=spec.source,
+                subject=spec.subject,
+                split=subject_split(spec.source, spec.subject),
+                labels=asdict(labels),
+                profile=spec.profile.to_dict(),
+                offset=offset,
+                n_frames=clip.n_frames,
+                start_time=float(clip.times[0]),
+                file=_relative(spec.path, data_root),
+            )
+        )
         offset += clip.n_frames
     from safetensors.numpy import save_file
 
@@ -179,9 +196,12 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
         "rate_hz": rate,
         "coordinates": list(CANONICAL_COORDINATES),
         "units": "rad for rotations, m for pelvis_tx/ty/tz; OpenSim ground frame (y up)",
-        "placement": ("pelvis translations at the generic 1.70 m size, treadmill made overground, start at the "
-                      "origin, feet on y = 0 (biomotion.data.placement)" if model is not None else
-                      f"none: {PLACEMENT_MODEL} absent from the data root, translations as recorded"),
+        "placement": (
+            "pelvis translations at the generic 1.70 m size, treadmill made overground, start at the "
+            "origin, feet on y = 0 (biomotion.data.placement)"
+            if model is not None
+            else f"none: {PLACEMENT_MODEL} absent from the data root, translations as recorded"
+        ),
         "split_rule": "sha256(source/subject) -> train 70 %, val 15 %, test 15 %, by subject",
         "counts": _counts(records),
         "skipped_sources": skipped,
@@ -193,8 +213,9 @@ def build_cache(data_root: str | Path, out: str | Path, *, rate: float = DEFAULT
     return manifest
 
 
-def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], records: list[ClipRecord],
-                  rate: float, model=None) -> dict[str, str]:
+def _write_bounds(
+    out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], records: list[ClipRecord], rate: float, model=None
+) -> dict[str, str]:
     """5th/95th percentile bounds of coordinates and coordinate speeds over the training split's clips
     (PG-BIG Sec. 3.3, Table 1: the guidance and plausibility metrics share them), and with the canonical
     ``model`` those of COM speed and acceleration magnitude (forward differences, as
@@ -204,8 +225,12 @@ def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], 
 
     train = [i for i, r in enumerate(records) if r.split == "train"] or list(range(len(records)))
     values = np.concatenate([chunks[i] for i in train])
-    speeds = np.concatenate([np.gradient(chunks[i], 1.0 / rate, axis=0) if len(chunks[i]) > 1
-                             else np.full_like(chunks[i], np.nan) for i in train])
+    speeds = np.concatenate(
+        [
+            np.gradient(chunks[i], 1.0 / rate, axis=0) if len(chunks[i]) > 1 else np.full_like(chunks[i], np.nan)
+            for i in train
+        ]
+    )
     mask = np.concatenate([np.broadcast_to(masks[i].astype(bool), chunks[i].shape) for i in train])
     files = {}
     for name, array, unit in (("coordinates", values, "rad or m"), ("coordinate_speeds", speeds, "rad/s or m/s")):
@@ -214,15 +239,15 @@ def _write_bounds(out: Path, chunks: list[np.ndarray], masks: list[np.ndarray], 
         files[name] = f"bounds_{name}.json"
     if model is not None:
         values, keep = _com_terms(model, [chunks[i] for i in train], [masks[i] for i in train], rate)
-        bounds = PercentileBounds.from_samples(values, ("com_speed", "com_acceleration"), mask=keep,
-                                               quantity="com", unit="m/s and m/s^2")
+        bounds = PercentileBounds.from_samples(
+            values, ("com_speed", "com_acceleration"), mask=keep, quantity="com", unit="m/s and m/s^2"
+        )
         bounds.save(out / "bounds_com.json")
         files["com"] = "bounds_com.json"
     return files
 
 
-def _com_terms(model, chunks: list[np.ndarray], masks: list[np.ndarray], rate: float
-               ) -> tuple[np.ndarray, np.ndarray]:
+def _com_terms(model, chunks: list[np.ndarray], masks: list[np.ndarray], rate: float) -> tuple[np.ndarray, np.ndarray]:
     """[N, 2] COM speed and acceleration magnitude per frame pair / triple of every clip, and their mask (the
     acceleration column has one sample fewer per clip)."""
     import torch
@@ -263,10 +288,15 @@ def _counts(records: list[ClipRecord]) -> dict:
 def manifest_markdown(manifest: dict, command: str) -> str:
     """Counts of a built cache as Markdown: per source, per action, per split."""
     counts = manifest["counts"]
-    lines = [f"# Dataset cache: {counts['clips']} clips, {counts['frames']} frames at {manifest['rate_hz']:g} Hz", "",
-             f"Produced by `{command}` in {manifest['build_seconds']} s. Split rule: {manifest['split_rule']}. "
-             f"Skipped: {', '.join(manifest['skipped_sources']) or 'nothing'}.", "",
-             "| source | clips | subjects |", "|---|---|---|"]
+    lines = [
+        f"# Dataset cache: {counts['clips']} clips, {counts['frames']} frames at {manifest['rate_hz']:g} Hz",
+        "",
+        f"Produced by `{command}` in {manifest['build_seconds']} s. Split rule: {manifest['split_rule']}. "
+        f"Skipped: {', '.join(manifest['skipped_sources']) or 'nothing'}.",
+        "",
+        "| source | clips | subjects |",
+        "|---|---|---|",
+    ]
     lines += [f"| {s} | {n} | {counts['subjects_per_source'][s]} |" for s, n in counts["per_source"].items()]
     lines += ["", "| source/action | clips |", "|---|---|"]
     lines += [f"| {a} | {n} |" for a, n in counts["per_action"].items()]
@@ -282,8 +312,9 @@ class DatasetCache:
         self.folder = Path(folder)
         manifest_path = self.folder / MANIFEST
         if not manifest_path.exists():
-            raise BiomotionError(f"{self.folder} is not a dataset cache (no {MANIFEST}); "
-                                 "build one with `biomotion data build`")
+            raise BiomotionError(
+                f"{self.folder} is not a dataset cache (no {MANIFEST}); build one with `biomotion data build`"
+            )
         self.manifest = json.loads(manifest_path.read_text())
         from safetensors.numpy import load_file
 
@@ -298,13 +329,17 @@ class DatasetCache:
         return len(self.records)
 
     def indices(self, split: str | None = None, source: str | None = None, action: str | None = None) -> list[int]:
-        return [i for i, r in enumerate(self.records)
-                if (split is None or r["split"] == split) and (source is None or r["source"] == source)
-                and (action is None or r["labels"]["action"] == action)]
+        return [
+            i
+            for i, r in enumerate(self.records)
+            if (split is None or r["split"] == split)
+            and (source is None or r["source"] == source)
+            and (action is None or r["labels"]["action"] == action)
+        ]
 
     def motion(self, index: int) -> Motion:
         record = self.records[index]
-        values = self.values[record["offset"]:record["offset"] + record["n_frames"]].astype(np.float64)
+        values = self.values[record["offset"] : record["offset"] + record["n_frames"]].astype(np.float64)
         times = record["start_time"] + np.arange(record["n_frames"]) / self.rate
         return Motion(times=times, names=self.coordinates, values=values, mask=self.masks[index])
 

@@ -90,12 +90,20 @@ def _profiles(table: Path) -> dict[str, Profile]:
 
 # --- Fukuchi 2017 running: ik/<speed>/<runner>_<speed>_ik_simple.mot, or its raw C3D where that is absent ---------
 
-def _fukuchi_clip(runner: str, tens: str, tenths: str, path: Path, profiles: dict[str, Profile],
-                  retargeted: bool) -> ClipSpec:
+
+def _fukuchi_clip(
+    runner: str, tens: str, tenths: str, path: Path, profiles: dict[str, Profile], retargeted: bool
+) -> ClipSpec:
     speed = float(f"{tens}.{tenths}")
-    return ClipSpec(clip_id=f"fukuchi/{runner}/T{tens}{tenths}", source="fukuchi", path=path, subject=runner,
-                    profile=profiles.get(runner, Profile(subject_id=runner)), retargeted=retargeted,
-                    labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed} m/s"))
+    return ClipSpec(
+        clip_id=f"fukuchi/{runner}/T{tens}{tenths}",
+        source="fukuchi",
+        path=path,
+        subject=runner,
+        profile=profiles.get(runner, Profile(subject_id=runner)),
+        retargeted=retargeted,
+        labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed} m/s"),
+    )
 
 
 def _fukuchi_discover(root: Path) -> list[ClipSpec]:
@@ -117,8 +125,10 @@ def _fukuchi_discover(root: Path) -> list[ClipSpec]:
             continue
         runner, tens, tenths = match.groups()
         files = runner_files(base, runner, f"T{tens}{tenths}")
-        if all(files[k].exists() for k in ("generic", "scale_setup", "ik_setup", "static")) and (
-                base / runner / f"{runner}_simple.osim").exists():
+        if (
+            all(files[k].exists() for k in ("generic", "scale_setup", "ik_setup", "static"))
+            and (base / runner / f"{runner}_simple.osim").exists()
+        ):
             specs.append(_fukuchi_clip(runner, tens, tenths, path, profiles, retargeted=True))
     return sorted(specs, key=lambda spec: spec.clip_id)
 
@@ -138,21 +148,34 @@ def _fukuchi_load(spec: ClipSpec) -> Motion:
     return to_canonical(as_simple(result.motion).select(columns), knee_flipped=True)
 
 
-FUKUCHI = register_source(Source(
-    name="fukuchi", folder="fukuchi-running", discover=_fukuchi_discover, load_motion=_fukuchi_load,
-    description="Fukuchi 2017 treadmill running at 2.5/3.5/4.5 m/s: shipped OpenSim IK, or the raw C3D put through "
-                "the source's processing chain where no IK is shipped (16 lower-body coordinates)",
-    treadmill=True))
+FUKUCHI = register_source(
+    Source(
+        name="fukuchi",
+        folder="fukuchi-running",
+        discover=_fukuchi_discover,
+        load_motion=_fukuchi_load,
+        description="Fukuchi 2017 treadmill running at 2.5/3.5/4.5 m/s: shipped OpenSim IK, or the raw C3D put through "
+        "the source's processing chain where no IK is shipped (16 lower-body coordinates)",
+        treadmill=True,
+    )
+)
 
 
 # --- OpenCap Subject4: IK/<trial>_ik.mot ------------------------------------------------------------------------
 
 _OPENCAP_ACTIVITIES = (  # (trial-name prefix, action, style), longest prefixes first
-    ("walkingTS", "walk", "trunk sway"), ("walkingTI", "walk", "toe-in"), ("walkingTO", "walk", "toe-out"),
-    ("walking", "walk", "normal"), ("DJAsym", "drop jump", "asymmetric"), ("DJ", "drop jump", "normal"),
-    ("squatsAsym", "squat", "asymmetric"), ("squats", "squat", "normal"),
-    ("STSweakLegs", "sit-to-stand", "weak legs"), ("STSAsym", "sit-to-stand", "asymmetric"),
-    ("STS", "sit-to-stand", "normal"), ("static", "static", "normal"),
+    ("walkingTS", "walk", "trunk sway"),
+    ("walkingTI", "walk", "toe-in"),
+    ("walkingTO", "walk", "toe-out"),
+    ("walking", "walk", "normal"),
+    ("DJAsym", "drop jump", "asymmetric"),
+    ("DJ", "drop jump", "normal"),
+    ("squatsAsym", "squat", "asymmetric"),
+    ("squats", "squat", "normal"),
+    ("STSweakLegs", "sit-to-stand", "weak legs"),
+    ("STSAsym", "sit-to-stand", "asymmetric"),
+    ("STS", "sit-to-stand", "normal"),
+    ("static", "static", "normal"),
 )
 
 #: An OpenCap (AddBiomechanics) subject folder's scaled model, which its ``IK/*_ik.mot`` and setups use.
@@ -170,8 +193,9 @@ def _opencap_profile(subject_dir: Path) -> Profile:
         return Profile(subject_id=subject_dir.name)
     setup = read_scale_setup(setup_file)
     height = setup.height / 1000.0 if setup.height > 3.0 else setup.height
-    return Profile(subject_id=subject_dir.name, mass=setup.mass if setup.mass > 0 else None,
-                   height=height if height > 0 else None)
+    return Profile(
+        subject_id=subject_dir.name, mass=setup.mass if setup.mass > 0 else None, height=height if height > 0 else None
+    )
 
 
 def _opencap_discover(root: Path) -> list[ClipSpec]:
@@ -188,19 +212,33 @@ def _opencap_discover(root: Path) -> list[ClipSpec]:
                 continue
             action, style = activity
             text = action if style == "normal" else f"{action}, {style}"
-            specs.append(ClipSpec(clip_id=f"opencap/{subject}/{trial}", source="opencap", path=path, subject=subject,
-                                  profile=profile, labels=Labels(action=action, style=style, text=text)))
+            specs.append(
+                ClipSpec(
+                    clip_id=f"opencap/{subject}/{trial}",
+                    source="opencap",
+                    path=path,
+                    subject=subject,
+                    profile=profile,
+                    labels=Labels(action=action, style=style, text=text),
+                )
+            )
     return specs
 
 
-OPENCAP = register_source(Source(
-    name="opencap", folder="opencap", discover=_opencap_discover,
-    load_motion=lambda spec: to_canonical(read_motion(spec.path)),
-    description="OpenCap lab validation: walking variants, drop jumps, squats, sit-to-stand (33 coordinates)",
-    overground=True))
+OPENCAP = register_source(
+    Source(
+        name="opencap",
+        folder="opencap",
+        discover=_opencap_discover,
+        load_motion=lambda spec: to_canonical(read_motion(spec.path)),
+        description="OpenCap lab validation: walking variants, drop jumps, squats, sit-to-stand (33 coordinates)",
+        overground=True,
+    )
+)
 
 
 # --- Hamner & Delp 2013 running: <subject>/Run_<speed>.mot ------------------------------------------------------
+
 
 def _hamner_discover(root: Path) -> list[ClipSpec]:
     base = root / "Hamner2013"
@@ -211,9 +249,16 @@ def _hamner_discover(root: Path) -> list[ClipSpec]:
         if not match:
             continue
         subject, speed = path.parent.name, float(match.group(1))
-        specs.append(ClipSpec(clip_id=f"hamner/{subject}/Run_{match.group(1)}", source="hamner", path=path,
-                              subject=subject, profile=profiles.get(subject, Profile(subject_id=subject)),
-                              labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed:g} m/s")))
+        specs.append(
+            ClipSpec(
+                clip_id=f"hamner/{subject}/Run_{match.group(1)}",
+                source="hamner",
+                path=path,
+                subject=subject,
+                profile=profiles.get(subject, Profile(subject_id=subject)),
+                labels=Labels(action="run", speed=speed, text=f"run on a treadmill at {speed:g} m/s"),
+            )
+        )
     return specs
 
 
@@ -223,10 +268,16 @@ def _hamner_load(spec: ClipSpec) -> Motion:
     return to_canonical(motion.select(coordinates), knee_flipped=True)
 
 
-HAMNER = register_source(Source(
-    name="hamner", folder="Hamner2013", discover=_hamner_discover, load_motion=_hamner_load,
-    description="Hamner & Delp 2013 treadmill running at 2-5 m/s, full body with arms (37 coordinates)",
-    treadmill=True))
+HAMNER = register_source(
+    Source(
+        name="hamner",
+        folder="Hamner2013",
+        discover=_hamner_discover,
+        load_motion=_hamner_load,
+        description="Hamner & Delp 2013 treadmill running at 2-5 m/s, full body with arms (37 coordinates)",
+        treadmill=True,
+    )
+)
 
 
 # --- Schreiber & Moissenet 2019 walking: <subject>/C{4,5}_xx_ik.mot ---------------------------------------------
@@ -243,17 +294,29 @@ def _schreiber_discover(root: Path) -> list[ClipSpec]:
         if not match or match.group(1) not in _SCHREIBER_CONDITIONS:
             continue
         subject, style = path.parent.name, _SCHREIBER_CONDITIONS[match.group(1)]
-        specs.append(ClipSpec(clip_id=f"schreiber/{subject}/{match.group(1)}_{match.group(2)}", source="schreiber",
-                              path=path, subject=subject, profile=profiles.get(subject, Profile(subject_id=subject)),
-                              labels=Labels(action="walk", style=style, text=f"walk overground at a {style} speed")))
+        specs.append(
+            ClipSpec(
+                clip_id=f"schreiber/{subject}/{match.group(1)}_{match.group(2)}",
+                source="schreiber",
+                path=path,
+                subject=subject,
+                profile=profiles.get(subject, Profile(subject_id=subject)),
+                labels=Labels(action="walk", style=style, text=f"walk overground at a {style} speed"),
+            )
+        )
     return specs
 
 
-SCHREIBER = register_source(Source(
-    name="schreiber", folder="SchreiberMoissenet2019", discover=_schreiber_discover,
-    load_motion=lambda spec: to_canonical(read_motion(spec.path)),
-    description="Schreiber & Moissenet 2019 overground walking, spontaneous and fast (Rajagopal, 39 coordinates)",
-    overground=True))
+SCHREIBER = register_source(
+    Source(
+        name="schreiber",
+        folder="SchreiberMoissenet2019",
+        discover=_schreiber_discover,
+        load_motion=lambda spec: to_canonical(read_motion(spec.path)),
+        description="Schreiber & Moissenet 2019 overground walking, spontaneous and fast (Rajagopal, 39 coordinates)",
+        overground=True,
+    )
+)
 
 
 # --- Bandai-Namco BVH: bandai-namco/dataset-{1,2}/*.bvh.gz, retargeted onto the canonical model -----------------
@@ -265,7 +328,7 @@ def _hips_rest_offset(path: Path) -> tuple[float, float, float]:
     """The OFFSET line of the ``Hips`` joint in a BVH header (cm)."""
     with gzip.open(path, "rt") as handle:
         seen_hips = False
-        for number, line in enumerate(handle, 1):
+        for number, line in enumerate(handle, 1):  # noqa: B007 - the last line number names a missing OFFSET
             words = line.split()
             if words[-1:] == ["Hips"]:
                 seen_hips = True
@@ -291,10 +354,16 @@ def _bandai_discover(root: Path) -> list[ClipSpec]:
         dataset, content, style, take = parts
         x, y, z = _hips_rest_offset(path)
         action = content.replace("-", " ")
-        specs.append(ClipSpec(
-            clip_id=f"bandai-namco/{dataset}/{content}_{style}_{take}", source="bandai-namco", path=path,
-            subject=f"{dataset}/hips@{x:.0f},{y:.0f},{z:.0f}", retargeted=True,
-            labels=Labels(action=action, style=style, text=action if style == "normal" else f"{action}, {style}")))
+        specs.append(
+            ClipSpec(
+                clip_id=f"bandai-namco/{dataset}/{content}_{style}_{take}",
+                source="bandai-namco",
+                path=path,
+                subject=f"{dataset}/hips@{x:.0f},{y:.0f},{z:.0f}",
+                retargeted=True,
+                labels=Labels(action=action, style=style, text=action if style == "normal" else f"{action}, {style}"),
+            )
+        )
     return specs
 
 
@@ -317,11 +386,17 @@ def _bandai_load(spec: ClipSpec) -> Motion:
     return to_canonical(retarget_skeleton(joint_positions(read_bvh(spec.path)), _generic_model(root)).motion)
 
 
-BANDAI = register_source(Source(
-    name="bandai-namco", folder="bandai-namco", discover=_bandai_discover, load_motion=_bandai_load,
-    description="Bandai-Namco stylised motion (BVH, 30 fps), retargeted onto Rajagopal 2016: locomotion, gestures, "
-                "fighting, dance in styles such as elderly, exhausted, youthful (39 coordinates)",
-    overground=True))
+BANDAI = register_source(
+    Source(
+        name="bandai-namco",
+        folder="bandai-namco",
+        discover=_bandai_discover,
+        load_motion=_bandai_load,
+        description="Bandai-Namco stylised motion (BVH, 30 fps), retargeted onto Rajagopal 2016: locomotion, gestures, "
+        "fighting, dance in styles such as elderly, exhausted, youthful (39 coordinates)",
+        overground=True,
+    )
+)
 
 
 def discover_all(data_root: Path, names: Iterable[str] | None = None) -> tuple[list[ClipSpec], list[str]]:

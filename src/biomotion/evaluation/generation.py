@@ -64,13 +64,26 @@ from biomotion.metrics.stability import ZMPInsideSupport
 from biomotion.models.actions import ActionRequest
 from biomotion.motion import Motion
 
-VARIANTS = ("reference", "full", "no_planting", "no_guidance", "no_priming", "no_posture", "no_personalization",
-            "population")
-LABELS = {"reference": "Reference (real)", "full": "PG-BIG (full)", "no_planting": "w/o Foot planting",
-          "no_guidance": "w/o Guidance",
-          "no_priming": "w/o Reference priming", "no_posture": "w/o Posture offset",
-          "no_personalization": "w/o Personalization",
-          "population": "Population (T2M-GPT-kind)"}
+VARIANTS = (
+    "reference",
+    "full",
+    "no_planting",
+    "no_guidance",
+    "no_priming",
+    "no_posture",
+    "no_personalization",
+    "population",
+)
+LABELS = {
+    "reference": "Reference (real)",
+    "full": "PG-BIG (full)",
+    "no_planting": "w/o Foot planting",
+    "no_guidance": "w/o Guidance",
+    "no_priming": "w/o Reference priming",
+    "no_posture": "w/o Posture offset",
+    "no_personalization": "w/o Personalization",
+    "population": "Population (T2M-GPT-kind)",
+}
 
 
 @dataclass
@@ -98,8 +111,9 @@ def _evenly(indices: list[int], count: int) -> list[int]:
     return [indices[int(round(k))] for k in np.linspace(0, len(indices) - 1, count)]
 
 
-def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float,
-                   per_subject: int = MAX_TARGETS_PER_SUBJECT) -> list[Target]:
+def unseen_targets(
+    cache, train_subjects: Sequence[str], max_seconds: float, per_subject: int = MAX_TARGETS_PER_SUBJECT
+) -> list[Target]:
     """Clips of every subject not in ``train_subjects`` (at most ``per_subject`` each, evenly spaced over the
     subject's clips), cut to ``max_seconds``, with up to `MAX_REFERENCES` of the subject's other clips as
     references."""
@@ -118,8 +132,17 @@ def unseen_targets(cache, train_subjects: Sequence[str], max_seconds: float,
                 motion = motion.frames(slice(0, limit))
             others = _evenly([j for j in indices if j != i], MAX_REFERENCES)
             labels = [cache.records[j]["labels"] for j in others]
-            targets.append(Target(i, subject, motion, [cache.motion(j) for j in others], others,
-                                  [label["action"] for label in labels], [label.get("speed") for label in labels]))
+            targets.append(
+                Target(
+                    i,
+                    subject,
+                    motion,
+                    [cache.motion(j) for j in others],
+                    others,
+                    [label["action"] for label in labels],
+                    [label.get("speed") for label in labels],
+                )
+            )
     return targets
 
 
@@ -133,16 +156,23 @@ def _motion(q: torch.Tensor, rate: float) -> Motion:
     return Motion(times=np.arange(len(values)) / rate, values=values, names=CANONICAL_COORDINATES)
 
 
-def generate_variants(targets: list[Target], cache, generator, population, *, seed: int = 0,
-                      progress: bool = True) -> dict[str, list[Motion]]:
+def generate_variants(
+    targets: list[Target], cache, generator, population, *, seed: int = 0, progress: bool = True
+) -> dict[str, list[Motion]]:
     """The motions of every variant, aligned with ``targets``."""
     out: dict[str, list[Motion]] = {v: [] for v in VARIANTS}
     for k, t in enumerate(tqdm(targets, desc="generating", unit="clip", disable=not progress)):
         request = _request(cache, t.index)
         seconds = t.motion.n_frames / generator.rate
         profile = cache.profile(t.index)
-        personal = {"profile": profile, "references": t.references, "reference_actions": t.reference_actions,
-                    "reference_speeds": t.reference_speeds, "seconds": seconds, "seed": seed + k}
+        personal = {
+            "profile": profile,
+            "references": t.references,
+            "reference_actions": t.reference_actions,
+            "reference_speeds": t.reference_speeds,
+            "seconds": seconds,
+            "seed": seed + k,
+        }
         full = generator.generate(request, **personal)
         unprimed = generator.generate(request, **personal, prime=False)
         unshifted = generator.generate(request, **personal, posture=False)
@@ -200,9 +230,13 @@ def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list
     if len(subjects) < 2 or not clips:
         return {"skipped": "needs at least two unseen subjects with reference clips"}
     keep = [k for k, t in enumerate(targets) if t.references]
-    result = {"subjects": len(subjects), "chance": 1.0 / len(subjects), "train_clips": len(clips),
-              "probe": "logistic regression, one per target, trained without the target's own clip; generated "
-                       "clips seen through the target's coordinate mask"}
+    result = {
+        "subjects": len(subjects),
+        "chance": 1.0 / len(subjects),
+        "train_clips": len(clips),
+        "probe": "logistic regression, one per target, trained without the target's own clip; generated "
+        "clips seen through the target's coordinate mask",
+    }
     hits: dict[str, list[bool]] = {v: [] for v in variants}
     for k in keep:
         train = [clips[j] for j in clips if j != targets[k].index]
@@ -211,8 +245,9 @@ def identity_accuracy(tokenizer, targets: list[Target], variants: dict[str, list
         probe = IdentityProbe(("logistic_regression",))
         probe.update(np.stack([x for x, _ in train]), np.array([subject for _, subject in train]), train=True)
         seen = [replace(motions[k], mask=motions[k].mask & targets[k].motion.mask) for motions in variants.values()]
-        probe.update(np.stack([embedding(tokenizer, m) for m in seen]), np.array([targets[k].subject] * len(seen)),
-                     train=False)
+        probe.update(
+            np.stack([embedding(tokenizer, m) for m in seen]), np.array([targets[k].subject] * len(seen)), train=False
+        )
         for variant, label in zip(variants, probe.predict()["logistic_regression"]):
             hits[variant].append(label == targets[k].subject)
     for variant, h in hits.items():
@@ -243,26 +278,35 @@ def measured_trunk(motion: Motion) -> bool:
     return all(bool(present.get(name, False)) for name in TRUNK_COORDINATES)
 
 
-def score_variants(variants: dict[str, list[Motion]], model, surrogate, rate: float, names: list[str],
-                   speeds: list[float | None], heights: list[float | None]) -> dict:
+def score_variants(
+    variants: dict[str, list[Motion]],
+    model,
+    surrogate,
+    rate: float,
+    names: list[str],
+    speeds: list[float | None],
+    heights: list[float | None],
+) -> dict:
     """Per-variant records: `biomotion eval` set metrics, paired metrics against the references, muscle limits,
     and the error of the requested locomotion speed."""
     from biomotion.data.clips import CoordinateClip, coordinate_set
     from biomotion.metrics.registry import record, score_pairs, score_set, summarize_set
 
-    reference = coordinate_set([CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])],
-                               model, rate, derivatives=True)
+    reference = coordinate_set(
+        [CoordinateClip(n, "reference", m) for n, m in zip(names, variants["reference"])], model, rate, derivatives=True
+    )
     muscle, speed, trunk = MuscleLimitViolations(), SpeedError(), MeasuredTrunkZMP()
     measured = torch.tensor([measured_trunk(m) for m in variants["reference"]])
     table = {}
     for variant, motions in variants.items():
-        clips = coordinate_set([CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate,
-                               derivatives=True)
+        clips = coordinate_set(
+            [CoordinateClip(n, variant, m) for n, m in zip(names, motions)], model, rate, derivatives=True
+        )
         scores = score_set(clips, model, physics=True)
         records = summarize_set(clips, model, physics=True, scores=scores)
         records[muscle.name] = record(muscle, muscle.score(motions, surrogate))
         records[speed.name] = record(speed, speed.score(motions, speeds, heights))
-        if trunk.of in scores:   # the whole-body ZMP only means something where the trunk was measured
+        if trunk.of in scores:  # the whole-body ZMP only means something where the trunk was measured
             shares = scores[trunk.of].to(torch.float64)
             records[trunk.name] = record(trunk, torch.where(measured, shares, torch.full_like(shares, math.nan)))
         if variant != "reference":
@@ -276,7 +320,7 @@ class MuscleLimitViolations(Metric):
 
     name, label, unit, display_unit, display_scale = "muscle_violations", "Muscle-limit violations", "1", "%", 100.0
     higher_is_better = False
-    paper = "PG-BIG Sec. 3.3, Table 1 L_act (5-95th percentile bounds); FlexMotion Sec. 4 \"Muscle Limit\""
+    paper = 'PG-BIG Sec. 3.3, Table 1 L_act (5-95th percentile bounds); FlexMotion Sec. 4 "Muscle Limit"'
     equation = "share of frames x muscles whose surrogate activation a_tm lies outside [a_m^low, a_m^high]"
 
     def score(self, motions: list[Motion], surrogate) -> torch.Tensor:
@@ -326,13 +370,20 @@ def combine_repeats(tables: list[dict]) -> dict:
             if all("values" in part for part in parts):
                 values = [math.nan if v is None else v for part in parts for v in part["values"]]
                 result = summarize(key, first["unit"], torch.tensor(values, dtype=torch.float64))
-                record.update(mean=_finite(result.mean), std=_finite(result.std), count=result.count,
-                              values=[None if not math.isfinite(v) else v for v in values])
+                record.update(
+                    mean=_finite(result.mean),
+                    std=_finite(result.std),
+                    count=result.count,
+                    values=[None if not math.isfinite(v) else v for v in values],
+                )
             else:
                 finite = [m for m in means if m is not None]
                 stds = [part["std"] for part in parts if part.get("std") is not None]
-                record.update(mean=float(np.mean(finite)) if finite else None,
-                              std=float(np.mean(stds)) if stds else None, count=sum(p["count"] for p in parts))
+                record.update(
+                    mean=float(np.mean(finite)) if finite else None,
+                    std=float(np.mean(stds)) if stds else None,
+                    count=sum(p["count"] for p in parts),
+                )
             record.update(repeat_means=means, ci95=interval95(means))
             combined[variant][key] = record
     return combined
@@ -384,7 +435,8 @@ def done_when(table: dict, identity: dict, manipulation: dict | None) -> dict[st
     if manipulation is not None:
         moved = [row["as_documented"] for row in manipulation["fields"].values()]
         checks["manipulation_moves_every_field_as_documented"] = (
-            False if not all(moved) else None if manipulation.get("skipped") else True)
+            False if not all(moved) else None if manipulation.get("skipped") else True
+        )
     return checks
 
 
@@ -403,44 +455,62 @@ def markdown(report: dict) -> str:
                 cells.append("–")
                 continue
             label, unit = r["label"], r["unit"]
-            cells.append("–" if r["mean"] is None else f"{r['mean']:.3g} ± {r['std']:.2g}" if r.get("std") is not None
-                         else f"{r['mean']:.3g}")
+            cells.append(
+                "–"
+                if r["mean"] is None
+                else f"{r['mean']:.3g} ± {r['std']:.2g}"
+                if r.get("std") is not None
+                else f"{r['mean']:.3g}"
+            )
         rows.append(f"| {label} ({unit}) | " + " | ".join(cells) + " |")
     ident = report["identity"]
-    lines = [f"# Generation evaluation\n\nCommand: `{report['command']}`\n",
-             f"{report['targets']} target clips of {report['subjects']} unseen subjects; {_repeats_line(report)}\n",
-             head + "\n".join(rows) + "\n"]
+    lines = [
+        f"# Generation evaluation\n\nCommand: `{report['command']}`\n",
+        f"{report['targets']} target clips of {report['subjects']} unseen subjects; {_repeats_line(report)}\n",
+        head + "\n".join(rows) + "\n",
+    ]
     if report.get("repeats", 1) > 1:
         lines.append(_spread(report))
     if "full" in ident:
-        lines.append("## Identity probe (logistic regression on pooled tokenizer latents)\n\n"
-                     f"{ident['subjects']} subjects (chance {ident['chance']:.2f}); one probe per target, trained "
-                     f"on the {ident['train_clips']} real clips of these subjects other than the target's own; "
-                     "generated clips seen through the target's coordinates"
-                     + (f"; accuracy averaged over the {report['repeats']} repeats" if report.get("repeats", 1) > 1
-                        else "") + ".\n\n"
-                     "| Variant | accuracy |\n|---|---|\n"
-                     + "".join(f"| {LABELS[v]} | {ident[v]:.2f} |\n" for v in VARIANTS) + "\n")
+        lines.append(
+            "## Identity probe (logistic regression on pooled tokenizer latents)\n\n"
+            f"{ident['subjects']} subjects (chance {ident['chance']:.2f}); one probe per target, trained "
+            f"on the {ident['train_clips']} real clips of these subjects other than the target's own; "
+            "generated clips seen through the target's coordinates"
+            + (f"; accuracy averaged over the {report['repeats']} repeats" if report.get("repeats", 1) > 1 else "")
+            + ".\n\n"
+            "| Variant | accuracy |\n|---|---|\n"
+            + "".join(f"| {LABELS[v]} | {ident[v]:.2f} |\n" for v in VARIANTS)
+            + "\n"
+        )
     if report.get("manipulation"):
         man = report["manipulation"]
         styled_by = f", by the bundle in {man['style_checkpoints']}" if man.get("style_checkpoints") else ""
-        lines.append(f"## Profile manipulation ({man['action']}, {man['samples']} samples per profile; the style rows "
-                     f"vary the action's style, without a profile{styled_by})\n\n"
-                     "| Field | change | measure | low value | high value | expected | as documented |\n"
-                     "|---|---|---|---|---|---|---|\n" + "".join(
-                         f"| {f} | {r['change']} | {r['measure']} | {r['low']:.4g} | {r['high']:.4g} | "
-                         f"{r['expected']} | {'yes' if r['as_documented'] else 'no'} |\n"
-                         for f, r in man["fields"].items())
-                     + "".join(f"\n{f}: not measured, {why}.\n" for f, why in man.get("skipped", {}).items()) + "\n")
+        lines.append(
+            f"## Profile manipulation ({man['action']}, {man['samples']} samples per profile; the style rows "
+            f"vary the action's style, without a profile{styled_by})\n\n"
+            "| Field | change | measure | low value | high value | expected | as documented |\n"
+            "|---|---|---|---|---|---|---|\n"
+            + "".join(
+                f"| {f} | {r['change']} | {r['measure']} | {r['low']:.4g} | {r['high']:.4g} | "
+                f"{r['expected']} | {'yes' if r['as_documented'] else 'no'} |\n"
+                for f, r in man["fields"].items()
+            )
+            + "".join(f"\n{f}: not measured, {why}.\n" for f, why in man.get("skipped", {}).items())
+            + "\n"
+        )
         if man.get("real_data"):
             lines.append(_real_data_table(man["real_data"]))
-    lines.append("## Bars (issue 7)\n\n| Bar | met |\n|---|---|\n" + "".join(
-        f"| {k} | {'–' if v is None else 'yes' if v else 'no'} |\n" for k, v in report["bars"].items()))
+    lines.append(
+        "## Bars (issue 7)\n\n| Bar | met |\n|---|---|\n"
+        + "".join(f"| {k} | {'–' if v is None else 'yes' if v else 'no'} |\n" for k, v in report["bars"].items())
+    )
     return "\n".join(lines)
 
 
 def _real_data_table(real: dict) -> str:
     """The manipulated fields against the real clips of the same action (`biomotion.evaluation.manipulation_data`)."""
+
     def values(row: dict) -> str:
         v = row["values"]
         if "from" in v:
@@ -453,53 +523,82 @@ def _real_data_table(real: dict) -> str:
         strength = "p < 0.05" if row["p"] < 0.05 else "not significant"
         return f"{row['direction']} ({strength}; {'as' if row['agrees'] else 'against'} the documented direction)"
 
-    return ("What the real clips of the same action under the data root show (Spearman's rank correlation across "
-            "subjects between the field and the subject's mean measure; level on the generator's ordinal scale, "
-            "injury 1 for an injury at the manipulated location and 0 for none; "
-            "`biomotion.evaluation.manipulation_data`):\n\n"
-            "| Field | measure | subjects | field values (subjects) | Spearman ρ | p | the data's direction |\n"
-            "|---|---|---|---|---|---|---|\n" + "".join(
-                f"| {f} | {r['measure']} | {r['subjects']} | {values(r)} | "
-                + ("–" if r["rho"] is None else f"{r['rho']:+.2f}") + " | "
-                + ("–" if r["p"] is None else f"{r['p']:.2f}") + f" | {reading(r)} |\n"
-                for f, r in real.items()) + "\n")
+    return (
+        "What the real clips of the same action under the data root show (Spearman's rank correlation across "
+        "subjects between the field and the subject's mean measure; level on the generator's ordinal scale, "
+        "injury 1 for an injury at the manipulated location and 0 for none; "
+        "`biomotion.evaluation.manipulation_data`):\n\n"
+        "| Field | measure | subjects | field values (subjects) | Spearman ρ | p | the data's direction |\n"
+        "|---|---|---|---|---|---|---|\n"
+        + "".join(
+            f"| {f} | {r['measure']} | {r['subjects']} | {values(r)} | "
+            + ("–" if r["rho"] is None else f"{r['rho']:+.2f}")
+            + " | "
+            + ("–" if r["p"] is None else f"{r['p']:.2f}")
+            + f" | {reading(r)} |\n"
+            for f, r in real.items()
+        )
+        + "\n"
+    )
 
 
 #: The figures the bars judge, shown per repeat in the Markdown report: (variant, metric key).
-SPREAD_ROWS = (("full", "fidelity"), ("no_personalization", "fidelity"), ("population", "fidelity"),
-               *((variant, key) for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity", "jerk")
-                 for variant in ("reference", "full", "no_guidance")),
-               ("full", "muscle_violations"), ("no_guidance", "muscle_violations"), ("full", "zmp_in_support"))
+SPREAD_ROWS = (
+    ("full", "fidelity"),
+    ("no_personalization", "fidelity"),
+    ("population", "fidelity"),
+    *(
+        (variant, key)
+        for key in ("penetration", "floating", "skate_ratio", "foot_contact_velocity", "jerk")
+        for variant in ("reference", "full", "no_guidance")
+    ),
+    ("full", "muscle_violations"),
+    ("no_guidance", "muscle_violations"),
+    ("full", "zmp_in_support"),
+)
 
 
 def _repeats_line(report: dict) -> str:
     repeats = report.get("repeats", 1)
     if repeats == 1:
         return f"seed {report['seed']}."
-    return (f"{repeats} repeats (first seeds {', '.join(map(str, report['repeat_seeds']))}); each cell is the mean ± "
-            "std over clips x repeats.")
+    return (
+        f"{repeats} repeats (first seeds {', '.join(map(str, report['repeat_seeds']))}); each cell is the mean ± "
+        "std over clips x repeats."
+    )
 
 
 def _spread(report: dict) -> str:
     """The bar figures' per-repeat means and the 95 % interval of their mean."""
+
     def cells(means: list, interval: float | None, digits: str = ".3g") -> str:
         shown = ", ".join("–" if m is None else f"{m:{digits}}" for m in means)
         return f"{shown} | " + ("–" if interval is None else f"± {interval:{digits}}")
 
     table = report["table"]
-    rows = [f"| {table[v][k]['label']} ({table[v][k]['unit']}) | {LABELS[v]} | "
-            + cells(table[v][k]["repeat_means"], table[v][k]["ci95"]) + " |"
-            for v, k in SPREAD_ROWS if k in table.get(v, {})]
+    rows = [
+        f"| {table[v][k]['label']} ({table[v][k]['unit']}) | {LABELS[v]} | "
+        + cells(table[v][k]["repeat_means"], table[v][k]["ci95"])
+        + " |"
+        for v, k in SPREAD_ROWS
+        if k in table.get(v, {})
+    ]
     ident = report["identity"]
     if "per_repeat" in ident:
-        rows += [f"| Identity probe | {LABELS[v]} | " + cells(ident["per_repeat"][v], ident["ci95"][v], ".2f") + " |"
-                 for v in ("reference", "full", "no_guidance") if v in ident["per_repeat"]]
-    return ("## Spread over repeats\n\nPer-repeat means of the figures the bars judge, and the half-width of the 95 % "
-            "interval of their mean (1.96 s / sqrt(R)).\n\n| Metric | Variant | per repeat | 95 % interval |\n"
-            "|---|---|---|---|\n" + "\n".join(rows) + "\n")
+        rows += [
+            f"| Identity probe | {LABELS[v]} | " + cells(ident["per_repeat"][v], ident["ci95"][v], ".2f") + " |"
+            for v in ("reference", "full", "no_guidance")
+            if v in ident["per_repeat"]
+        ]
+    return (
+        "## Spread over repeats\n\nPer-repeat means of the figures the bars judge, and the half-width of the 95 % "
+        "interval of their mean (1.96 s / sqrt(R)).\n\n| Metric | Variant | per repeat | 95 % interval |\n"
+        "|---|---|---|---|\n" + "\n".join(rows) + "\n"
+    )
 
 
 # --- profile manipulation (PG-BIG Sec. 4.5) ----------------------------------------------------------------------
+
 
 def stride_period(q: np.ndarray, rate: float, column: str = "knee_angle_r") -> float:
     """Stride period (s): lag of the highest autocorrelation of one knee angle between 0.4 and 1.6 s."""
@@ -519,25 +618,54 @@ def kinematic_measures(q: np.ndarray, rate: float) -> dict[str, float]:
     col = lambda n: q[:, CANONICAL_COORDINATES.index(n)]
     rom = lambda n: float(np.degrees(np.percentile(col(n), 97.5) - np.percentile(col(n), 2.5)))
     period = stride_period(q, rate)
-    speed = float(np.hypot(col("pelvis_tx")[-1] - col("pelvis_tx")[0], col("pelvis_tz")[-1] - col("pelvis_tz")[0])
-                  / ((len(q) - 1) / rate))
-    return {"knee_rom_r": rom("knee_angle_r"), "knee_rom_l": rom("knee_angle_l"),
-            "hip_rom": (rom("hip_flexion_r") + rom("hip_flexion_l")) / 2, "stride_frequency": 1 / period,
-            "stride_length": speed * period,
-            "pelvis_excursion": float(np.percentile(col("pelvis_ty"), 95) - np.percentile(col("pelvis_ty"), 5))}
+    speed = float(
+        np.hypot(col("pelvis_tx")[-1] - col("pelvis_tx")[0], col("pelvis_tz")[-1] - col("pelvis_tz")[0])
+        / ((len(q) - 1) / rate)
+    )
+    return {
+        "knee_rom_r": rom("knee_angle_r"),
+        "knee_rom_l": rom("knee_angle_l"),
+        "hip_rom": (rom("hip_flexion_r") + rom("hip_flexion_l")) / 2,
+        "stride_frequency": 1 / period,
+        "stride_length": speed * period,
+        "pelvis_excursion": float(np.percentile(col("pelvis_ty"), 95) - np.percentile(col("pelvis_ty"), 5)),
+    }
 
 
 #: (field, low profile change, high profile change, measure, expected sign of high - low, source of the expectation)
 MANIPULATIONS = (
-    ("age", {"age": 25.0}, {"age": 65.0}, "knee_rom_r", -1,
-     "older runners flex the knee less (Fukuchi & Duarte 2008, J Sports Sci 26:1447)"),
-    ("level", {"level": "recreational"}, {"level": "elite"}, "pelvis_excursion", -1,
-     "better runners oscillate less vertically (Folland et al. 2017, MSSE 49:1412)"),
-    ("experience", {"experience_years": 1.0}, {"experience_years": 20.0}, "pelvis_excursion", -1,
-     "as level (Folland et al. 2017)"),
-    ("injury", {"injuries": ()}, {"injuries": ({"location": "Left knee", "diagnosis": "ACL reconstruction"},)},
-     "knee_rom_l", -1, "less knee flexion on the reconstructed side when running (Pairot-de-Fontenay et al. 2019, "
-     "Sports Med 49:1411)"),
+    (
+        "age",
+        {"age": 25.0},
+        {"age": 65.0},
+        "knee_rom_r",
+        -1,
+        "older runners flex the knee less (Fukuchi & Duarte 2008, J Sports Sci 26:1447)",
+    ),
+    (
+        "level",
+        {"level": "recreational"},
+        {"level": "elite"},
+        "pelvis_excursion",
+        -1,
+        "better runners oscillate less vertically (Folland et al. 2017, MSSE 49:1412)",
+    ),
+    (
+        "experience",
+        {"experience_years": 1.0},
+        {"experience_years": 20.0},
+        "pelvis_excursion",
+        -1,
+        "as level (Folland et al. 2017)",
+    ),
+    (
+        "injury",
+        {"injuries": ()},
+        {"injuries": ({"location": "Left knee", "diagnosis": "ACL reconstruction"},)},
+        "knee_rom_l",
+        -1,
+        "less knee flexion on the reconstructed side when running (Pairot-de-Fontenay et al. 2019, Sports Med 49:1411)",
+    ),
 )
 
 
@@ -546,31 +674,66 @@ MANIPULATIONS = (
 #: without a profile: no styled clip has biodata, so a style with the base profile's biodata is a pair the prior
 #: never saw (docs/generation.md). Skipped when the vocabulary lacks either label.
 STYLE_MANIPULATIONS = (
-    ("style", "walk, active", "walk, elderly", "stride_length", -1,
-     "older adults walk with shorter strides (Winter et al. 1990, Phys Ther 70:340)"),
-    ("style (youthful)", "walk, youthful", "walk, elderly", "stride_length", -1,
-     "as style: Winter et al. compared fit elderly with young adults, the issue's elderly-vs-youthful pair"),
-    ("style (exhausted)", "walk, youthful", "walk, exhausted", "stride_length", -1,
-     "the issue's third style; documented by the real clips of these two styles, not a study: the Bandai-Namco "
-     "exhausted walks stride 1.11 m against the youthful 1.38 m (docs/results/walking_styles.md)"),
+    (
+        "style",
+        "walk, active",
+        "walk, elderly",
+        "stride_length",
+        -1,
+        "older adults walk with shorter strides (Winter et al. 1990, Phys Ther 70:340)",
+    ),
+    (
+        "style (youthful)",
+        "walk, youthful",
+        "walk, elderly",
+        "stride_length",
+        -1,
+        "as style: Winter et al. compared fit elderly with young adults, the issue's elderly-vs-youthful pair",
+    ),
+    (
+        "style (exhausted)",
+        "walk, youthful",
+        "walk, exhausted",
+        "stride_length",
+        -1,
+        "the issue's third style; documented by the real clips of these two styles, not a study: the Bandai-Namco "
+        "exhausted walks stride 1.11 m against the youthful 1.38 m (docs/results/walking_styles.md)",
+    ),
 )
 
 
-def _measured(generator, action: ActionRequest, profile, measure: str, samples: int, seconds: float,
-              seed: int) -> float:
-    out = generator.generate(action, profile=profile, seconds=seconds, samples=samples, seed=seed,
-                             personalised=profile is not None)
+def _measured(
+    generator, action: ActionRequest, profile, measure: str, samples: int, seconds: float, seed: int
+) -> float:
+    out = generator.generate(
+        action, profile=profile, seconds=seconds, samples=samples, seed=seed, personalised=profile is not None
+    )
     return float(np.nanmean([kinematic_measures(q, generator.rate)[measure] for q in out.q.detach().double().numpy()]))
 
 
 def _row(change: str, measure: str, low: float, high: float, sign: int, source: str) -> dict:
-    return {"change": change, "measure": measure, "low": low, "high": high, "delta": high - low,
-            "expected": "decrease" if sign < 0 else "increase", "as_documented": bool(np.sign(high - low) == sign),
-            "source": source}
+    return {
+        "change": change,
+        "measure": measure,
+        "low": low,
+        "high": high,
+        "delta": high - low,
+        "expected": "decrease" if sign < 0 else "increase",
+        "as_documented": bool(np.sign(high - low) == sign),
+        "source": source,
+    }
 
 
-def manipulation_study(generator, base: dict, action: ActionRequest, *, samples: int = 8, seconds: float = 4.0,
-                       seed: int = 0, style_generator=None) -> dict:
+def manipulation_study(
+    generator,
+    base: dict,
+    action: ActionRequest,
+    *,
+    samples: int = 8,
+    seconds: float = 4.0,
+    seed: int = 0,
+    style_generator=None,
+) -> dict:
     """Vary one profile field at a time with the action fixed, and the style of `STYLE_MANIPULATIONS` with the
     action fixed (no profile); measure the kinematics of ``samples`` clips per value (the same seeds for
     both values) and compare the change with the documented direction. A style is asked for as `biomotion
@@ -581,9 +744,20 @@ def manipulation_study(generator, base: dict, action: ActionRequest, *, samples:
 
     fields, skipped = {}, {}
     for name, low, high, measure, sign, source in MANIPULATIONS:
-        means = [_measured(generator, action, Profile.from_dict({**base, **change, "injuries": list(
-            change.get("injuries", base.get("injuries", ())))}), measure, samples, seconds, seed)
-            for change in (low, high)]
+        means = [
+            _measured(
+                generator,
+                action,
+                Profile.from_dict(
+                    {**base, **change, "injuries": list(change.get("injuries", base.get("injuries", ())))}
+                ),
+                measure,
+                samples,
+                seconds,
+                seed,
+            )
+            for change in (low, high)
+        ]
         fields[name] = _row(f"{_describe(low)} -> {_describe(high)}", measure, *means, sign, source)
     style_generator = style_generator or generator
     vocabulary = style_generator.bundle.vocabulary
@@ -592,11 +766,19 @@ def manipulation_study(generator, base: dict, action: ActionRequest, *, samples:
         if low not in known or high not in known:
             skipped[name] = f"the generator knows no label {low!r} or {high!r}"
             continue
-        means = [_measured(style_generator, vocabulary.resolve(text), None, measure, samples, seconds, seed)
-                 for text in (low, high)]
+        means = [
+            _measured(style_generator, vocabulary.resolve(text), None, measure, samples, seconds, seed)
+            for text in (low, high)
+        ]
         fields[name] = _row(f"{low} -> {high}", measure, *means, sign, source)
-    return {"action": action.text or action.action, "samples": samples, "seconds": seconds, "base": base,
-            "fields": fields, "skipped": skipped}
+    return {
+        "action": action.text or action.action,
+        "samples": samples,
+        "seconds": seconds,
+        "base": base,
+        "fields": fields,
+        "skipped": skipped,
+    }
 
 
 def _style_checkpoints(generator, checkpoints: Path) -> Path:
@@ -620,7 +802,7 @@ def _shown(path: Path) -> str:
 
 
 def _describe(change: dict) -> str:
-    (key, value), = change.items()
+    ((key, value),) = change.items()
     if key == "injuries":
         return "no injury" if not value else ", ".join(f"{i['location']} {i['diagnosis']}" for i in value)
     return f"{key} {value}"
@@ -628,14 +810,31 @@ def _describe(change: dict) -> str:
 
 # --- the command -------------------------------------------------------------------------------------------------
 
-MANIPULATION_BASE = {"age": 35.0, "sex": "M", "height": 1.76, "mass": 72.0, "sport": "running",
-                     "level": "competitive", "experience_years": 8.0, "injuries": []}
+MANIPULATION_BASE = {
+    "age": 35.0,
+    "sex": "M",
+    "height": 1.76,
+    "mass": 72.0,
+    "sport": "running",
+    "level": "competitive",
+    "experience_years": 8.0,
+    "injuries": [],
+}
 
 
-def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str | Path | None = None, *,
-                    checkpoints: str | Path | None = None, max_seconds: float = 6.0, seed: int = 0,
-                    repeats: int = 3, manipulation_samples: int = 8, progress: bool = True,
-                    command: str = "") -> dict:
+def eval_generation(
+    data_root: str | Path,
+    json_path: str | Path,
+    md_path: str | Path | None = None,
+    *,
+    checkpoints: str | Path | None = None,
+    max_seconds: float = 6.0,
+    seed: int = 0,
+    repeats: int = 3,
+    manipulation_samples: int = 8,
+    progress: bool = True,
+    command: str = "",
+) -> dict:
     """Run the whole evaluation on ``data_root``'s unseen subjects, ``repeats`` times (module docstring); write the
     JSON (and Markdown) report."""
     if repeats < 1:
@@ -651,8 +850,9 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
     # the sources the generator learnt from: it knows their actions and how their people are described
     trained_sources = sorted({key.split("/", 1)[0] for key in generator.bundle.train_subjects})
     try:
-        handle, cache = build_temporary_cache(data_root, sources=trained_sources,
-                                              exclude_subjects=generator.bundle.train_subjects)
+        handle, cache = build_temporary_cache(
+            data_root, sources=trained_sources, exclude_subjects=generator.bundle.train_subjects
+        )
     except BiomotionError as error:  # nothing left once the training subjects are left out
         raise BiomotionError(f"no unseen subject under {data_root}: {error}") from error
     with handle:
@@ -669,8 +869,7 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
             if progress and repeats > 1:
                 print(f"repeat {r + 1}/{repeats} (seeds {first_seed}-{first_seed + len(targets) - 1})")
             variants = generate_variants(targets, cache, generator, population, seed=first_seed, progress=progress)
-            tables.append(score_variants(variants, model, generator.surrogate, generator.rate, names, speeds,
-                                         heights))
+            tables.append(score_variants(variants, model, generator.surrogate, generator.rate, names, speeds, heights))
             identities.append(identity_accuracy(generator.tokenizer, targets, variants))
         table, identity = combine_repeats(tables), combine_identity(identities)
     manipulation = None
@@ -678,8 +877,9 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
         run = generator.bundle.vocabulary.parse("run at 3.5 m/s")
         style_checkpoints = _style_checkpoints(generator, checkpoints)
         style_generator = Generator.load(data_root, style_checkpoints) if style_checkpoints != checkpoints else None
-        manipulation = manipulation_study(generator, MANIPULATION_BASE, run, samples=manipulation_samples, seed=seed,
-                                          style_generator=style_generator)
+        manipulation = manipulation_study(
+            generator, MANIPULATION_BASE, run, samples=manipulation_samples, seed=seed, style_generator=style_generator
+        )
         manipulation["style_checkpoints"] = _shown(style_checkpoints)
         # what the real clips of the action show, over every subject of the data root (trained on or not)
         sources = sources_with_action(data_root, trained_sources, run)
@@ -687,9 +887,19 @@ def eval_generation(data_root: str | Path, json_path: str | Path, md_path: str |
             everyone_handle, everyone = build_temporary_cache(data_root, sources=sources)
             with everyone_handle:
                 manipulation["real_data"] = real_data_directions(everyone, run, MANIPULATIONS, kinematic_measures)
-    report = {"command": command, "seed": seed, "repeats": repeats, "repeat_seeds": seeds, "targets": len(targets),
-              "subjects": len({t.subject for t in targets}), "clips": names, "table": table, "identity": identity,
-              "manipulation": manipulation, "bars": done_when(table, identity, manipulation)}
+    report = {
+        "command": command,
+        "seed": seed,
+        "repeats": repeats,
+        "repeat_seeds": seeds,
+        "targets": len(targets),
+        "subjects": len({t.subject for t in targets}),
+        "clips": names,
+        "table": table,
+        "identity": identity,
+        "manipulation": manipulation,
+        "bars": done_when(table, identity, manipulation),
+    }
     write_json(json_path, report)
     if md_path is not None:
         write_text(md_path, markdown(report))

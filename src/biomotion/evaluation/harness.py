@@ -19,10 +19,18 @@ from pathlib import Path
 import torch
 
 from biomotion.data.clips import body_model, build_temporary_cache, cache_clips, coordinate_set, load_clip_set
-from biomotion.metrics.clip_set import ClipSet
 from biomotion.io.atomic import atomic_write
-from biomotion.metrics.registry import (DIVERSITY, diversity_features, metrics, record, score_pairs, score_set,
-                                        set_record, summarize_set)
+from biomotion.metrics.clip_set import ClipSet
+from biomotion.metrics.registry import (
+    DIVERSITY,
+    diversity_features,
+    metrics,
+    record,
+    score_pairs,
+    score_set,
+    set_record,
+    summarize_set,
+)
 
 
 def _cell(record: dict) -> str:
@@ -43,8 +51,7 @@ def markdown_table(rows: dict[str, dict], first: str = "Method") -> str:
     for records in rows.values():
         for k, rec in records.items():
             header.setdefault(k, f"{rec['label']} ({rec['unit']}) {rec['better']}")
-    lines = [f"| {first} | N | " + " | ".join(header[k] for k in keys) + " |",
-             "|---|---:|" + "---:|" * len(keys)]
+    lines = [f"| {first} | N | " + " | ".join(header[k] for k in keys) + " |", "|---|---:|" + "---:|" * len(keys)]
     for name, records in rows.items():
         count = max((rec["count"] for k, rec in records.items() if k != DIVERSITY.name), default=0)
         cells = [_cell(records[k]) if k in records else "–" for k in keys]
@@ -66,12 +73,23 @@ def write_text(path: str | Path, text: str) -> None:
 
 def evaluate(pred: ClipSet, ref: ClipSet | None = None, model=None, *, physics: bool = False) -> dict:
     """Every applicable metric of ``pred`` (and ``ref``, and of pred against ref when given) as a JSON-ready dict."""
-    result = {"format": "biomotion-eval/1", "rate_hz": pred.rate,
-              "sets": {"pred": {"kind": pred.kind, "clips": list(pred.names),
-                                "metrics": summarize_set(pred, model, physics=physics)}}}
+    result = {
+        "format": "biomotion-eval/1",
+        "rate_hz": pred.rate,
+        "sets": {
+            "pred": {
+                "kind": pred.kind,
+                "clips": list(pred.names),
+                "metrics": summarize_set(pred, model, physics=physics),
+            }
+        },
+    }
     if ref is not None:
-        result["sets"]["ref"] = {"kind": ref.kind, "clips": list(ref.names),
-                                 "metrics": summarize_set(ref, model, physics=physics)}
+        result["sets"]["ref"] = {
+            "kind": ref.kind,
+            "clips": list(ref.names),
+            "metrics": summarize_set(ref, model, physics=physics),
+        }
         pairs, paired = score_pairs(pred, ref)
         result["pairs"] = [[pred.names[a], ref.names[b]] for a, b in pairs]
         result["paired"] = paired
@@ -85,11 +103,14 @@ def evaluation_markdown(result: dict) -> str:
     if "ref" in sets:
         rows["Reference"] = sets["ref"]["metrics"]
     rows["Generated"] = sets["pred"]["metrics"]
-    text = (f"# Evaluation\n\nMean ± std over clips at {result['rate_hz']:g} Hz; ↓ lower is better, ↑ higher, "
-            "→ closer to the reference. Definitions: docs/metrics.md.\n\n" + markdown_table(rows))
+    text = (
+        f"# Evaluation\n\nMean ± std over clips at {result['rate_hz']:g} Hz; ↓ lower is better, ↑ higher, "
+        "→ closer to the reference. Definitions: docs/metrics.md.\n\n" + markdown_table(rows)
+    )
     if "paired" in result:
-        text += (f"\n## Generated against reference ({len(result['pairs'])} pairs)\n\n"
-                 + markdown_table({"Generated": result["paired"]}))
+        text += f"\n## Generated against reference ({len(result['pairs'])} pairs)\n\n" + markdown_table(
+            {"Generated": result["paired"]}
+        )
     return text
 
 
@@ -107,8 +128,10 @@ def plot_distributions(result: dict, plots_dir: str | Path) -> list[str]:
             if values:
                 per_set.setdefault(f"{rec['label']} ({rec['unit']})", {})[names[key]] = values
     written = [plot_metric_distributions(per_set, folder / "eval_distributions")[0]]
-    paired = {f"{rec['label']} ({rec['unit']})": [v for v in rec["values"] if v is not None]
-              for rec in result.get("paired", {}).values()}
+    paired = {
+        f"{rec['label']} ({rec['unit']})": [v for v in rec["values"] if v is not None]
+        for rec in result.get("paired", {}).values()
+    }
     paired = {k: v for k, v in paired.items() if v}
     if paired:
         written.append(plot_metric_distributions(paired, folder / "eval_paired")[0])
@@ -164,8 +187,13 @@ def reference_metrics(cache, model, *, physics: bool = True) -> dict:
     for records in rows.values():
         for rec in records.values():
             rec.pop("values", None)
-    return {"format": "biomotion-reference-metrics/1", "rate_hz": cache.rate, "clips": len(cache),
-            "physics": physics, "groups": rows}
+    return {
+        "format": "biomotion-reference-metrics/1",
+        "rate_hz": cache.rate,
+        "clips": len(cache),
+        "physics": physics,
+        "groups": rows,
+    }
 
 
 REFERENCE_NOTE = """\
@@ -208,7 +236,11 @@ def reference_command(data_root, md_path, json_path, *, physics: bool = True) ->
     with handle:
         result = reference_metrics(cache, body_model(data_root), physics=physics)
     write_json(json_path, result)
-    text = ("# Reference metrics of the real data\n\n" + REFERENCE_NOTE.format(rate=result["rate_hz"]) + "\n"
-            + markdown_table(result["groups"], first="source/action"))
+    text = (
+        "# Reference metrics of the real data\n\n"
+        + REFERENCE_NOTE.format(rate=result["rate_hz"])
+        + "\n"
+        + markdown_table(result["groups"], first="source/action")
+    )
     write_text(md_path, text)
     return result

@@ -29,7 +29,7 @@ from biomotion.models.conditioning import LEVELS, injury_known
 from biomotion.profile import Profile
 
 MIN_SUBJECTS = 3
-MAX_LISTED = 4          # a field with at most this many distinct values lists the subjects per value
+MAX_LISTED = 4  # a field with at most this many distinct values lists the subjects per value
 SPEED_TOLERANCE = 0.25  # m/s
 
 
@@ -60,8 +60,11 @@ def _matches(action: ActionRequest, label: str | None, speed: float | None) -> b
 
 def action_clips(records: Sequence[Mapping], action: ActionRequest) -> list[int]:
     """Indices of the cache records of ``action``."""
-    return [i for i, record in enumerate(records)
-            if _matches(action, record["labels"].get("action"), record["labels"].get("speed"))]
+    return [
+        i
+        for i, record in enumerate(records)
+        if _matches(action, record["labels"].get("action"), record["labels"].get("speed"))
+    ]
 
 
 def sources_with_action(data_root: str | Path, sources: Sequence[str], action: ActionRequest) -> list[str]:
@@ -70,12 +73,21 @@ def sources_with_action(data_root: str | Path, sources: Sequence[str], action: A
     from biomotion.data.registry import SOURCES
 
     root = Path(data_root)
-    return [name for name in sources if name in SOURCES and SOURCES[name].present(root)
-            and any(_matches(action, spec.labels.action, spec.labels.speed) for spec in SOURCES[name].discover(root))]
+    return [
+        name
+        for name in sources
+        if name in SOURCES
+        and SOURCES[name].present(root)
+        and any(_matches(action, spec.labels.action, spec.labels.speed) for spec in SOURCES[name].discover(root))
+    ]
 
 
-def real_data_directions(cache, action: ActionRequest, manipulations: Sequence[tuple],
-                         measures: Callable[[np.ndarray, float], Mapping[str, float]]) -> dict:
+def real_data_directions(
+    cache,
+    action: ActionRequest,
+    manipulations: Sequence[tuple],
+    measures: Callable[[np.ndarray, float], Mapping[str, float]],
+) -> dict:
     """Per manipulated field (rows of `MANIPULATIONS`: field, low change, high change, measure, sign, source) the
     Spearman correlation across the subjects of ``cache`` between the field and ``measures(q, rate)[measure]``
     on their clips of ``action``: ``rho``, ``p``, ``subjects``, ``values`` (subjects per field value, or the
@@ -92,19 +104,35 @@ def real_data_directions(cache, action: ActionRequest, manipulations: Sequence[t
         profiles[key] = record.get("profile") or {}
     out = {}
     for field, _, high, measure, sign, _ in manipulations:
-        (key, _), = high.items()
-        pairs = [(field_value(profiles[s], key, high), float(np.nanmean([m[measure] for m in rows])))
-                 for s, rows in per_subject.items()]
+        ((key, _),) = high.items()
+        pairs = [
+            (field_value(profiles[s], key, high), float(np.nanmean([m[measure] for m in rows])))
+            for s, rows in per_subject.items()
+        ]
         pairs = [(x, y) for x, y in pairs if x is not None and np.isfinite(x) and np.isfinite(y)]
         distinct, counts = np.unique([x for x, _ in pairs], return_counts=True)
-        row = {"measure": measure, "clips": len(picked), "subjects": len(pairs),
-               "values": ({f"{x:g}": int(n) for x, n in zip(distinct, counts)} if len(distinct) <= MAX_LISTED
-                          else {"from": float(distinct[0]), "to": float(distinct[-1])}),
-               "rho": None, "p": None, "direction": None, "agrees": None}
+        row = {
+            "measure": measure,
+            "clips": len(picked),
+            "subjects": len(pairs),
+            "values": (
+                {f"{x:g}": int(n) for x, n in zip(distinct, counts)}
+                if len(distinct) <= MAX_LISTED
+                else {"from": float(distinct[0]), "to": float(distinct[-1])}
+            ),
+            "rho": None,
+            "p": None,
+            "direction": None,
+            "agrees": None,
+        }
         if len(pairs) >= MIN_SUBJECTS and len(distinct) > 1:
             rho, p = spearmanr([x for x, _ in pairs], [y for _, y in pairs])
             if np.isfinite(rho) and rho != 0:
-                row.update(rho=float(rho), p=float(p), direction="increase" if rho > 0 else "decrease",
-                           agrees=bool(np.sign(rho) == sign))
+                row.update(
+                    rho=float(rho),
+                    p=float(p),
+                    direction="increase" if rho > 0 else "decrease",
+                    agrees=bool(np.sign(rho) == sign),
+                )
         out[field] = row
     return out

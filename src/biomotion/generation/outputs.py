@@ -33,8 +33,10 @@ def physics_metrics(motion: Motion, model) -> dict[str, dict]:
 
     clips = coordinate_set([CoordinateClip("generated", "generated", motion)], model, motion.rate, derivatives=True)
     records = summarize_set(clips, model, physics=True)
-    return {m.name: {"label": records[m.name]["label"], "unit": records[m.name]["unit"],
-                     "value": records[m.name]["mean"]} for m in metrics(clips.kind, model, physics=True)}
+    return {
+        m.name: {"label": records[m.name]["label"], "unit": records[m.name]["unit"], "value": records[m.name]["mean"]}
+        for m in metrics(clips.kind, model, physics=True)
+    }
 
 
 def planting_changes(generated) -> list[dict]:
@@ -47,13 +49,28 @@ def planting_changes(generated) -> list[dict]:
     change = (generated.q - generated.unplanted)[..., leg_columns(CANONICAL_COORDINATES)].abs().rad2deg()
     if not bool((change > 0).any()):
         return []
-    return [{"max_change_deg": float(c.max()), "mean_change_deg": float(c.mean()),
-             "frames_changed_over_1deg": float((c.amax(-1) > 1.0).float().mean())} for c in change.detach()]
+    return [
+        {
+            "max_change_deg": float(c.max()),
+            "mean_change_deg": float(c.mean()),
+            "frames_changed_over_1deg": float((c.amax(-1) > 1.0).float().mean()),
+        }
+        for c in change.detach()
+    ]
 
 
-def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: np.ndarray | None,
-               muscle_names: tuple[str, ...], extra_metrics: dict, *, figures: bool = True,
-               geometry: tuple[Path, ...] = ()) -> dict[str, Path]:
+def write_clip(
+    out: Path,
+    motion: Motion,
+    model,
+    model_file: Path,
+    activations: np.ndarray | None,
+    muscle_names: tuple[str, ...],
+    extra_metrics: dict,
+    *,
+    figures: bool = True,
+    geometry: tuple[Path, ...] = (),
+) -> dict[str, Path]:
     """Write one generated clip's files into ``out`` (see the module docstring); returns them by role."""
     from biomotion.analysis.chain import (
         analyze,
@@ -79,8 +96,13 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
     (out / "summary.json").unlink(missing_ok=True)
     files.update(written)
     if activations is not None:
-        files["activations"] = write_storage(out / "activations.sto", list(muscle_names), motion.times, activations,
-                                             name="Muscle activations (surrogate)")
+        files["activations"] = write_storage(
+            out / "activations.sto",
+            list(muscle_names),
+            motion.times,
+            activations,
+            name="Muscle activations (surrogate)",
+        )
     metrics = {"physics": physics_metrics(motion, model), **extra_metrics}
     with atomic_write(out / "metrics.json") as handle:
         json.dump(metrics, handle, indent=1)
@@ -95,22 +117,46 @@ def write_clip(out: Path, motion: Motion, model, model_file: Path, activations: 
         from biomotion.viz.viewer import view_command
 
         files["plot_joint_angles"] = plot_joint_angles(coordinates, out / "joint_angles")[0]
-        files["plot_grf"] = plot_ground_reaction(result.inferred, out / "grf", body_weight=result.body_weight,
-                                                 label="inferred", title="ground reaction inferred from the motion")[0]
-        files["plot_balance"] = plot_balance(result.com, result.zmp, out / "balance",
-                                             support=support_polygons(result.contact_points,
-                                                                      result.contact_loaded))[0]
+        files["plot_grf"] = plot_ground_reaction(
+            result.inferred,
+            out / "grf",
+            body_weight=result.body_weight,
+            label="inferred",
+            title="ground reaction inferred from the motion",
+        )[0]
+        files["plot_balance"] = plot_balance(
+            result.com,
+            result.zmp,
+            out / "balance",
+            support=support_polygons(result.contact_points, result.contact_loaded),
+        )[0]
         if activations is not None:
-            files["plot_activations"] = plot_activations(motion.times, muscle_names, activations,
-                                                         out / "activations")[0]
-        files["viewer"] = view_command(files["motion"], model=model_file, grf=files["grf_inferred"],
-                                       activations=files.get("activations"), com_zmp=files["com_zmp"],
-                                       out=out / "viewer.html", title="biomotion generate", geometry=geometry)
+            files["plot_activations"] = plot_activations(motion.times, muscle_names, activations, out / "activations")[
+                0
+            ]
+        files["viewer"] = view_command(
+            files["motion"],
+            model=model_file,
+            grf=files["grf_inferred"],
+            activations=files.get("activations"),
+            com_zmp=files["com_zmp"],
+            out=out / "viewer.html",
+            title="biomotion generate",
+            geometry=geometry,
+        )
     return files
 
 
-def write_generation(out: str | Path, generated: Generated, generator, profile, generic_osim: Path, *,
-                     figures: bool = True, request: dict | None = None) -> dict[str, dict[str, Path]]:
+def write_generation(
+    out: str | Path,
+    generated: Generated,
+    generator,
+    profile,
+    generic_osim: Path,
+    *,
+    figures: bool = True,
+    request: dict | None = None,
+) -> dict[str, dict[str, Path]]:
     """Scale the model to ``profile``, write ``model.osim`` and each sample's files (``out`` itself for one
     sample, ``out/sample_01`` ... for several); returns the files per sample. The viewer takes its meshes from
     the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present."""
@@ -131,23 +177,38 @@ def write_generation(out: str | Path, generated: Generated, generator, profile, 
         names = tuple(generator.surrogate.names)
     guide_terms = {}
     if generated.history:
-        guide_terms = {"guidance_first_iteration": generated.history[0], "guidance_last_iteration":
-                       generated.history[-1], "guidance_iterations": len(generated.history)}
-    geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry")
-                     if p.is_dir())
+        guide_terms = {
+            "guidance_first_iteration": generated.history[0],
+            "guidance_last_iteration": generated.history[-1],
+            "guidance_iterations": len(generated.history),
+        }
+    geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry") if p.is_dir())
     planting = planting_changes(generated)
     if generated.posture is not None:  # the person's posture offset, in the units of motion.mot
         guide_terms["posture_offset"] = {
             n: round(float(v) * (1.0 if n.startswith("pelvis_t") else 180.0 / math.pi), 3)
-            for n, v in zip(CANONICAL_COORDINATES, generated.posture.tolist()) if math.isfinite(v)}
+            for n, v in zip(CANONICAL_COORDINATES, generated.posture.tolist())
+            if math.isfinite(v)
+        }
     result = {}
     for k, motion in enumerate(motions):
         folder = out if len(motions) == 1 else out / f"sample_{k + 1:02d}"
-        extra = {"request": {**(request or {}), "sample": k + 1, "action": asdict(generated.action)},
-                 **guide_terms, **({"foot_planting": planting[k]} if planting else {}),
-                 **({} if generated.tempo is None else {"tempo": round(float(generated.tempo[k]), 4)})}
-        result[folder.name] = write_clip(folder, motion, model, model_file.resolve(),
-                                         None if activations is None else activations[k], names, extra,
-                                         figures=figures, geometry=geometry)
+        extra = {
+            "request": {**(request or {}), "sample": k + 1, "action": asdict(generated.action)},
+            **guide_terms,
+            **({"foot_planting": planting[k]} if planting else {}),
+            **({} if generated.tempo is None else {"tempo": round(float(generated.tempo[k]), 4)}),
+        }
+        result[folder.name] = write_clip(
+            folder,
+            motion,
+            model,
+            model_file.resolve(),
+            None if activations is None else activations[k],
+            names,
+            extra,
+            figures=figures,
+            geometry=geometry,
+        )
         result[folder.name]["model"] = model_file
     return result

@@ -28,11 +28,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.body.kinematics import apply_couplers
 from biomotion.body.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
+from biomotion.body.kinematics import apply_couplers
 from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
 from biomotion.errors import BiomotionWarning, ConfigError
+from biomotion.generation.posture import centring_shift, posture_offset
+from biomotion.guidance.refine import GuidanceConfig, Guide
+from biomotion.guidance.tempo import warp, warp_factor
 from biomotion.models.actions import ActionRequest
 from biomotion.models.bundle import GeneratorBundle
 from biomotion.models.conditioning import (
@@ -42,9 +45,6 @@ from biomotion.models.conditioning import (
     mean_features,
     metadata_features,
 )
-from biomotion.generation.posture import centring_shift, posture_offset
-from biomotion.guidance.refine import GuidanceConfig, Guide
-from biomotion.guidance.tempo import warp, warp_factor
 from biomotion.models.prior import Condition
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
 from biomotion.motion import Motion
@@ -52,7 +52,11 @@ from biomotion.profile import Profile
 
 CHECKPOINTS = Path(__file__).resolve().parents[3] / "checkpoints"
 TOKENIZER_FILE, GENERATOR_FILE, POPULATION_FILE, SURROGATE_FILE = (
-    "tokenizer.safetensors", "generator.safetensors", "population.safetensors", "surrogate.safetensors")
+    "tokenizer.safetensors",
+    "generator.safetensors",
+    "population.safetensors",
+    "surrogate.safetensors",
+)
 MAX_LATENTS = 128
 #: Fewest frames a clip may have: the physics metrics difference positions twice (`biomotion.metrics.base`).
 MIN_FRAMES = 4
@@ -106,9 +110,12 @@ def reference_motion(motion: Motion, body, height: float | None) -> tuple[torch.
     Knee angles of a flexion-negative model are flipped to the canonical sign, with a warning."""
     flipped = knee_flexion_negative(motion)
     if flipped:
-        warnings.warn("reference clip has mostly negative knee angles: read as a flexion-negative model "
-                      "(Fukuchi _simple, Hamner 2010) and flipped to flexion-positive", BiomotionWarning,
-                      stacklevel=2)
+        warnings.warn(
+            "reference clip has mostly negative knee angles: read as a flexion-negative model "
+            "(Fukuchi _simple, Hamner 2010) and flipped to flexion-positive",
+            BiomotionWarning,
+            stacklevel=2,
+        )
     canonical = to_canonical(motion, knee_flipped=flipped)
     clip = canonical.resample(30.0) if abs(canonical.rate - 30.0) > 1e-6 else canonical
     clip = place_clip(clip, body, height=height, treadmill_speed=None)
@@ -125,13 +132,19 @@ class Generator:
     def __init__(self, tokenizer: MotionVQVAE, bundle: GeneratorBundle, body, surrogate=None) -> None:
         self.tokenizer, self.bundle, self.body, self.surrogate = tokenizer, bundle, body, surrogate
         for model in (tokenizer, bundle.prior, surrogate):  # inference only: guidance needs gradients for the
-            if model is not None:                            # latents alone, not for any weight (15 % of its time)
+            if model is not None:  # latents alone, not for any weight (15 % of its time)
                 model.requires_grad_(False)
         self.rate = tokenizer.config.rate
 
     @classmethod
-    def load(cls, data_root: str | Path, checkpoints: str | Path = CHECKPOINTS, *, population: bool = False,
-             surrogate: bool = True) -> Generator:
+    def load(
+        cls,
+        data_root: str | Path,
+        checkpoints: str | Path = CHECKPOINTS,
+        *,
+        population: bool = False,
+        surrogate: bool = True,
+    ) -> Generator:
         """Shipped weights from ``checkpoints`` and the canonical Rajagopal model from ``data_root``."""
         import torch._dynamo  # noqa: F401  (torch.optim's first optimizer imports it: ~1 s, a cost of loading)
 
@@ -148,10 +161,16 @@ class Generator:
         return cls(tokenizer, bundle, body, muscles)
 
     @torch.no_grad()
-    def condition(self, action: ActionRequest, profile: Profile | None = None,
-                  references: Sequence[Motion] = (), personalised: bool = True,
-                  reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = (),
-                  biodata: bool = True) -> tuple[Condition, torch.Tensor | None, torch.Tensor | None]:
+    def condition(
+        self,
+        action: ActionRequest,
+        profile: Profile | None = None,
+        references: Sequence[Motion] = (),
+        personalised: bool = True,
+        reference_actions: Sequence[str | None] = (),
+        reference_speeds: Sequence[float | None] = (),
+        biodata: bool = True,
+    ) -> tuple[Condition, torch.Tensor | None, torch.Tensor | None]:
         """The prior's input for one request (batch of 1), the priming codes [1, P] (the last `PRIME_TOKENS`
         codes of the first reference clip) and the person's posture offset [39] (`posture_offset`, with the
         references' action labels and speeds where known); both None without references. ``biodata`` False
@@ -182,12 +201,26 @@ class Generator:
             latents, valid = torch.zeros(1, code_dim), torch.zeros(1, dtype=torch.bool)
         return Condition(latents[None], valid[None], bio[None], metadata[None], act[None]), prime, offset
 
-    def generate(self, action: ActionRequest, *, profile: Profile | None = None, references: Sequence[Motion] = (),
-                 reference_actions: Sequence[str | None] = (), reference_speeds: Sequence[float | None] = (),
-                 seconds: float = 3.0, samples: int = 1,
-                 seed: int = 0, guidance: bool = True, personalised: bool = True, prime: bool = True,
-                 posture: bool = True, temperature: float = TEMPERATURE, top_k: int | None = 20,
-                 guidance_config: GuidanceConfig | None = None, biodata: bool = True) -> Generated:
+    def generate(
+        self,
+        action: ActionRequest,
+        *,
+        profile: Profile | None = None,
+        references: Sequence[Motion] = (),
+        reference_actions: Sequence[str | None] = (),
+        reference_speeds: Sequence[float | None] = (),
+        seconds: float = 3.0,
+        samples: int = 1,
+        seed: int = 0,
+        guidance: bool = True,
+        personalised: bool = True,
+        prime: bool = True,
+        posture: bool = True,
+        temperature: float = TEMPERATURE,
+        top_k: int | None = 20,
+        guidance_config: GuidanceConfig | None = None,
+        biodata: bool = True,
+    ) -> Generated:
         """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False. With
         reference clips and ``prime``, the prior's context starts with the end of the first reference (its
         codes), so the sample continues the person's own movement pattern under the requested action; with
@@ -197,9 +230,11 @@ class Generator:
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if round(seconds * self.rate) < MIN_FRAMES:
-            raise ConfigError(f"--seconds {seconds} is {round(seconds * self.rate)} frames at {self.rate:g} Hz; the "
-                              f"physics metrics need {MIN_FRAMES} (velocities and accelerations by differences): "
-                              f"ask for at least {MIN_FRAMES / self.rate:.2f} s")
+            raise ConfigError(
+                f"--seconds {seconds} is {round(seconds * self.rate)} frames at {self.rate:g} Hz; the "
+                f"physics metrics need {MIN_FRAMES} (velocities and accelerations by differences): "
+                f"ask for at least {MIN_FRAMES / self.rate:.2f} s"
+            )
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         speed = None
@@ -209,19 +244,26 @@ class Generator:
         config = guidance_config or GuidanceConfig()
         tempo_range = config.tempo if guidance and speed is not None else None
         n_plain = max(1, math.ceil(seconds * self.rate / DOWNSAMPLE))
-        n_tokens = n_plain if tempo_range is None else max(1, math.ceil(seconds * self.rate * tempo_range[1]
-                                                                       / DOWNSAMPLE))  # a faster tempo plays more
-        cond, prefix, offset = self.condition(action, profile, references, personalised, reference_actions,
-                                              reference_speeds, biodata)
-        batch = Condition(*(x.expand(samples, *x.shape[1:]) for x in (cond.latents, cond.latent_valid, cond.biodata,
-                                                                       cond.metadata, cond.action)))
+        n_tokens = (
+            n_plain if tempo_range is None else max(1, math.ceil(seconds * self.rate * tempo_range[1] / DOWNSAMPLE))
+        )  # a faster tempo plays more
+        cond, prefix, offset = self.condition(
+            action, profile, references, personalised, reference_actions, reference_speeds, biodata
+        )
+        batch = Condition(
+            *(
+                x.expand(samples, *x.shape[1:])
+                for x in (cond.latents, cond.latent_valid, cond.biodata, cond.metadata, cond.action)
+            )
+        )
         generator = torch.Generator().manual_seed(seed)
         if prefix is not None and prime:
             prefix = prefix.expand(samples, -1)
         else:
             prefix = None
-        codes = self.bundle.prior.sample(batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator,
-                                         prefix=prefix)
+        codes = self.bundle.prior.sample(
+            batch, n_tokens, temperature=temperature, top_k=top_k, generator=generator, prefix=prefix
+        )
         z0 = self.tokenizer.quantiser.codebook[codes]
         bundle = self.bundle
         frames = round(seconds * self.rate)
@@ -240,9 +282,19 @@ class Generator:
             played_shift = shift if played is None else centring_shift(played, target)
 
         def make_guide(posture_shift: torch.Tensor | None, factor: torch.Tensor | None) -> Guide:
-            return Guide(self.tokenizer, self.body, bundle.bounds_for(action.action), bundle.high(action.action),
-                         bundle.high(action.action, "jerk_high"), self.surrogate, config, posture_shift, target,
-                         factor, frames)
+            return Guide(
+                self.tokenizer,
+                self.body,
+                bundle.bounds_for(action.action),
+                bundle.high(action.action),
+                bundle.high(action.action, "jerk_high"),
+                self.surrogate,
+                config,
+                posture_shift,
+                target,
+                factor,
+                frames,
+            )
 
         # coupled coordinates (the patella's knee _beta) set from their independent ones, as OpenSim's coupler
         # constraints set them, in every variant returned (foot planting sets them in q; the files' writer sets
@@ -253,5 +305,14 @@ class Generator:
         if not guidance:
             return Generated(unguided, unguided, codes, self.rate, action, posture=offset)
         result = make_guide(played_shift, tempo)(z0, speed)
-        return Generated(result.q[:, :frames], unguided, codes, self.rate, action, result.history,
-                         coupled(result.unplanted[:, :frames]), offset, tempo)
+        return Generated(
+            result.q[:, :frames],
+            unguided,
+            codes,
+            self.rate,
+            action,
+            result.history,
+            coupled(result.unplanted[:, :frames]),
+            offset,
+            tempo,
+        )

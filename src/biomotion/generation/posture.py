@@ -58,8 +58,12 @@ def nearest_action(mean: torch.Tensor, known: torch.Tensor, bundle: GeneratorBun
     return chosen
 
 
-def posture_offset(references: Sequence[tuple[torch.Tensor, torch.Tensor]], bundle: GeneratorBundle,
-                   actions: Sequence[str | None] = (), speeds: Sequence[float | None] = ()) -> torch.Tensor | None:
+def posture_offset(
+    references: Sequence[tuple[torch.Tensor, torch.Tensor]],
+    bundle: GeneratorBundle,
+    actions: Sequence[str | None] = (),
+    speeds: Sequence[float | None] = (),
+) -> torch.Tensor | None:
     """[39] the person's deviation from the population posture (module docstring; NaN where no reference has the
     coordinate, and on the coordinates that are not posture), or None when the bundle has no population postures.
 

@@ -21,13 +21,27 @@ from biomotion.io.profiles import person
 GENERATION_THREADS = 2
 
 
-def generate(*, action: str, out: Path, data_root: Path, checkpoints: Path | None = None,
-                     profile_file: Path | None = None, subject_table: Path | None = None,
-                     subject_id: str | None = None, references: Sequence[Path] = (),
-                     reference_actions: Sequence[str] = (), seconds: float = 3.0,
-                     seed: int = 0, samples: int = 1, guidance: bool = True, personalised: bool = True,
-                     figures: bool = True, command: str = "", threads: int | None = None,
-                     smooth_hz: float | None = None) -> dict:
+def generate(
+    *,
+    action: str,
+    out: Path,
+    data_root: Path,
+    checkpoints: Path | None = None,
+    profile_file: Path | None = None,
+    subject_table: Path | None = None,
+    subject_id: str | None = None,
+    references: Sequence[Path] = (),
+    reference_actions: Sequence[str] = (),
+    seconds: float = 3.0,
+    seed: int = 0,
+    samples: int = 1,
+    guidance: bool = True,
+    personalised: bool = True,
+    figures: bool = True,
+    command: str = "",
+    threads: int | None = None,
+    smooth_hz: float | None = None,
+) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
 
@@ -42,11 +56,11 @@ def generate(*, action: str, out: Path, data_root: Path, checkpoints: Path | Non
     from biomotion.body.kinematics import torch_threads
     from biomotion.data.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
-    from biomotion.models.bundle import GeneratorBundle
     from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, Generator
     from biomotion.generation.routing import Route, full_body_checkpoints, route
     from biomotion.guidance.refine import GuidanceConfig
     from biomotion.io.mot import read_motion
+    from biomotion.models.bundle import GeneratorBundle
 
     if threads is not None and threads < 1:
         raise ConfigError(f"--threads must be at least 1, got {threads}")
@@ -54,8 +68,10 @@ def generate(*, action: str, out: Path, data_root: Path, checkpoints: Path | Non
         raise ConfigError("--smooth filters the guided motion: it has no effect with --no-guidance")
     profile = person(profile_file, subject_table, subject_id)
     if reference_actions and len(reference_actions) != len(references):
-        raise ConfigError(f"--reference-action given {len(reference_actions)} times for {len(references)} "
-                          "--reference clips: give one per clip, in the same order, or none")
+        raise ConfigError(
+            f"--reference-action given {len(reference_actions)} times for {len(references)} "
+            "--reference clips: give one per clip, in the same order, or none"
+        )
     motions = [read_motion(p) for p in references]
     started = time.perf_counter()
     # the sentence encoder loads here unless the text names an action exactly
@@ -63,36 +79,70 @@ def generate(*, action: str, out: Path, data_root: Path, checkpoints: Path | Non
     generator = Generator.load(data_root, chosen.checkpoints)
     vocabulary = generator.bundle.vocabulary
     if smooth_hz is not None and not 0 < smooth_hz < generator.rate / 2:
-        raise ConfigError(f"--smooth {smooth_hz:g} Hz: the cutoff must lie between 0 and {generator.rate / 2:g} Hz "
-                          f"(half the generator's {generator.rate:g} Hz)")
+        raise ConfigError(
+            f"--smooth {smooth_hz:g} Hz: the cutoff must lie between 0 and {generator.rate / 2:g} Hz "
+            f"(half the generator's {generator.rate:g} Hz)"
+        )
     try:
         request = vocabulary.resolve(action)
     except ConfigError as error:
-        if chosen.full_body or chosen.full_body_label is None:   # the error lists that vocabulary's actions
+        if chosen.full_body or chosen.full_body_label is None:  # the error lists that vocabulary's actions
             raise
         folder = full_body_checkpoints(chosen.checkpoints)
         full_body = GeneratorBundle.load(folder / GENERATOR_FILE).vocabulary
-        raise ConfigError(f"{error}; the full-body bundle ({folder}) also knows "
-                          f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
-                          f"({', '.join(full_body.styles)})") from None
+        raise ConfigError(
+            f"{error}; the full-body bundle ({folder}) also knows "
+            f"{', '.join(a for a in full_body.actions if a not in vocabulary.actions)}, with styles "
+            f"({', '.join(full_body.styles)})"
+        ) from None
     notes = vocabulary.notes(action, request)
     shown = [vocabulary.parse(text) for text in reference_actions]
     loaded = time.perf_counter()
     with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
-        generated = generator.generate(request, profile=profile, references=motions,
-                                       reference_actions=[r.action for r in shown],
-                                       reference_speeds=[r.speed for r in shown], seconds=seconds,
-                                       samples=samples, seed=seed, guidance=guidance, personalised=personalised,
-                                       biodata=chosen.biodata, guidance_config=GuidanceConfig(smooth_hz=smooth_hz))
+        generated = generator.generate(
+            request,
+            profile=profile,
+            references=motions,
+            reference_actions=[r.action for r in shown],
+            reference_speeds=[r.speed for r in shown],
+            seconds=seconds,
+            samples=samples,
+            seed=seed,
+            guidance=guidance,
+            personalised=personalised,
+            biodata=chosen.biodata,
+            guidance_config=GuidanceConfig(smooth_hz=smooth_hz),
+        )
     done = time.perf_counter()
-    files = write_generation(out, generated, generator, profile, Path(data_root) / MODEL_FILE, figures=figures,
-                             request={"command": command, "text": action, "seconds": seconds, "seed": seed,
-                                      "guidance": guidance, "smooth_hz": smooth_hz, "personalised": personalised,
-                                      "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None
-                                      else str(checkpoints), "biodata_used": personalised and chosen.biodata
-                                      and profile is not None,
-                                      "references": [str(p) for p in references],
-                                      "reference_actions": list(reference_actions), "notes": notes})
-    return {"action": request, "route": chosen, "notes": notes, "files": files, "load_seconds": loaded - started,
-            "generate_seconds": done - loaded,
-            "write_seconds": time.perf_counter() - done, "profile": profile}
+    files = write_generation(
+        out,
+        generated,
+        generator,
+        profile,
+        Path(data_root) / MODEL_FILE,
+        figures=figures,
+        request={
+            "command": command,
+            "text": action,
+            "seconds": seconds,
+            "seed": seed,
+            "guidance": guidance,
+            "smooth_hz": smooth_hz,
+            "personalised": personalised,
+            "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None else str(checkpoints),
+            "biodata_used": personalised and chosen.biodata and profile is not None,
+            "references": [str(p) for p in references],
+            "reference_actions": list(reference_actions),
+            "notes": notes,
+        },
+    )
+    return {
+        "action": request,
+        "route": chosen,
+        "notes": notes,
+        "files": files,
+        "load_seconds": loaded - started,
+        "generate_seconds": done - loaded,
+        "write_seconds": time.perf_counter() - done,
+        "profile": profile,
+    }

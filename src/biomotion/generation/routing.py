@@ -24,8 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from biomotion.models.bundle import GeneratorBundle
 from biomotion.generation.pipeline import GENERATOR_FILE
+from biomotion.models.bundle import GeneratorBundle
 
 FULL_BODY = "full-body"
 """Folder, inside the lab checkpoints folder, of the full-body bundle."""
@@ -53,10 +53,12 @@ class Route:
     def describe(self) -> str:
         """One line for the console."""
         if self.full_body:
-            return (f"full-body bundle ({self.checkpoints}): {self.full_body_label!r} scores "
-                    f"{self.full_body_score:.2f} against the lab bundle's {self.lab_label!r} {self.lab_score:.2f}; "
-                    "its actors have no biodata, so the profile's biodata is masked (the model is still scaled "
-                    "to the person)")
+            return (
+                f"full-body bundle ({self.checkpoints}): {self.full_body_label!r} scores "
+                f"{self.full_body_score:.2f} against the lab bundle's {self.lab_label!r} {self.lab_score:.2f}; "
+                "its actors have no biodata, so the profile's biodata is masked (the model is still scaled "
+                "to the person)"
+            )
         return f"lab bundle ({self.checkpoints})"
 
 
@@ -90,6 +92,7 @@ def route(text: str, checkpoints: str | Path) -> Route:
 def vocabulary_listing(checkpoints: str | Path) -> str:
     """The actions each shipped bundle knows, with their styles and training speeds (range, median), for the console
     (``biomotion generate --list-actions``); the full-body bundle's list leaves out what the lab bundle has."""
+
     def styles(vocabulary, action: str) -> set[str]:
         return {e.style for e in vocabulary.entries(action) if e.style not in (None, "normal")}
 
@@ -110,6 +113,8 @@ def vocabulary_listing(checkpoints: str | Path) -> str:
     listing = [f"lab bundle, {checkpoints}:", *lines(lab, {})]
     full_body = full_body_checkpoints(checkpoints)
     if full_body is not None:
-        listing += [f"full-body bundle (biodata masked), {full_body}:",
-                    *lines(_vocabulary(full_body), {a: styles(lab, a) for a in lab.actions})]
+        listing += [
+            f"full-body bundle (biodata masked), {full_body}:",
+            *lines(_vocabulary(full_body), {a: styles(lab, a) for a in lab.actions}),
+        ]
     return "\n".join(listing)

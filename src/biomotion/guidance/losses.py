@@ -47,7 +47,7 @@ def angular_velocity(q: torch.Tensor, rate: float, high: torch.Tensor) -> torch.
 
 def angular_jerk(q: torch.Tensor, rate: float, high: torch.Tensor) -> torch.Tensor:
     """Coordinate jerk above its 95th percentile bound ``high`` [39], summed over coordinates, mean over time."""
-    jerk = torch.diff(q, 3, dim=1).abs() * rate ** 3
+    jerk = torch.diff(q, 3, dim=1).abs() * rate**3
     return torch.relu(jerk - high).sum(-1).mean(-1)
 
 

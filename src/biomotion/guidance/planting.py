@@ -59,7 +59,7 @@ class PlantingConfig:
     iterations: int = 6
     damping: float = 1e-2
     floor_weight: float = 10.0
-    max_step: float = 0.05   # rad: largest change of a leg coordinate per iteration (a trust region)
+    max_step: float = 0.05  # rad: largest change of a leg coordinate per iteration (a trust region)
     coordinates: tuple[str, ...] = LEG_COORDINATES
 
 
@@ -69,8 +69,7 @@ def leg_columns(coordinate_names: tuple[str, ...], leg: tuple[str, ...] = LEG_CO
     return [i for i, name in enumerate(coordinate_names) if name in wanted]
 
 
-def plant_targets(points: np.ndarray, feet: tuple[str, ...], config: PlantingConfig
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def plant_targets(points: np.ndarray, feet: tuple[str, ...], config: PlantingConfig) -> tuple[np.ndarray, np.ndarray]:
     """Targets [B, T, K, 3] and weights [B, T, K] in [0, 1] for contact points ``points`` [B, T, K, 3] (m, y up,
     floor y = 0) of the feet labelled ``feet`` [K] ("r"/"l"); weight 0 where a point is free."""
     b, t, k, _ = points.shape
@@ -88,16 +87,18 @@ def plant_targets(points: np.ndarray, feet: tuple[str, ...], config: PlantingCon
     weight = np.zeros((b * k, t))
     if count:
         sizes = np.bincount(labels.ravel(), minlength=count + 1)
-        anchors = np.stack([np.bincount(labels.ravel(), flat[..., a].ravel(), minlength=count + 1)
-                            for a in range(3)], -1) / np.maximum(sizes, 1)[:, None]
+        anchors = (
+            np.stack([np.bincount(labels.ravel(), flat[..., a].ravel(), minlength=count + 1) for a in range(3)], -1)
+            / np.maximum(sizes, 1)[:, None]
+        )
         anchors[:, 1] = 0.0
-        inside = (labels > 0) & (sizes[labels] >= 2)                       # a single frame is no plant
+        inside = (labels > 0) & (sizes[labels] >= 2)  # a single frame is no plant
         target[inside] = anchors[labels[inside]]
         weight[inside] = 1.0
         correction = np.where(inside[..., None], target - flat, 0.0)
         for d in range(1, config.ramp + 1):
             share = 1.0 - d / (config.ramp + 1)
-            for shift in (d, -d):                                           # after a plant's end, before its start
+            for shift in (d, -d):  # after a plant's end, before its start
                 source = np.roll(inside, shift, axis=1)
                 edge = np.roll(correction, shift, axis=1)
                 if shift > 0:
@@ -107,12 +108,20 @@ def plant_targets(points: np.ndarray, feet: tuple[str, ...], config: PlantingCon
                 use = source & ~inside & (weight < share)
                 target[use] = flat[use] + share * edge[use]
                 weight[use] = share
-    back = lambda x: x.reshape(b, k, t, *x.shape[2:]).swapaxes(1, 2)   # noqa: E731
+    back = lambda x: x.reshape(b, k, t, *x.shape[2:]).swapaxes(1, 2)  # noqa: E731
     return back(target), back(weight)
 
 
-def plant_feet(body, q: torch.Tensor, bodies: torch.Tensor, offsets: torch.Tensor, feet: tuple[str, ...],
-               lower: torch.Tensor, upper: torch.Tensor, config: PlantingConfig = PlantingConfig()) -> torch.Tensor:
+def plant_feet(
+    body,
+    q: torch.Tensor,
+    bodies: torch.Tensor,
+    offsets: torch.Tensor,
+    feet: tuple[str, ...],
+    lower: torch.Tensor,
+    upper: torch.Tensor,
+    config: PlantingConfig = PlantingConfig(),
+) -> torch.Tensor:
     """Coordinates q [B, T, n] with planted feet (see the module docstring); ``bodies``/``offsets``/``feet`` the
     contact points (`biomotion.body.contact.foot_points`), ``lower``/``upper`` [n] the coordinate ranges (only the
     leg coordinates are changed and clamped)."""
@@ -130,12 +139,13 @@ def plant_feet(body, q: torch.Tensor, bodies: torch.Tensor, offsets: torch.Tenso
         for _ in range(config.iterations):
             poses = forward_kinematics(body, x)
             p = points_in_ground(poses, bodies, offsets)
-            jacobian = point_jacobians(body, x, bodies, offsets, poses)[..., legs]          # [N, K, 3, L]
-            floor |= p[..., 1] < 0           # once under the floor, held on it: no flip-flop of the active set
+            jacobian = point_jacobians(body, x, bodies, offsets, poses)[..., legs]  # [N, K, 3, L]
+            floor |= p[..., 1] < 0  # once under the floor, held on it: no flip-flop of the active set
             below = floor.to(x.dtype) * config.floor_weight
             residual = torch.cat([((p - target) * weight[..., None]).flatten(1), p[..., 1] * below], 1)
-            rows = torch.cat([(jacobian * weight[..., None, None]).flatten(1, 2),
-                              jacobian[..., 1, :] * below[..., None]], 1)
+            rows = torch.cat(
+                [(jacobian * weight[..., None, None]).flatten(1, 2), jacobian[..., 1, :] * below[..., None]], 1
+            )
             current = x[:, legs]
             gradient = (rows.transpose(1, 2) @ residual[..., None]).squeeze(-1) + config.damping * (current - start)
             # a coordinate at a bound that descent would push outward is held there (projected Gauss-Newton): its

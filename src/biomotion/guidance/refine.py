@@ -31,15 +31,15 @@ re-run with both on 2026-12-07, where "no foot-skim term" reads foot contact vel
   aside from its training, 22 clips; never evaluation subjects) by the identity probe of `biomotion eval
   generation` as it was then, reading knee ``_beta`` (real clips 0.91, unguided sample 0.82): 0.68 without the
   term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at 1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit
-  violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 / 51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is the largest gain at under a point of muscle
-  violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s, floating 1.38 -> 1.32 cm with it). Checked
-  again on 2026-12-04 with the tempo and planting, 3 repeats of 23 targets, after the probe stopped reading the
-  coupled knee ``_beta`` and the posture stopped including it (``python benchmarks/dev_subjects.py --repeats 3
-  --guidance shipped: --guidance posture_0:w_posture=0 --guidance posture_1000:w_posture=1000 --guidance
-  posture_10000:w_posture=10000 --guidance posture_30000:w_posture=30000``): identity 0.73 / 0.73 / 0.77 / 0.77 /
-  0.77 at 0 / 1000 / 3000 / 10000 / 30000 (real 0.91), muscle-limit violations 31.3 / 32.4 / 34.3 / 36.2 /
-  38.5 %, jerk 458 / 455 / 462 / 463 / 472 m/s^3; 3000 stays (differences of 0.04 are about one binomial
-  standard error of 69 clips).
+  violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 / 51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is
+  the largest gain at under a point of muscle violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s,
+  floating 1.38 -> 1.32 cm with it). Checked again on 2026-12-04 with the tempo and planting, 3 repeats of 23 targets,
+  after the probe stopped reading the coupled knee ``_beta`` and the posture stopped including it (``python
+  benchmarks/dev_subjects.py --repeats 3 --guidance shipped: --guidance posture_0:w_posture=0 --guidance
+  posture_1000:w_posture=1000 --guidance posture_10000:w_posture=10000 --guidance posture_30000:w_posture=30000``):
+  identity 0.73 / 0.73 / 0.77 / 0.77 / 0.77 at 0 / 1000 / 3000 / 10000 / 30000 (real 0.91), muscle-limit violations
+  31.3 / 32.4 / 34.3 / 36.2 / 38.5 %, jerk 458 / 455 / 462 / 463 / 472 m/s^3; 3000 stays (differences of 0.04 are about
+  one binomial standard error of 69 clips).
 - tempo on (``tempo``, ours: `biomotion.guidance.tempo`): when a speed is asked for, the sample is first played
   faster or slower (0.8-1.25 times) to reach it, and guidance refines the latents through that playback, so the
   speed term starts near its target instead of dragging the pelvis ahead of planted feet. On the generator's dev
@@ -117,16 +117,27 @@ import numpy as np
 import torch
 
 from biomotion.errors import ModelError
-from biomotion.models.bundle import GuidanceBounds
 from biomotion.guidance import losses
 from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.guidance.tempo import WARP_RANGE, warp
+from biomotion.models.bundle import GuidanceBounds
 from biomotion.models.foot_contact import group_members, mean_horizontal_speed, points_in_contact, stance_mask
 from biomotion.models.vqvae import MotionVQVAE
 
 PELVIS_TY = 4
-TERMS = ("angular_velocity", "foot_contact", "com_velocity", "com_acceleration", "activation", "ground",
-         "angular_jerk", "locomotion_speed", "posture", "zmp", "foot_skim")
+TERMS = (
+    "angular_velocity",
+    "foot_contact",
+    "com_velocity",
+    "com_acceleration",
+    "activation",
+    "ground",
+    "angular_jerk",
+    "locomotion_speed",
+    "posture",
+    "zmp",
+    "foot_skim",
+)
 
 
 @dataclass(frozen=True)
@@ -148,7 +159,7 @@ class GuidanceConfig:
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 1000.0
     w_posture: float = 3000.0
-    w_zmp: float = 0.0   # ZMP outside the stance support (`losses.zmp_support`, HUMOS Sec. 3.4); 0 skips the term
+    w_zmp: float = 0.0  # ZMP outside the stance support (`losses.zmp_support`, HUMOS Sec. 3.4); 0 skips the term
     w_foot_skim: float = 10.0  # horizontal speed of foot points near the floor (`losses.foot_skim`); 0 skips it
     contact_height: float = 0.05  # m: a foot point of the unguided sample this low and ... (`stance_mask`)
     stance_speed_ratio: float | None = 1.5  # ... slower than this x the clip's speed is in stance (None: height only)
@@ -174,7 +185,7 @@ class Kinematics:
     feet: torch.Tensor
     com: torch.Tensor
     contact: torch.Tensor | None = None
-    zmp: torch.Tensor | None = None       # [B, T, 3], with ``loaded`` [B, T], when the ZMP term is on
+    zmp: torch.Tensor | None = None  # [B, T, 3], with ``loaded`` [B, T], when the ZMP term is on
     loaded: torch.Tensor | None = None
 
 
@@ -193,10 +204,20 @@ class GuidanceResult:
 class Guide:
     """Guidance for one action: tokenizer decoder + canonical body model + optional muscle surrogate."""
 
-    def __init__(self, tokenizer: MotionVQVAE, body, bounds: GuidanceBounds, speed_high: torch.Tensor,
-                 jerk_high: torch.Tensor, surrogate=None, config: GuidanceConfig | None = None,
-                 posture_shift: torch.Tensor | None = None, posture_target: torch.Tensor | None = None,
-                 tempo: torch.Tensor | None = None, frames: int | None = None) -> None:
+    def __init__(
+        self,
+        tokenizer: MotionVQVAE,
+        body,
+        bounds: GuidanceBounds,
+        speed_high: torch.Tensor,
+        jerk_high: torch.Tensor,
+        surrogate=None,
+        config: GuidanceConfig | None = None,
+        posture_shift: torch.Tensor | None = None,
+        posture_target: torch.Tensor | None = None,
+        tempo: torch.Tensor | None = None,
+        frames: int | None = None,
+    ) -> None:
         from biomotion.body.contact import foot_points
 
         self.tokenizer, self.bounds, self.surrogate = tokenizer, bounds, surrogate
@@ -208,8 +229,9 @@ class Guide:
         self.contact_members = group_members(feet.names)  # [4, K]: the foot points of each contact channel
         self.surrogate_reads_feet = getattr(surrogate, "points", None) is not None
         if self.surrogate_reads_feet and surrogate.points.names != feet.names:
-            raise ModelError(f"the muscle surrogate's foot points {surrogate.points.names} are not the guidance "
-                             f"body's {feet.names}")
+            raise ModelError(
+                f"the muscle surrogate's foot points {surrogate.points.names} are not the guidance body's {feet.names}"
+            )
         self.speed_high, self.jerk_high = speed_high.to(torch.float32), jerk_high.to(torch.float32)
         self.rate = tokenizer.config.rate
         ranges = self.body.ranges.to(torch.float32)
@@ -249,7 +271,7 @@ class Guide:
         down = offset[:, None, None]
         up = torch.tensor([0.0, 1.0, 0.0], dtype=q.dtype)
         zmp = loaded = None
-        if self.config.w_zmp > 0:   # body motion by differences of the poses at hand (`sampled_body_motion`)
+        if self.config.w_zmp > 0:  # body motion by differences of the poses at hand (`sampled_body_motion`)
             coms = body_coms(self.body, flat, poses).view(*q.shape[:2], -1, 3) - down[..., None] * up
             bodies = sampled_body_motion(coms, poses.rotations.view(*q.shape[:2], -1, 3, 3), self.rate)
             zmp, loaded = loaded_zero_moment_point(self.body, bodies)
@@ -296,10 +318,12 @@ class Guide:
         from biomotion.body.kinematics import apply_couplers
         from biomotion.motion import lowpass
 
-        filtered = torch.as_tensor(np.ascontiguousarray(lowpass(q.numpy(), self.rate, cutoff_hz, axis=1)),
-                                   dtype=q.dtype)
-        filtered = torch.where(self.rotational, torch.minimum(torch.maximum(filtered, self.lower), self.upper),
-                               filtered)
+        filtered = torch.as_tensor(
+            np.ascontiguousarray(lowpass(q.numpy(), self.rate, cutoff_hz, axis=1)), dtype=q.dtype
+        )
+        filtered = torch.where(
+            self.rotational, torch.minimum(torch.maximum(filtered, self.lower), self.upper), filtered
+        )
         return apply_couplers(self.body, filtered.reshape(-1, q.shape[-1])).view_as(q)
 
     def _quantised(self, z: torch.Tensor) -> torch.Tensor:
@@ -316,8 +340,11 @@ class Guide:
         optimiser = torch.optim.Adam([z], lr=c.lr)
         start = self.kinematics(z0)
         contact = self.contact(start)
-        target = (mean_horizontal_speed(start.q.detach(), self.rate) if speed is None
-                  else torch.full((len(z0),), float(speed)))
+        target = (
+            mean_horizontal_speed(start.q.detach(), self.rate)
+            if speed is None
+            else torch.full((len(z0),), float(speed))
+        )
         weights = {t: getattr(c, f"w_{t}") for t in TERMS}
         history = []
         for k in range(c.iterations):
@@ -328,13 +355,25 @@ class Guide:
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
-            history.append({"iteration": k, "alpha": c.alpha(k), "loss": loss.item() / len(z0),
-                            "guidance": guide.mean().item(), **{t: v.mean().item() for t, v in terms.items()}})
+            history.append(
+                {
+                    "iteration": k,
+                    "alpha": c.alpha(k),
+                    "loss": loss.item() / len(z0),
+                    "guidance": guide.mean().item(),
+                    **{t: v.mean().item() for t, v in terms.items()},
+                }
+            )
         with torch.no_grad():
             final = self._quantised(z) if c.quantize_at is not None else z
             q = self.kinematics(final).q
             if c.smooth_hz is not None:
                 q = self.smoothed(q, c.smooth_hz)
-        planted = q if c.planting is None else plant_feet(self.body, q, self.feet_bodies, self.feet_offsets,
-                                                           self.feet_sides, self.lower, self.upper, c.planting)
+        planted = (
+            q
+            if c.planting is None
+            else plant_feet(
+                self.body, q, self.feet_bodies, self.feet_offsets, self.feet_sides, self.lower, self.upper, c.planting
+            )
+        )
         return GuidanceResult(planted, q, final.detach(), history)

@@ -24,8 +24,9 @@ from biomotion.models.foot_contact import mean_horizontal_speed
 WARP_RANGE = (0.8, 1.25)
 
 
-def warp_factor(q: torch.Tensor, rate: float, target: torch.Tensor, bounds: tuple[float, float] = WARP_RANGE
-                ) -> torch.Tensor:
+def warp_factor(
+    q: torch.Tensor, rate: float, target: torch.Tensor, bounds: tuple[float, float] = WARP_RANGE
+) -> torch.Tensor:
     """[B] playback factors that bring clips q [B, T, 39] from their mean horizontal speed to ``target`` [B] (m/s),
     clamped to ``bounds``; 1 for a clip that barely moves (below 0.05 m/s: no locomotion to scale)."""
     speed = mean_horizontal_speed(q, rate)

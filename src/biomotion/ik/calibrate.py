@@ -18,19 +18,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from biomotion.body.model import BodyModel
+from biomotion.body.scaling.osim_file import ScaleResult, write_scale_set, write_scaled_osim
 from biomotion.errors import ConfigError
 from biomotion.ik.retarget import MARKER_SUFFIXES, read_markers
 from biomotion.ik.scaling import scale_static
-from biomotion.body.scaling.osim_file import ScaleResult, write_scale_set, write_scaled_osim
-from biomotion.io.setup import ScaleSetup, read_scale_setup
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mot import write_motion
+from biomotion.io.setup import ScaleSetup, read_scale_setup
 
 
 @dataclass(frozen=True)
 class Calibration:
     """What `calibrate` wrote (``model``: the scaled ``.osim``; ``pose``: the static pose, None without marker
     placement) and its summary, also written as ``summary``'s JSON file."""
+
     model: Path
     scale_set: Path
     pose: Path | None
@@ -59,15 +60,24 @@ def _static_trial(setup: ScaleSetup, static: Path | None) -> Path | None:
         if raw and raw.lower() != "unassigned":
             path = setup.file(which)
             if path is None or not path.exists():
-                raise ConfigError(f"{setup.path}: its static trial {raw!r} is not found from here; give the "
-                                  "static .trc/.c3d with --static")
+                raise ConfigError(
+                    f"{setup.path}: its static trial {raw!r} is not found from here; give the "
+                    "static .trc/.c3d with --static"
+                )
             return path
     return None
 
 
-def calibrate(setup_path: str | Path, out: str | Path, *, model: str | Path | None = None,
-              static: str | Path | None = None, mass: float | None = None, filter_hz: float | None = None,
-              name: str | None = None) -> Calibration:
+def calibrate(
+    setup_path: str | Path,
+    out: str | Path,
+    *,
+    model: str | Path | None = None,
+    static: str | Path | None = None,
+    mass: float | None = None,
+    filter_hz: float | None = None,
+    name: str | None = None,
+) -> Calibration:
     """Scale the generic model of the ScaleTool setup ``setup_path`` to its static trial and write, into ``out``:
     ``<name>.osim`` (scaled, markers placed; OpenSim opens it), ``<name>_scale_set.xml`` (OpenSim's ScaleSet),
     ``<name>_static_pose.mot`` (the placement's static pose) and ``<name>_scale.json`` (factors, measurements,
@@ -92,14 +102,19 @@ def calibrate(setup_path: str | Path, out: str | Path, *, model: str | Path | No
     if result.placement is not None:
         pose = write_motion(out / f"{name}_static_pose.mot", result.placement.pose)
     summary = {
-        "setup": str(setup_path), "generic_model": str(generic_path),
-        "static_trial": None if static_path is None else str(static_path), "marker_filter_hz": filter_hz,
-        "mass_kg": float(result.model.total_mass), "preserve_mass_distribution": result.preserve_mass_distribution,
+        "setup": str(setup_path),
+        "generic_model": str(generic_path),
+        "static_trial": None if static_path is None else str(static_path),
+        "marker_filter_hz": filter_hz,
+        "mass_kg": float(result.model.total_mass),
+        "preserve_mass_distribution": result.preserve_mass_distribution,
         "scale_factors": {body: [round(float(v), 6) for v in scales] for body, scales in result.factors.items()},
         "measurements": {key: round(float(value), 6) for key, value in result.measurements.items()},
         "markers_placed": None if result.placement is None else len(result.placement.moved),
         "placement_marker_rms_m": None if result.placement is None else float(result.placement.ik.rmse),
-        "model": osim_path.name, "scale_set": scale_set.name, "static_pose": None if pose is None else pose.name,
+        "model": osim_path.name,
+        "scale_set": scale_set.name,
+        "static_pose": None if pose is None else pose.name,
     }
     summary_file = out / f"{name}_scale.json"
     with atomic_write(summary_file) as handle:

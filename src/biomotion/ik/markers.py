@@ -48,14 +48,15 @@ from biomotion.io.setup import CoordinateTask
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64
-_ROOT_ITERATIONS = 10      # iterations of the root-joint multi-start (a start, not a solution)
-_COARSE_ITERATIONS = 30    # coarse pass and neighbour re-solves: starts for the fine pass, not solutions
+_ROOT_ITERATIONS = 10  # iterations of the root-joint multi-start (a start, not a solution)
+_COARSE_ITERATIONS = 30  # coarse pass and neighbour re-solves: starts for the fine pass, not solutions
 _COARSE_TOLERANCE = 1e-6
-_NEIGHBOUR_ITERATIONS = 10   # coarse frames re-solved from their neighbours: enough to see a better basin
-_STEP_TOLERANCE = 1e-6     # rad or m: an accepted step this small ends a frame's iterations
+_NEIGHBOUR_ITERATIONS = 10  # coarse frames re-solved from their neighbours: enough to see a better basin
+_STEP_TOLERANCE = 1e-6  # rad or m: an accepted step this small ends a frame's iterations
 
 
 # --- kinematics with analytic Jacobians, on the body module's engine ----------------------------------------------
+
 
 def _value_and_slope(function, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """f(x) and f'(x) of one of the model's functions (analytic where the function offers it, else by
@@ -78,8 +79,9 @@ class _Kinematics:
     parents (the root joint alone for the multi-start); the markers must sit on bodies that subtree moves.
     """
 
-    def __init__(self, model: BodyModel, markers: Sequence[int], free: Sequence[int],
-                 joints: Sequence[int] | None = None) -> None:
+    def __init__(
+        self, model: BodyModel, markers: Sequence[int], free: Sequence[int], joints: Sequence[int] | None = None
+    ) -> None:
         self.n_q = model.n_q
         free = list(free)
         self.free = torch.as_tensor(free, dtype=torch.long)
@@ -111,8 +113,13 @@ class _Kinematics:
         rotation[tree.rotation] = True
         unit_turn = rotation & affine & ((slope.abs() - 1.0).abs() < 1e-12)
         independent = {c.independent for c in self.couplers}
-        turning = torch.tensor([c not in independent and bool((tree.argument == c).any())
-                                and bool(unit_turn[tree.argument == c].all()) for c in free], dtype=torch.bool)
+        turning = torch.tensor(
+            [
+                c not in independent and bool((tree.argument == c).any()) and bool(unit_turn[tree.argument == c].all())
+                for c in free
+            ],
+            dtype=torch.bool,
+        )
         clamped = model.clamped[free]
         self.periodic = turning & ~clamped
         # clamped to a whole turn ([-pi, pi] and the like): every pose is in range, so the limit is only where the
@@ -123,8 +130,9 @@ class _Kinematics:
         self.task_base = torch.zeros(self.n_q, self.n_z, dtype=_F64)
         self.task_base[self.free, torch.arange(self.n_z)] = 1.0
 
-    def _ball_joints(self, model: BodyModel, free: Sequence[int], affine: torch.Tensor, slope: torch.Tensor,
-                     intercept: torch.Tensor) -> list[tuple[tuple[int, int, int], float, float]]:
+    def _ball_joints(
+        self, model: BodyModel, free: Sequence[int], affine: torch.Tensor, slope: torch.Tensor, intercept: torch.Tensor
+    ) -> list[tuple[tuple[int, int, int], float, float]]:
         """Joints that turn by three rotations about mutually orthogonal axes, each the amount s q + c (s = +-1) of
         its own free coordinate, and that translate independently of them (shoulders, usually): their pose has a
         second set of angles, (a + pi, pi - b, c + pi) in the rotation amounts (Tait-Bryan). Per joint the three
@@ -139,14 +147,19 @@ class _Kinematics:
                 continue
             numbers = (self.tree.axis_body == tree_body[joint.child]).nonzero().flatten().tolist()  # in axis order
             rotations = [(a, n) for a, n in zip(joint.axes, numbers) if a.rotation]
-            if len(rotations) != 3 or any(not bool(affine[n]) or a.coordinate not in column
-                                          or abs(abs(float(slope[n])) - 1.0) > 1e-12 for a, n in rotations):
+            if len(rotations) != 3 or any(
+                not bool(affine[n]) or a.coordinate not in column or abs(abs(float(slope[n])) - 1.0) > 1e-12
+                for a, n in rotations
+            ):
                 continue
             coordinates = [a.coordinate for a, _ in rotations]
             directions = torch.stack([a.axis.to(_F64) for a, _ in rotations])
             moved = any(a.coordinate in coordinates for a in joint.axes if not a.rotation)
-            if len(set(coordinates)) < 3 or moved or not torch.allclose(directions @ directions.T,
-                                                                          torch.eye(3, dtype=_F64), atol=1e-9):
+            if (
+                len(set(coordinates)) < 3
+                or moved
+                or not torch.allclose(directions @ directions.T, torch.eye(3, dtype=_F64), atol=1e-9)
+            ):
                 continue
             middle = rotations[1][1]
             found.append((tuple(column[c] for c in coordinates), float(slope[middle]), float(intercept[middle])))
@@ -189,15 +202,16 @@ class _Kinematics:
         values, slopes, _ = tree.axis_values(q.T)
         frames = tree.joint_frames(values)
         poses = tree.poses(frames)
-        x = tree.points(poses, self.marker_body, self.marker_offsets).permute(2, 0, 1)       # [T, M, 3]
+        x = tree.points(poses, self.marker_body, self.marker_offsets).permute(2, 0, 1)  # [T, M, 3]
         if not twists:
             return _Pose(x, q, coupled, None, None)
         # omega x p + v is the velocity of a point p per unit rate of the column's coordinate
-        omega, velocity = tree.twists(tree.ground_axes(poses, frames), slopes)                # [n_q, 3, T]
+        omega, velocity = tree.twists(tree.ground_axes(poses, frames), slopes)  # [n_q, 3, T]
         return _Pose(x, q, coupled, omega[self.columns].permute(2, 0, 1), velocity[self.columns].permute(2, 0, 1))
 
-    def normal_equations(self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
-                         ) -> tuple[torch.Tensor, torch.Tensor]:
+    def normal_equations(
+        self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Gauss-Newton H = J^T W J [T, C, C] and g = J^T W r [T, C] over the columns, without forming J.
 
         A marker x on body b has d x / d column c = omega_c x x + v_c when c's joint is an ancestor of b (else 0).
@@ -209,50 +223,69 @@ class _Kinematics:
         """
         x = pose.x
         wx = weights[..., None] * x
-        sums = torch.cat([weights[..., None], wx, (wx[..., :, None] * x[..., None, :]).flatten(-2),
-                          torch.linalg.cross(wx, residuals, dim=-1), weights[..., None] * residuals], dim=-1)
-        at = self.marker_columns @ sums                                   # [T, C, 19]
+        sums = torch.cat(
+            [
+                weights[..., None],
+                wx,
+                (wx[..., :, None] * x[..., None, :]).flatten(-2),
+                torch.linalg.cross(wx, residuals, dim=-1),
+                weights[..., None] * residuals,
+            ],
+            dim=-1,
+        )
+        at = self.marker_columns @ sums  # [T, C, 19]
         w, s1, xx = at[..., 0:1], at[..., 1:4], at[..., 4:13].unflatten(-1, (3, 3))
         xr, r = at[..., 13:16], at[..., 16:19]
         omega, velocity = pose.omega, pose.velocity
         k_omega = xx.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True) * omega - (xx @ omega[..., None])[..., 0]
         top = k_omega + torch.linalg.cross(s1, velocity, dim=-1)
         bottom = torch.linalg.cross(omega, s1, dim=-1) + w * velocity
-        products = omega @ top.transpose(1, 2) + velocity @ bottom.transpose(1, 2)   # [c, d]: twist_c . G~_d twist_d
-        hessian = torch.where(self.ancestor, products, torch.where(self.ancestor.T, products.transpose(1, 2),
-                                                                   torch.zeros_like(products)))
+        products = omega @ top.transpose(1, 2) + velocity @ bottom.transpose(1, 2)  # [c, d]: twist_c . G~_d twist_d
+        hessian = torch.where(
+            self.ancestor, products, torch.where(self.ancestor.T, products.transpose(1, 2), torch.zeros_like(products))
+        )
         gradient = (omega * xr).sum(-1) + (velocity * r).sum(-1)
         return hessian, gradient
 
 
 @dataclass(frozen=True)
 class _Pose:
-    x: torch.Tensor                    # [T, M, 3] markers in ground
-    q: torch.Tensor                    # [T, n_q]
-    coupled: torch.Tensor              # [T, n_dependents, n_z] d(coupled coordinates)/dz
-    omega: torch.Tensor | None         # [T, C, 3] angular part of each column's ground twist
-    velocity: torch.Tensor | None      # [T, C, 3] linear part (velocity of the point at the ground origin)
+    x: torch.Tensor  # [T, M, 3] markers in ground
+    q: torch.Tensor  # [T, n_q]
+    coupled: torch.Tensor  # [T, n_dependents, n_z] d(coupled coordinates)/dz
+    omega: torch.Tensor | None  # [T, C, 3] angular part of each column's ground twist
+    velocity: torch.Tensor | None  # [T, C, 3] linear part (velocity of the point at the ground origin)
 
 
 # --- the least-squares problem ----------------------------------------------------------------------------------
 
+
 @dataclass
 class _Problem:
     """One batch of frames: observations, weights, coordinate tasks and bounds of the free coordinates."""
+
     kinematics: _Kinematics
-    observed: torch.Tensor       # [T, M, 3], zeros where occluded
-    weights: torch.Tensor        # [T, M], zero where occluded
-    task_columns: torch.Tensor   # [K] coordinate index of each task
-    task_weights: torch.Tensor   # [K]
-    task_targets: torch.Tensor   # [T, K]
-    lower: torch.Tensor          # [n_z]
-    upper: torch.Tensor          # [n_z]
+    observed: torch.Tensor  # [T, M, 3], zeros where occluded
+    weights: torch.Tensor  # [T, M], zero where occluded
+    task_columns: torch.Tensor  # [K] coordinate index of each task
+    task_weights: torch.Tensor  # [K]
+    task_targets: torch.Tensor  # [T, K]
+    lower: torch.Tensor  # [n_z]
+    upper: torch.Tensor  # [n_z]
 
-    def frames(self, index: torch.Tensor) -> "_Problem":
-        return _Problem(self.kinematics, self.observed[index], self.weights[index], self.task_columns,
-                        self.task_weights, self.task_targets[index], self.lower, self.upper)
+    def frames(self, index: torch.Tensor) -> _Problem:
+        return _Problem(
+            self.kinematics,
+            self.observed[index],
+            self.weights[index],
+            self.task_columns,
+            self.task_weights,
+            self.task_targets[index],
+            self.lower,
+            self.upper,
+        )
 
-    def repeat(self, count: int) -> "_Problem":
+    def repeat(self, count: int) -> _Problem:
         """The same frames ``count`` times over (for multi-starts), start-major."""
         return self.frames(torch.arange(self.observed.shape[0]).repeat(count))
 
@@ -260,8 +293,9 @@ class _Problem:
     def total_weight(self) -> torch.Tensor:
         return self.weights.sum(-1).clamp(min=1e-300)
 
-    def evaluate(self, z: torch.Tensor, derivatives: bool = True
-                 ) -> tuple[_Pose, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+    def evaluate(
+        self, z: torch.Tensor, derivatives: bool = True
+    ) -> tuple[_Pose, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """(pose, S [T], H [T, n_z, n_z], g [T, n_z]) at z: S = W E is OpenSim's objective E times the frame's
         marker weight W, i.e. half the weighted squared marker residuals plus W sum_j w_j (q_j - v_j)^2; H and g
         are its Gauss-Newton Hessian and gradient (None without ``derivatives``)."""
@@ -270,28 +304,30 @@ class _Problem:
         residuals = (pose.x - self.observed) * (self.weights > 0)[..., None]
         total = self.total_weight
         task_error = pose.q[:, self.task_columns] - self.task_targets
-        task_scale = 2.0 * total[:, None] * self.task_weights                       # [T, K]
-        cost = 0.5 * (self.weights * (residuals * residuals).sum(-1)).sum(-1) \
-            + 0.5 * (task_scale * task_error * task_error).sum(-1)
+        task_scale = 2.0 * total[:, None] * self.task_weights  # [T, K]
+        cost = 0.5 * (self.weights * (residuals * residuals).sum(-1)).sum(-1) + 0.5 * (
+            task_scale * task_error * task_error
+        ).sum(-1)
         if not derivatives:
             return pose, cost, None, None
         h, g = kin.normal_equations(pose, self.weights, residuals)
         n_z = kin.n_z
         hessian, gradient = h[:, :n_z, :n_z], g[:, :n_z]
-        if kin.dependents:   # chain rule through the couplers: columns = [free | coupled]
-            f = pose.coupled                                                        # [T, D, n_z]
+        if kin.dependents:  # chain rule through the couplers: columns = [free | coupled]
+            f = pose.coupled  # [T, D, n_z]
             cross = h[:, :n_z, n_z:] @ f
             hessian = hessian + cross + cross.transpose(1, 2) + f.transpose(1, 2) @ h[:, n_z:, n_z:] @ f
             gradient = gradient + (f.transpose(1, 2) @ g[:, n_z:, None])[..., 0]
         if len(self.task_columns):
-            rows = kin.dq_dz(pose.coupled)[:, self.task_columns]                    # [T, K, n_z]
+            rows = kin.dq_dz(pose.coupled)[:, self.task_columns]  # [T, K, n_z]
             hessian = hessian + rows.transpose(1, 2) @ (task_scale[..., None] * rows)
             gradient = gradient + (rows.transpose(1, 2) @ (task_scale * task_error)[..., None])[..., 0]
         return pose, cost, hessian, gradient
 
 
-def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int, tolerance: float,
-                         damping: float = 1e-3) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
+def _levenberg_marquardt(
+    problem: _Problem, z: torch.Tensor, max_iterations: int, tolerance: float, damping: float = 1e-3
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, int]:
     """Minimise every frame's objective from ``z`` [T, n_z] within the bounds.
 
     Returns (z, objective [T] (OpenSim's), converged [T], iterations). A frame is converged when the Gauss-Newton
@@ -317,9 +353,9 @@ def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int
         blocked = ((za <= lower + 1e-12) & (g > 0)) | ((za >= upper - 1e-12) & (g < 0))
         keep = (~blocked).to(_F64)
         diagonal = h.diagonal(dim1=-2, dim2=-1)
-        damped = (h * keep[:, :, None] * keep[:, None, :]
-                  + torch.diag_embed(lam_a[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True)))
-                                     * keep + (1.0 - keep)))
+        damped = h * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(
+            lam_a[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True))) * keep + (1.0 - keep)
+        )
         factor, info = torch.linalg.cholesky_ex(damped)
         if bool((info > 0).any()):  # numerically indefinite: regularise those frames harder
             bad = info > 0
@@ -327,7 +363,7 @@ def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int
         step = -torch.cholesky_solve((g * keep)[..., None], factor)[..., 0]
         # the Gauss-Newton model's predicted decrease: frames that cannot gain more than the tolerance stop here
         predicted = -(g * step).sum(-1) - 0.5 * (step * (h @ step[..., None])[..., 0]).sum(-1)
-        finished = (predicted <= 0.5 * tolerance * cost_a) & (lam_a < 0.1)   # not after rejections
+        finished = (predicted <= 0.5 * tolerance * cost_a) & (lam_a < 0.1)  # not after rejections
         done[active[finished]] = True
         active, za, cost_a, h, g, lam_a, step = (t[~finished] for t in (active, za, cost_a, h, g, lam_a, step))
         if active.numel() == 0:
@@ -336,7 +372,8 @@ def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int
         _, cost_new, h_new, g_new = problem.frames(active).evaluate(trial)
         accept = cost_new <= cost_a
         small = ((cost_a - cost_new).abs() <= tolerance * cost_a + 1e-15 * scale[active]) | (
-            accept & ((trial - za).abs().amax(-1) <= _STEP_TOLERANCE))
+            accept & ((trial - za).abs().amax(-1) <= _STEP_TOLERANCE)
+        )
         z[active] = torch.where(accept[:, None], trial, za)
         cost[active] = torch.where(accept, cost_new, cost_a)
         hessian[active] = torch.where(accept[:, None, None], h_new, h)
@@ -347,6 +384,7 @@ def _levenberg_marquardt(problem: _Problem, z: torch.Tensor, max_iterations: int
 
 
 # --- warm start ----------------------------------------------------------------------------------------------------
+
 
 def _root_candidates(model: BodyModel, kin: _Kinematics) -> torch.Tensor:
     """Start values [S, n_root] for the root joint's free coordinates: the defaults, then a quarter or half
@@ -365,8 +403,9 @@ def _root_candidates(model: BodyModel, kin: _Kinematics) -> torch.Tensor:
     return torch.stack(rows)
 
 
-def _root_start(model: BodyModel, problem: _Problem, marker_index: Sequence[int], count: int,
-                free: Sequence[int]) -> torch.Tensor:
+def _root_start(
+    model: BodyModel, problem: _Problem, marker_index: Sequence[int], count: int, free: Sequence[int]
+) -> torch.Tensor:
     """Initial z [T, n_z]: defaults, with the root joint's free coordinates fitted to the markers on the root
     body from several orientations (best kept per frame). Defaults alone when the root body carries fewer than
     three tracked markers."""
@@ -382,10 +421,16 @@ def _root_start(model: BodyModel, problem: _Problem, marker_index: Sequence[int]
         return z0
     kin = _Kinematics(model, [marker_index[k] for k in on_root], root_free, joints=[root])
     candidates = _root_candidates(model, kin)
-    sub = _Problem(kin, problem.observed[:, on_root], problem.weights[:, on_root],
-                   torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=_F64),
-                   problem.task_targets.new_zeros(count, 0), problem.lower[[list(free).index(c) for c in root_free]],
-                   problem.upper[[list(free).index(c) for c in root_free]])
+    sub = _Problem(
+        kin,
+        problem.observed[:, on_root],
+        problem.weights[:, on_root],
+        torch.zeros(0, dtype=torch.long),
+        torch.zeros(0, dtype=_F64),
+        problem.task_targets.new_zeros(count, 0),
+        problem.lower[[list(free).index(c) for c in root_free]],
+        problem.upper[[list(free).index(c) for c in root_free]],
+    )
     starts = candidates.repeat_interleave(count, dim=0)
     z, cost, _, _ = _levenberg_marquardt(sub.repeat(len(candidates)), starts, _ROOT_ITERATIONS, 1e-6, damping=1e-2)
     cost = torch.where(torch.isfinite(cost), cost, torch.full_like(cost, math.inf)).reshape(len(candidates), count)
@@ -399,9 +444,17 @@ def _root_start(model: BodyModel, problem: _Problem, marker_index: Sequence[int]
     return z0
 
 
-def _propagate(problem: _Problem, z: torch.Tensor, cost: torch.Tensor, max_iterations: int, tolerance: float,
-               every_frame: bool = False, rounds: int = 3, ratio: float = 1.5, jump: float = 0.1
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+def _propagate(
+    problem: _Problem,
+    z: torch.Tensor,
+    cost: torch.Tensor,
+    max_iterations: int,
+    tolerance: float,
+    every_frame: bool = False,
+    rounds: int = 3,
+    ratio: float = 1.5,
+    jump: float = 0.1,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Re-solve suspect frames from each neighbour's solution and keep the best: a frame-parallel version of the
     sequential warm start that keeps OpenSim's IK on one branch of the solutions.
 
@@ -419,7 +472,7 @@ def _propagate(problem: _Problem, z: torch.Tensor, cost: torch.Tensor, max_itera
         else:
             neighbour_cost = torch.minimum(torch.cat([cost[:1], cost[:-1]]), torch.cat([cost[1:], cost[-1:]]))
             midpoint = 0.5 * (torch.cat([z[:1], z[:-1]]) + torch.cat([z[1:], z[-1:]]))
-            off_line = ((z - midpoint).abs().amax(-1) > jump) & (not every_frame)   # coarse: far apart
+            off_line = ((z - midpoint).abs().amax(-1) > jump) & (not every_frame)  # coarse: far apart
             off_line[[0, -1]] = False
             suspect = ((cost > ratio * neighbour_cost + 1e-12) | off_line).nonzero().squeeze(-1)
         if suspect.numel() == 0:
@@ -428,10 +481,11 @@ def _propagate(problem: _Problem, z: torch.Tensor, cost: torch.Tensor, max_itera
         from_left, from_right = suspect[left != suspect], suspect[right != suspect]
         starts = torch.cat([left[left != suspect], right[right != suspect]])
         frames = torch.cat([from_left, from_right])
-        z_try, cost_try, _, _ = _levenberg_marquardt(problem.frames(frames), z[starts].clone(), max_iterations,
-                                                     tolerance)
+        z_try, cost_try, _, _ = _levenberg_marquardt(
+            problem.frames(frames), z[starts].clone(), max_iterations, tolerance
+        )
         improved = False
-        for part in (slice(0, len(from_left)), slice(len(from_left), None)):   # each side holds a frame once
+        for part in (slice(0, len(from_left)), slice(len(from_left), None)):  # each side holds a frame once
             target = frames[part]
             better = cost_try[part] < cost[target] * (1 - 1e-9)
             z[target[better]] = z_try[part][better]
@@ -443,6 +497,7 @@ def _propagate(problem: _Problem, z: torch.Tensor, cost: torch.Tensor, max_itera
 
 
 # --- public API ----------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class IKResult:
@@ -457,6 +512,7 @@ class IKResult:
         converged: [T] whether the solver met its tolerance.
         iterations: solver iterations of the final pass.
     """
+
     motion: Motion
     marker_names: tuple[str, ...]
     weights: np.ndarray
@@ -468,7 +524,7 @@ class IKResult:
     def rms(self) -> np.ndarray:
         """[T] marker error RMS per frame over the visible tracked markers (what OpenSim's IK tool logs)."""
         with np.errstate(invalid="ignore"):
-            return np.sqrt(np.nanmean(self.errors ** 2, axis=1))
+            return np.sqrt(np.nanmean(self.errors**2, axis=1))
 
     def max_error(self) -> np.ndarray:
         """[T] largest marker error per frame."""
@@ -477,20 +533,25 @@ class IKResult:
     @property
     def rmse(self) -> float:
         """Marker RMS error over every visible (frame, marker) sample (m)."""
-        return float(np.sqrt(np.nanmean(self.errors ** 2)))
+        return float(np.sqrt(np.nanmean(self.errors**2)))
 
 
 def within(markers: Markers, time_range: tuple[float, float]) -> Markers:
     """The frames with ``start <= t <= end``; a `DataFormatError` naming the field when there is none."""
     start, end = time_range
     if not np.any((markers.times >= start - 1e-9) & (markers.times <= end + 1e-9)):
-        raise DataFormatError(None, f"no marker frame within time range {start}-{end} s (the markers span "
-                                    f"{markers.times[0]}-{markers.times[-1]} s)", field="time_range")
+        raise DataFormatError(
+            None,
+            f"no marker frame within time range {start}-{end} s (the markers span "
+            f"{markers.times[0]}-{markers.times[-1]} s)",
+            field="time_range",
+        )
     return markers.slice(start, end)
 
 
-def tracked_markers(model: BodyModel, markers: Markers, weights: Mapping[str, float] | None
-                    ) -> tuple[list[int], list[int], np.ndarray]:
+def tracked_markers(
+    model: BodyModel, markers: Markers, weights: Mapping[str, float] | None
+) -> tuple[list[int], list[int], np.ndarray]:
     """(model marker indices, data marker indices, weights) of the markers IK tracks: in the model and in the
     data with a positive weight; ``weights=None`` tracks every such marker with weight 1."""
     data = {name: i for i, name in enumerate(markers.names)}
@@ -504,8 +565,9 @@ def tracked_markers(model: BodyModel, markers: Markers, weights: Mapping[str, fl
     return model_index, data_index, np.asarray(w, dtype=float)
 
 
-def _task_targets(model: BodyModel, tasks: Sequence[CoordinateTask], times: np.ndarray,
-                  coordinate_data: Motion | None) -> tuple[list[int], list[float], np.ndarray]:
+def _task_targets(
+    model: BodyModel, tasks: Sequence[CoordinateTask], times: np.ndarray, coordinate_data: Motion | None
+) -> tuple[list[int], list[float], np.ndarray]:
     columns, weights, targets = [], [], []
     for task in tasks:
         if task.weight <= 0:
@@ -517,9 +579,12 @@ def _task_targets(model: BodyModel, tasks: Sequence[CoordinateTask], times: np.n
             target = np.full(times.shape, task.value)
         else:
             if coordinate_data is None or task.name not in coordinate_data.names:
-                raise DataFormatError(None, f"coordinate task {task.name!r} takes its value from a coordinates "
-                                            f"file, but no coordinate data with that column was given",
-                                      field=task.name)
+                raise DataFormatError(
+                    None,
+                    f"coordinate task {task.name!r} takes its value from a coordinates "
+                    f"file, but no coordinate data with that column was given",
+                    field=task.name,
+                )
             target = np.interp(times, coordinate_data.times, coordinate_data[task.name])
         columns.append(c)
         weights.append(task.weight)
@@ -542,19 +607,25 @@ class _Setup:
     free: list[int]
     model_index: list[int]
     weights: np.ndarray
-    positions: torch.Tensor   # [T, M, 3] with NaN
+    positions: torch.Tensor  # [T, M, 3] with NaN
 
 
-def _setup(model: BodyModel, markers: Markers, weights: Mapping[str, float] | None,
-           coordinate_tasks: Sequence[CoordinateTask], coordinate_data: Motion | None,
-           time_range: tuple[float, float] | None) -> _Setup:
+def _setup(
+    model: BodyModel,
+    markers: Markers,
+    weights: Mapping[str, float] | None,
+    coordinate_tasks: Sequence[CoordinateTask],
+    coordinate_data: Motion | None,
+    time_range: tuple[float, float] | None,
+) -> _Setup:
     model = model.to(_F64)
     if time_range is not None:
         markers = within(markers, time_range)
     model_index, data_index, w = tracked_markers(model, markers, weights)
     if not model_index:
-        raise DataFormatError(None, "no marker is both in the model and tracked in the data (check names and "
-                                    "weights)", field="markers")
+        raise DataFormatError(
+            None, "no marker is both in the model and tracked in the data (check names and weights)", field="markers"
+        )
     free = free_coordinates(model)
     if not free:
         raise ModelError(f"model {model.name!r} has no free coordinate to solve for")
@@ -567,9 +638,16 @@ def _setup(model: BodyModel, markers: Markers, weights: Mapping[str, float] | No
     infinite = torch.full((len(free),), math.inf, dtype=_F64)
     lower = torch.where(clamped, model.ranges[free, 0].to(_F64), -infinite)
     upper = torch.where(clamped, model.ranges[free, 1].to(_F64), infinite)
-    problem = _Problem(kinematics, observed, torch.as_tensor(w, dtype=_F64) * visible,
-                       torch.tensor(columns, dtype=torch.long), torch.tensor(task_w, dtype=_F64),
-                       torch.as_tensor(targets, dtype=_F64), lower, upper)
+    problem = _Problem(
+        kinematics,
+        observed,
+        torch.as_tensor(w, dtype=_F64) * visible,
+        torch.tensor(columns, dtype=torch.long),
+        torch.tensor(task_w, dtype=_F64),
+        torch.as_tensor(targets, dtype=_F64),
+        lower,
+        upper,
+    )
     return _Setup(model, markers, problem, free, model_index, w, positions)
 
 
@@ -577,14 +655,30 @@ def _result(setup: _Setup, z: torch.Tensor, converged: torch.Tensor, iterations:
     pose, cost, _, _ = setup.problem.evaluate(z, derivatives=False)
     errors = torch.linalg.vector_norm(pose.x - setup.positions, dim=-1).numpy()
     motion = Motion(times=setup.markers.times, names=setup.model.coordinate_names, values=pose.q.numpy())
-    return IKResult(motion, tuple(setup.model.marker_names[m] for m in setup.model_index), setup.weights, errors,
-                    (cost / setup.problem.total_weight).numpy(), converged.numpy(), iterations)
+    return IKResult(
+        motion,
+        tuple(setup.model.marker_names[m] for m in setup.model_index),
+        setup.weights,
+        errors,
+        (cost / setup.problem.total_weight).numpy(),
+        converged.numpy(),
+        iterations,
+    )
 
 
-def solve_ik(model: BodyModel, markers: Markers, *, weights: Mapping[str, float] | None = None,
-             coordinate_tasks: Sequence[CoordinateTask] = (), coordinate_data: Motion | None = None,
-             time_range: tuple[float, float] | None = None, tolerance: float = 1e-8, max_iterations: int = 100,
-             coarse_interval: float = 0.1, initial: Motion | None = None) -> IKResult:
+def solve_ik(
+    model: BodyModel,
+    markers: Markers,
+    *,
+    weights: Mapping[str, float] | None = None,
+    coordinate_tasks: Sequence[CoordinateTask] = (),
+    coordinate_data: Motion | None = None,
+    time_range: tuple[float, float] | None = None,
+    tolerance: float = 1e-8,
+    max_iterations: int = 100,
+    coarse_interval: float = 0.1,
+    initial: Motion | None = None,
+) -> IKResult:
     """Marker IK of every frame of ``markers`` (within ``time_range``) on ``model``.
 
     Args:
@@ -607,22 +701,24 @@ def solve_ik(model: BodyModel, markers: Markers, *, weights: Mapping[str, float]
         coarse = torch.unique(torch.cat([torch.arange(0, count, stride), torch.tensor([count - 1])]))
         sub = problem.frames(coarse)
         z_coarse = _root_start(setup.model, sub, setup.model_index, len(coarse), free)
-        z_coarse, cost_coarse, _, _ = _levenberg_marquardt(sub, z_coarse, _COARSE_ITERATIONS, _COARSE_TOLERANCE,
-                                                           damping=1e-2)
-        z_coarse, _ = _propagate(sub, z_coarse, cost_coarse, _NEIGHBOUR_ITERATIONS, _COARSE_TOLERANCE,
-                                 every_frame=True)
+        z_coarse, cost_coarse, _, _ = _levenberg_marquardt(
+            sub, z_coarse, _COARSE_ITERATIONS, _COARSE_TOLERANCE, damping=1e-2
+        )
+        z_coarse, _ = _propagate(sub, z_coarse, cost_coarse, _NEIGHBOUR_ITERATIONS, _COARSE_TOLERANCE, every_frame=True)
         z = _interpolate(coarse, z_coarse, count)
     z, cost, converged, iterations = _levenberg_marquardt(problem, z, max_iterations, tolerance)
     z, _ = _propagate(problem, z, cost, min(max_iterations, _COARSE_ITERATIONS), tolerance)
-    if initial is None:   # a given start already chose its branches
+    if initial is None:  # a given start already chose its branches
         z = _continuous_branches(problem, z, setup.model.defaults[free].to(_F64), setup.model.ranges[free, 0])
     z = _unwrap(z, problem.kinematics.periodic, setup.model.defaults[free])
-    return _result(setup, _into_turn(z, problem.kinematics.full_turn, setup.model.ranges[free, 0]), converged,
-                   iterations)
+    return _result(
+        setup, _into_turn(z, problem.kinematics.full_turn, setup.model.ranges[free, 0]), converged, iterations
+    )
 
 
-def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Tensor,
-                         turn_start: torch.Tensor) -> torch.Tensor:
+def _continuous_branches(
+    problem: _Problem, z: torch.Tensor, defaults: torch.Tensor, turn_start: torch.Tensor
+) -> torch.Tensor:
     """Pick, for every ball joint (`_Kinematics._ball_joints`), the set of angles that keeps its trajectory
     continuous: the two sets give the same pose and objective, so frames solved apart can land on either, and a
     limb then flips between them (OpenSim's sequential warm start stays on one). The first angle is made
@@ -644,14 +740,15 @@ def _continuous_branches(problem: _Problem, z: torch.Tensor, defaults: torch.Ten
         distance = [float((torch.where(t[:, None], alternative, z)[:, b] - defaults[b]).abs().mean()) for t in taken]
         took = taken[int(distance[1] < distance[0])]
         chosen = torch.where(took[:, None], alternative, z)
-        other = torch.where((valid & ~took)[:, None], alternative, z)   # the set not taken, where usable
+        other = torch.where((valid & ~took)[:, None], alternative, z)  # the set not taken, where usable
         cut = [k for k in joint[0] if bool(kin.full_turn[k])]
         z = _switch_at_cuts(chosen, other, cut, turn_start) if cut else chosen
     return z
 
 
-def _other_set(problem: _Problem, z: torch.Tensor, cost: torch.Tensor,
-               joint: tuple[tuple[int, int, int], float, float]) -> tuple[torch.Tensor, torch.Tensor]:
+def _other_set(
+    problem: _Problem, z: torch.Tensor, cost: torch.Tensor, joint: tuple[tuple[int, int, int], float, float]
+) -> tuple[torch.Tensor, torch.Tensor]:
     """A ball joint's second set of angles (a + pi, pi - b, c + pi in the rotation amounts) for every frame of
     ``z``, each angle the in-range representative nearest ``z``'s, and [T] whether it is usable: in range and
     with the same objective as ``cost`` (the pose's)."""
@@ -664,12 +761,12 @@ def _other_set(problem: _Problem, z: torch.Tensor, cost: torch.Tensor,
     alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
     _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
     valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
-        (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12)
+        (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12
+    )
     return alternative, valid
 
 
-def _switch_at_cuts(z: torch.Tensor, other: torch.Tensor, cut: Sequence[int], turn_start: torch.Tensor
-                    ) -> torch.Tensor:
+def _switch_at_cuts(z: torch.Tensor, other: torch.Tensor, cut: Sequence[int], turn_start: torch.Tensor) -> torch.Tensor:
     """Follow ``z`` until one of a ball joint's whole-turn angles (``cut``, clamped to [lower, lower + 2 pi],
     solved across the limit) crosses its range's cut, then follow ``other`` (the joint's second set of angles)
     until it crosses one, and so on. OpenSim cannot cross a clamped limit: its sequential solve sits at the
@@ -680,10 +777,11 @@ def _switch_at_cuts(z: torch.Tensor, other: torch.Tensor, cut: Sequence[int], tu
     options = (z, other)
     low = turn_start[list(cut)].to(z.dtype)
     # solved without the limit, the angles may sit whole turns away: a crossing is a half-turn step once wrapped
-    crossing = [(torch.remainder(option[:, cut] - low, 2 * math.pi).diff(dim=0).abs() > math.pi).any(-1)
-                for option in options]
+    crossing = [
+        (torch.remainder(option[:, cut] - low, 2 * math.pi).diff(dim=0).abs() > math.pi).any(-1) for option in options
+    ]
     out, start, current = z.clone(), 0, 0
-    while start < z.shape[0]:   # one pass per crossing, not per frame
+    while start < z.shape[0]:  # one pass per crossing, not per frame
         later = crossing[current][start:].nonzero()
         end = start + int(later[0]) + 1 if later.numel() else z.shape[0]
         out[start:end] = options[current][start:end]
@@ -696,14 +794,15 @@ def _in_range(values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor,
     return ((part >= lower[columns] - 1e-12) & (part <= upper[columns] + 1e-12)).all(-1)
 
 
-def _nearest_in_range(values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor, upper: torch.Tensor,
-                      reference: torch.Tensor) -> torch.Tensor:
+def _nearest_in_range(
+    values: torch.Tensor, columns: Sequence[int], lower: torch.Tensor, upper: torch.Tensor, reference: torch.Tensor
+) -> torch.Tensor:
     """Each of ``columns`` shifted by whole turns to the representative nearest ``reference`` that is in range
     (nearest overall where none is)."""
     out = values.clone()
     for k in columns:
         shifts = torch.arange(-2, 3, dtype=_F64) * 2 * math.pi
-        options = values[:, k, None] + shifts                                   # [T, 5]
+        options = values[:, k, None] + shifts  # [T, 5]
         inside = (options >= lower[k] - 1e-12) & (options <= upper[k] + 1e-12)
         distance = (options - reference[:, k, None]).abs() + (~inside) * 1e6
         out[:, k] = options.gather(1, distance.argmin(1, keepdim=True))[:, 0]
@@ -723,9 +822,16 @@ def _unwrap(z: torch.Tensor, periodic: torch.Tensor, defaults: torch.Tensor) -> 
     return z
 
 
-def evaluate_ik(model: BodyModel, markers: Markers, motion: Motion, *, weights: Mapping[str, float] | None = None,
-                coordinate_tasks: Sequence[CoordinateTask] = (), coordinate_data: Motion | None = None,
-                time_range: tuple[float, float] | None = None) -> IKResult:
+def evaluate_ik(
+    model: BodyModel,
+    markers: Markers,
+    motion: Motion,
+    *,
+    weights: Mapping[str, float] | None = None,
+    coordinate_tasks: Sequence[CoordinateTask] = (),
+    coordinate_data: Motion | None = None,
+    time_range: tuple[float, float] | None = None,
+) -> IKResult:
     """The IK objective and marker errors of a given ``motion`` (e.g. another solver's), without solving.
 
     The motion's free coordinates are interpolated at the marker times; locked coordinates are taken at their
@@ -749,8 +855,12 @@ def _into_turn(z: torch.Tensor, full_turn: torch.Tensor, lower: torch.Tensor) ->
 
 def _start_from(setup: _Setup, motion: Motion) -> torch.Tensor:
     start = motion.select(setup.model.coordinate_names)
-    values = [np.interp(setup.markers.times, start.times, start.values[:, c]) if start.mask[c]
-              else np.full(setup.markers.n_frames, float(setup.model.defaults[c])) for c in setup.free]
+    values = [
+        np.interp(setup.markers.times, start.times, start.values[:, c])
+        if start.mask[c]
+        else np.full(setup.markers.n_frames, float(setup.model.defaults[c]))
+        for c in setup.free
+    ]
     return torch.as_tensor(np.stack(values, axis=1), dtype=_F64)
 
 

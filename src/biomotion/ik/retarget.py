@@ -12,9 +12,9 @@ visible (dropped), and the error if the trial failed.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import numpy as np
 from tqdm import tqdm
@@ -22,11 +22,11 @@ from tqdm import tqdm
 from biomotion.body.model import BodyModel
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.ik.markers import solve_ik
-from biomotion.io.setup import IKSetup
 from biomotion.ik.skeleton import FILTER_HZ, JointMap, joint_positions, retarget_skeleton, write_scaled_model
 from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d_markers
 from biomotion.io.mot import read_motion, write_motion
+from biomotion.io.setup import IKSetup
 from biomotion.io.tables import write_csv
 from biomotion.io.trc import read_trc
 from biomotion.motion import Markers, Motion
@@ -58,7 +58,7 @@ def trial_name(path: Path) -> str:
     name = path.name
     for suffix in (*SKELETON_SUFFIXES, *MARKER_SUFFIXES):
         if name.lower().endswith(suffix):
-            return name[:-len(suffix)]
+            return name[: -len(suffix)]
     return path.stem
 
 
@@ -87,14 +87,22 @@ class TrialSummary:
     error: str = ""
 
     def row(self) -> list:
-        return [self.trial, self.frames, self.rms_error_m, self.max_error_m, self.frames_dropped, self.output,
-                self.error]
+        return [
+            self.trial,
+            self.frames,
+            self.rms_error_m,
+            self.max_error_m,
+            self.frames_dropped,
+            self.output,
+            self.error,
+        ]
 
 
 def _summary(name: str, frames: int, errors: np.ndarray, output: str) -> TrialSummary:
     visible = np.isfinite(errors).any(axis=1)
-    return TrialSummary(name, frames, float(np.sqrt(np.nanmean(errors ** 2))), float(np.nanmax(errors)),
-                        int((~visible).sum()), output)
+    return TrialSummary(
+        name, frames, float(np.sqrt(np.nanmean(errors**2))), float(np.nanmax(errors)), int((~visible).sum()), output
+    )
 
 
 @dataclass(frozen=True)
@@ -107,6 +115,7 @@ class Retargeted:
         errors: [T, P] distance of each tracked point from its model counterpart (m), NaN where not seen.
         factors: body -> (sx, sy, sz) for a skeleton (the scaling it was fitted with); None for markers.
     """
+
     motion: Motion
     model: BodyModel
     errors: np.ndarray
@@ -114,7 +123,7 @@ class Retargeted:
 
     @property
     def point_kind(self) -> str:
-        """"marker" or "joint centre": what the errors measure."""
+        """ "marker" or "joint centre": what the errors measure."""
         return "marker" if self.factors is None else "joint centre"
 
     def summary(self, name: str, output: str) -> TrialSummary:
@@ -122,8 +131,14 @@ class Retargeted:
         return _summary(name, self.motion.n_frames, self.errors, output)
 
 
-def retarget_markers(markers: Markers, model: BodyModel, *, weights: Mapping[str, float] | None = None,
-                     filter_hz: float | None = None, setup: IKSetup | None = None) -> Retargeted:
+def retarget_markers(
+    markers: Markers,
+    model: BodyModel,
+    *,
+    weights: Mapping[str, float] | None = None,
+    filter_hz: float | None = None,
+    setup: IKSetup | None = None,
+) -> Retargeted:
     """Inverse kinematics of ``markers`` on ``model`` (the subject's scaled model), after an optional
     ``filter_hz`` low-pass of the markers; an OpenSim IK ``setup`` adds its coordinate tasks (``from_file`` values
     from its coordinate file) and its time range, as OpenSim's InverseKinematicsTool does."""
@@ -133,18 +148,27 @@ def retarget_markers(markers: Markers, model: BodyModel, *, weights: Mapping[str
         if any(task.value_type == "from_file" for task in tasks):
             source = setup.file("coordinate_file")
             if source is None or not source.exists():
-                raise ConfigError(f"{setup.path}: its coordinate tasks read values from a coordinate file, and "
-                                  f"{source or 'none'} is not there")
+                raise ConfigError(
+                    f"{setup.path}: its coordinate tasks read values from a coordinate file, and "
+                    f"{source or 'none'} is not there"
+                )
             data = read_motion(source)
     if filter_hz:
         markers = markers.filtered(filter_hz)
-    result = solve_ik(model, markers, weights=dict(weights) if weights else None, coordinate_tasks=tasks,
-                      coordinate_data=data, time_range=time_range)
+    result = solve_ik(
+        model,
+        markers,
+        weights=dict(weights) if weights else None,
+        coordinate_tasks=tasks,
+        coordinate_data=data,
+        time_range=time_range,
+    )
     return Retargeted(result.motion, model, result.errors)
 
 
-def retarget_joint_centres(source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *,
-                           filter_hz: float | None = None) -> Retargeted:
+def retarget_joint_centres(
+    source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *, filter_hz: float | None = None
+) -> Retargeted:
     """``generic`` scaled to the skeleton whose joint centres ``source`` holds and fitted to them
     (`biomotion.ik.skeleton.retarget_skeleton`); ``filter_hz`` (default 10) low-passes the coordinates."""
     result = retarget_skeleton(source, generic, joint_map, cutoff_hz=FILTER_HZ if filter_hz is None else filter_hz)
@@ -157,8 +181,15 @@ def read_capture(path: Path, time_range: tuple[float, float] | None = None) -> M
     return joint_positions(read_bvh(path)) if is_skeleton(path) else read_markers(path, time_range)
 
 
-def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weights: Mapping[str, float] | None,
-                      filter_hz: float | None, setup: IKSetup | None) -> TrialSummary:
+def _retarget_markers(
+    path: Path,
+    model: BodyModel,
+    out: Path,
+    name: str,
+    weights: Mapping[str, float] | None,
+    filter_hz: float | None,
+    setup: IKSetup | None,
+) -> TrialSummary:
     # the filter runs over the whole capture (its edges are not the window's), so only unfiltered reads are cut
     time_range = setup.time_range if setup is not None else None
     markers = read_markers(path, None if filter_hz else time_range)
@@ -167,17 +198,33 @@ def _retarget_markers(path: Path, model: BodyModel, out: Path, name: str, weight
     return result.summary(name, output.name)
 
 
-def _retarget_skeleton(path: Path, model: BodyModel, model_path: Path, out: Path, name: str,
-                       joint_map: JointMap | None, filter_hz: float | None) -> TrialSummary:
+def _retarget_skeleton(
+    path: Path,
+    model: BodyModel,
+    model_path: Path,
+    out: Path,
+    name: str,
+    joint_map: JointMap | None,
+    filter_hz: float | None,
+) -> TrialSummary:
     result = retarget_joint_centres(read_capture(path), model, joint_map, filter_hz=filter_hz)
     write_scaled_model(model_path, out / f"{name}.osim", model, result.factors, name=name)
     output = write_motion(out / f"{name}.mot", result.motion)
     return result.summary(name, output.name)
 
 
-def retarget(sources: Iterable[Path], model: BodyModel, out: Path, *, weights: Mapping[str, float] | None = None,
-             filter_hz: float | None = None, joint_map: JointMap | None = None, model_path: Path | None = None,
-             setup: IKSetup | None = None, progress: bool = True) -> list[TrialSummary]:
+def retarget(
+    sources: Iterable[Path],
+    model: BodyModel,
+    out: Path,
+    *,
+    weights: Mapping[str, float] | None = None,
+    filter_hz: float | None = None,
+    joint_map: JointMap | None = None,
+    model_path: Path | None = None,
+    setup: IKSetup | None = None,
+    progress: bool = True,
+) -> list[TrialSummary]:
     """Retarget every file and write ``<trial>.mot`` (and ``<trial>.osim`` for skeletons) plus ``summary.csv``.
 
     Marker files are solved on ``model`` as it is (the subject's scaled model), with marker ``weights``

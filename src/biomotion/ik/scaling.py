@@ -16,9 +16,9 @@ model marker seen in the trial is moved to its experimental position, expressed 
 body-frame offsets, and per coordinate the mean of the offsets between the 5th and 95th percentiles.
 
 The scaled model file is the generic ``.osim`` edited element by element (what OpenSim's ``Model::scale`` changes):
-body masses, centres of mass and inertias (`biomotion.body.scaling.bodies.scale_model`), mesh scale factors, offset-frame
-translations, CustomJoint translation functions (wrapped in a MultiplierFunction by ``axis . factors`` of the
-parent body, OpenSim's ``CustomJoint::extendScale``), marker locations, muscle path points (fixed, conditional and
+body masses, centres of mass and inertias (`biomotion.body.scaling.bodies.scale_model`), mesh scale factors,
+offset-frame translations, CustomJoint translation functions (wrapped in a MultiplierFunction by ``axis . factors`` of
+the parent body, OpenSim's ``CustomJoint::extendScale``), marker locations, muscle path points (fixed, conditional and
 moving), wrap objects (translation, and cylinder/ellipsoid/sphere dimensions as OpenSim's ``extendScale``), and
 muscle optimal fibre and tendon slack lengths scaled by the change of path length in the default pose. That path
 length is measured along the path points; wrapping surfaces are not followed, so for wrapped muscles the two
@@ -43,8 +43,8 @@ from biomotion.body.scaling.bodies import scale_model
 from biomotion.body.scaling.osim_file import ScaleResult
 from biomotion.errors import BiomotionWarning, ConfigError, DataFormatError, ModelError
 from biomotion.ik.markers import IKResult, solve_ik
-from biomotion.io.setup import CoordinateTask, Measurement, ScaleSetup
 from biomotion.io import osim
+from biomotion.io.setup import CoordinateTask, Measurement, ScaleSetup
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64
@@ -52,8 +52,13 @@ _F64 = torch.float64
 
 # --- scale factors -----------------------------------------------------------------------------------------------
 
-def measurement_factors(model: BodyModel, markers: Markers, measurements: Sequence[Measurement],
-                        time_range: tuple[float, float] | None = None) -> dict[str, float]:
+
+def measurement_factors(
+    model: BodyModel,
+    markers: Markers,
+    measurements: Sequence[Measurement],
+    time_range: tuple[float, float] | None = None,
+) -> dict[str, float]:
     """Scale factor of each measurement: mean over its marker pairs of experimental / model distance.
 
     Pairs naming a marker the model lacks are skipped with a warning, as OpenSim does; a measurement left with
@@ -67,26 +72,41 @@ def measurement_factors(model: BodyModel, markers: Markers, measurements: Sequen
         ratios = []
         for a, b in measurement.pairs:
             if a not in model.marker_names or b not in model.marker_names:
-                warnings.warn(f"measurement {measurement.name!r}: pair ({a}, {b}) skipped, the model has no "
-                              f"marker {a if a not in model.marker_names else b!r}", BiomotionWarning, stacklevel=2)
+                warnings.warn(
+                    f"measurement {measurement.name!r}: pair ({a}, {b}) skipped, the model has no "
+                    f"marker {a if a not in model.marker_names else b!r}",
+                    BiomotionWarning,
+                    stacklevel=2,
+                )
                 continue
             for name in (a, b):
                 if name not in markers.names:
-                    raise DataFormatError(None, f"measurement {measurement.name!r} needs marker {name!r}, which "
-                                                f"the static trial lacks", field=name)
+                    raise DataFormatError(
+                        None,
+                        f"measurement {measurement.name!r} needs marker {name!r}, which the static trial lacks",
+                        field=name,
+                    )
             distance = np.linalg.norm(markers[a] - markers[b], axis=-1)
             seen = np.isfinite(distance)
             if not seen.any():
-                raise DataFormatError(None, f"measurement {measurement.name!r}: markers {a!r} and {b!r} are never "
-                                            f"both visible in the static trial", field=a)
-            model_distance = float(torch.linalg.vector_norm(default[model.marker_index(a)]
-                                                            - default[model.marker_index(b)]))
+                raise DataFormatError(
+                    None,
+                    f"measurement {measurement.name!r}: markers {a!r} and {b!r} are never "
+                    f"both visible in the static trial",
+                    field=a,
+                )
+            model_distance = float(
+                torch.linalg.vector_norm(default[model.marker_index(a)] - default[model.marker_index(b)])
+            )
             ratios.append(float(distance[seen].mean()) / model_distance)
         if ratios:
             factors[measurement.name] = float(np.mean(ratios))
         else:
-            warnings.warn(f"measurement {measurement.name!r} has no usable marker pair: not applied",
-                          BiomotionWarning, stacklevel=2)
+            warnings.warn(
+                f"measurement {measurement.name!r} has no usable marker pair: not applied",
+                BiomotionWarning,
+                stacklevel=2,
+            )
     return factors
 
 
@@ -110,8 +130,9 @@ def frame_range(markers: Markers, time_range: tuple[float, float]) -> Markers:
     return markers.frames(slice(first, last + 1))
 
 
-def body_scale_factors(model: BodyModel, markers: Markers | None, setup: ScaleSetup
-                       ) -> tuple[dict[str, tuple[float, float, float]], dict[str, float]]:
+def body_scale_factors(
+    model: BodyModel, markers: Markers | None, setup: ScaleSetup
+) -> tuple[dict[str, tuple[float, float, float]], dict[str, float]]:
     """(factors per body, factor per measurement) from a ScaleTool setup, in its ``scaling_order``.
 
     Every body of the model gets an entry (1, 1, 1 when nothing scales it). A body a measurement names that the
@@ -130,9 +151,12 @@ def body_scale_factors(model: BodyModel, markers: Markers | None, setup: ScaleSe
                     continue
                 for body, axes in measurement.bodies:
                     if body not in factors:
-                        warnings.warn(f"{setup.path}: measurement {measurement.name!r} scales body {body!r}, which "
-                                      f"model {model.name!r} lacks: skipped, as OpenSim does", BiomotionWarning,
-                                      stacklevel=2)
+                        warnings.warn(
+                            f"{setup.path}: measurement {measurement.name!r} scales body {body!r}, which "
+                            f"model {model.name!r} lacks: skipped, as OpenSim does",
+                            BiomotionWarning,
+                            stacklevel=2,
+                        )
                         continue
                     for axis in axes:
                         factors[body]["XYZ".index(axis)] = per_measurement[measurement.name]
@@ -145,9 +169,11 @@ def body_scale_factors(model: BodyModel, markers: Markers | None, setup: ScaleSe
 
 # --- marker placement ---------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Placement:
     """Markers registered on a static trial: the model with moved markers, the static pose, the markers moved."""
+
     model: BodyModel
     pose: Motion
     moved: tuple[str, ...]
@@ -158,10 +184,17 @@ def _fixed(model: BodyModel) -> set[str]:
     return {m.name for m in model.spec.markers if m.fixed}
 
 
-def place_markers(model: BodyModel, static: Markers, *, weights: Mapping[str, float] | None,
-                  coordinate_tasks: Sequence[CoordinateTask] = (), time_range: tuple[float, float] | None = None,
-                  method: str = "average", percentiles: tuple[float, float] = (5.0, 95.0),
-                  max_movement: float = -1.0) -> Placement:
+def place_markers(
+    model: BodyModel,
+    static: Markers,
+    *,
+    weights: Mapping[str, float] | None,
+    coordinate_tasks: Sequence[CoordinateTask] = (),
+    time_range: tuple[float, float] | None = None,
+    method: str = "average",
+    percentiles: tuple[float, float] = (5.0, 95.0),
+    max_movement: float = -1.0,
+) -> Placement:
     """Move the model's non-fixed markers onto a static trial (see the module docstring for both methods).
 
     Args:
@@ -190,14 +223,18 @@ def average_frames(markers: Markers, max_movement: float = -1.0) -> Markers:
         span = np.linalg.norm(np.nanmax(markers.positions, axis=0) - np.nanmin(markers.positions, axis=0), axis=-1)
     if max_movement > 0 and np.any(span > max_movement):
         worst = int(np.nanargmax(span))
-        raise DataFormatError(None, f"marker {markers.names[worst]!r} moves {span[worst]:.4f} m over the static "
-                                    f"frames, more than max_marker_movement {max_movement} m",
-                              field=markers.names[worst])
+        raise DataFormatError(
+            None,
+            f"marker {markers.names[worst]!r} moves {span[worst]:.4f} m over the static "
+            f"frames, more than max_marker_movement {max_movement} m",
+            field=markers.names[worst],
+        )
     return Markers(times=markers.times[:1], names=markers.names, positions=mean)
 
 
-def register_markers(model: BodyModel, static: Markers, pose: Motion,
-                     percentiles: tuple[float, float] = (5.0, 95.0)) -> tuple[BodyModel, tuple[str, ...]]:
+def register_markers(
+    model: BodyModel, static: Markers, pose: Motion, percentiles: tuple[float, float] = (5.0, 95.0)
+) -> tuple[BodyModel, tuple[str, ...]]:
     """(model with moved markers, names moved): every non-fixed model marker seen in ``static`` is put, in its
     body's frame, where the trial saw it with the model at ``pose`` (a motion on the same frames).
 
@@ -207,8 +244,7 @@ def register_markers(model: BodyModel, static: Markers, pose: Motion,
     """
     q = torch.as_tensor(pose.select(model.coordinate_names).values, dtype=_F64)
     if q.shape[0] != static.n_frames:
-        raise DataFormatError(None, f"pose has {q.shape[0]} frames, the static trial {static.n_frames}",
-                              field="pose")
+        raise DataFormatError(None, f"pose has {q.shape[0]} frames, the static trial {static.n_frames}", field="pose")
     poses = forward_kinematics(model, q)
     fixed = _fixed(model)
     offsets = model.marker_offsets.clone().to(_F64)
@@ -217,7 +253,7 @@ def register_markers(model: BodyModel, static: Markers, pose: Motion,
         if name in fixed or name not in static.names:
             continue
         body = int(model.marker_bodies[m])
-        observed = torch.as_tensor(static[name], dtype=_F64)            # [T, 3]
+        observed = torch.as_tensor(static[name], dtype=_F64)  # [T, 3]
         if body < 0:
             local = observed
         else:
@@ -240,6 +276,7 @@ def _trimmed_mean(values: torch.Tensor, percentiles: tuple[float, float]) -> tor
 
 # --- the whole static calibration ------------------------------------------------------------------------------------
 
+
 def with_marker_set(model: BodyModel, markers: Sequence[osim.MarkerSpec], source: str | Path) -> BodyModel:
     """The unscaled ``model`` with the markers of a MarkerSet file (``source``) merged in, as OpenSim's
     GenericModelMaker does with its ``marker_set_file`` (``Model::updateMarkerSet``): a model marker of the same
@@ -252,40 +289,49 @@ def with_marker_set(model: BodyModel, markers: Sequence[osim.MarkerSpec], source
         try:
             model.frame_in_body(frame)
         except ModelError:
-            raise ModelError(f"{source}: marker {marker.name!r} is on {marker.frame!r}, which model "
-                             f"{model.name!r} does not have") from None
+            raise ModelError(
+                f"{source}: marker {marker.name!r} is on {marker.frame!r}, which model {model.name!r} does not have"
+            ) from None
         merged[marker.name] = dataclasses.replace(marker, frame=frame)
     return BodyModel.from_spec(dataclasses.replace(model.spec, markers=tuple(merged.values())), model.dtype)
 
 
-def scale_static(generic: BodyModel, static: Markers | None, setup: ScaleSetup, *, mass: float | None = None,
-                 method: str = "average") -> ScaleResult:
+def scale_static(
+    generic: BodyModel, static: Markers | None, setup: ScaleSetup, *, mass: float | None = None, method: str = "average"
+) -> ScaleResult:
     """OpenSim's ScaleTool on an in-memory static trial: scale ``generic`` (factors from the setup's
     measurements and manual scales), then place the markers (unless the setup's MarkerPlacer is off).
 
     ``static`` may be None when the setup needs no markers (manual scales only, no placement). ``mass`` (kg)
     overrides the setup's subject mass; a setup mass <= 0 keeps the generic model's mass.
     """
-    needs_markers = setup.placer_apply or (setup.scaler_apply and "measurements" in setup.scaling_order
-                                           and setup.measurements)
+    needs_markers = setup.placer_apply or (
+        setup.scaler_apply and "measurements" in setup.scaling_order and setup.measurements
+    )
     if static is None and needs_markers:
         raise ConfigError(f"{setup.path}: this setup measures or places markers, so it needs a static trial")
     if setup.marker_set_file.strip().lower() not in ("", "unassigned"):
         marker_set = setup.file("marker_set_file")
         if marker_set is None or not marker_set.exists():
-            raise ConfigError(f"{setup.path}: its GenericModelMaker's marker set {setup.marker_set_file!r} is not "
-                              "found from here")
+            raise ConfigError(
+                f"{setup.path}: its GenericModelMaker's marker set {setup.marker_set_file!r} is not found from here"
+            )
         generic = with_marker_set(generic, osim.read_marker_set(marker_set), marker_set)
     factors, per_measurement = body_scale_factors(generic, static, setup)
     target = mass if mass is not None else (setup.mass if setup.mass > 0 else None)
-    scaled = scale_model(generic.to(_F64), factors, mass=target,
-                         preserve_mass_distribution=setup.preserve_mass_distribution)
+    scaled = scale_model(
+        generic.to(_F64), factors, mass=target, preserve_mass_distribution=setup.preserve_mass_distribution
+    )
     placement = None
     if setup.placer_apply:
-        placement = place_markers(scaled, static, weights=setup.placer_tasks.marker_weights,
-                                  coordinate_tasks=setup.placer_tasks.coordinate_tasks,
-                                  time_range=setup.placer_time_range, method=method,
-                                  max_movement=setup.max_marker_movement)
+        placement = place_markers(
+            scaled,
+            static,
+            weights=setup.placer_tasks.marker_weights,
+            coordinate_tasks=setup.placer_tasks.coordinate_tasks,
+            time_range=setup.placer_time_range,
+            method=method,
+            max_movement=setup.max_marker_movement,
+        )
         scaled = placement.model
-    return ScaleResult(factors, per_measurement, target, setup.preserve_mass_distribution, scaled, placement,
-                       generic)
+    return ScaleResult(factors, per_measurement, target, setup.preserve_mass_distribution, scaled, placement, generic)

@@ -49,24 +49,24 @@ import numpy as np
 import scipy.optimize
 import torch
 
+from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
 from biomotion.body.kinematics import forward_kinematics, joint_centers, points_in_ground
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_model
-from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
+from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.errors import ConfigError, DataFormatError
 from biomotion.ik.markers import solve_ik
-from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.io.bvh import BVHMotion
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64
 FILTER_HZ = 10.0
-MIN_RATE_PER_CUTOFF = 4.0    # the coordinates are filtered only when rate >= 4 x cutoff (module docstring, step 5)
-FLAT_FOOT_TOLERANCE = 0.01   # m above the 5th-percentile height at which a joint still counts as down
-RETRY_ERROR = 0.01           # m: mean joint error of a frame above which IK is tried again
-RESTART_FRACTIONS = (0.0, 0.5, -0.5)   # restarts of such frames: joint coordinates at middle + f x half range
-NEIGHBOUR_PASSES = 2         # then passes from the nearest frame below the error
-UNIFORM_PULL = 0.1           # weight of the pull towards a uniform factor in a multi-pair body fit
+MIN_RATE_PER_CUTOFF = 4.0  # the coordinates are filtered only when rate >= 4 x cutoff (module docstring, step 5)
+FLAT_FOOT_TOLERANCE = 0.01  # m above the 5th-percentile height at which a joint still counts as down
+RETRY_ERROR = 0.01  # m: mean joint error of a frame above which IK is tried again
+RESTART_FRACTIONS = (0.0, 0.5, -0.5)  # restarts of such frames: joint coordinates at middle + f x half range
+NEIGHBOUR_PASSES = 2  # then passes from the nearest frame below the error
+UNIFORM_PULL = 0.1  # weight of the pull towards a uniform factor in a multi-pair body fit
 
 
 @dataclass(frozen=True)
@@ -79,11 +79,12 @@ class JointMap:
         toes: model toe joint name (``mtp_r``) -> source toe joint, registered on the hind foot (module
             docstring, step 3) rather than equated with the model's joint centre.
     """
+
     centres: Mapping[str, str]
     toes: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
     @classmethod
-    def from_file(cls, path: str | Path) -> "JointMap":
+    def from_file(cls, path: str | Path) -> JointMap:
         """A map from a JSON file ``{"centres": {model joint: source joint}, "toes": {...}}``."""
         path = Path(path)
         try:
@@ -93,8 +94,9 @@ class JointMap:
         except json.JSONDecodeError as error:
             raise DataFormatError(path, f"not valid JSON: {error.msg}", line=error.lineno) from None
         if not isinstance(data, dict) or not isinstance(data.get("centres"), dict):
-            raise DataFormatError(path, 'a joint map is {"centres": {model joint: source joint}, "toes": {...}}',
-                                  field="centres")
+            raise DataFormatError(
+                path, 'a joint map is {"centres": {model joint: source joint}, "toes": {...}}', field="centres"
+            )
         return cls(dict(data["centres"]), dict(data.get("toes", {})))
 
     def source_joints(self) -> list[str]:
@@ -102,11 +104,23 @@ class JointMap:
 
 
 BANDAI_NAMCO = JointMap(
-    centres={"hip_r": "UpperLeg_R", "hip_l": "UpperLeg_L", "walker_knee_r": "LowerLeg_R",
-             "walker_knee_l": "LowerLeg_L", "ankle_r": "Foot_R", "ankle_l": "Foot_L", "back": "Spine",
-             "acromial_r": "UpperArm_R", "acromial_l": "UpperArm_L", "elbow_r": "LowerArm_R", "elbow_l": "LowerArm_L",
-             "radius_hand_r": "Hand_R", "radius_hand_l": "Hand_L"},
-    toes={"mtp_r": "Toes_R", "mtp_l": "Toes_L"})
+    centres={
+        "hip_r": "UpperLeg_R",
+        "hip_l": "UpperLeg_L",
+        "walker_knee_r": "LowerLeg_R",
+        "walker_knee_l": "LowerLeg_L",
+        "ankle_r": "Foot_R",
+        "ankle_l": "Foot_L",
+        "back": "Spine",
+        "acromial_r": "UpperArm_R",
+        "acromial_l": "UpperArm_L",
+        "elbow_r": "LowerArm_R",
+        "elbow_l": "LowerArm_L",
+        "radius_hand_r": "Hand_R",
+        "radius_hand_l": "Hand_L",
+    },
+    toes={"mtp_r": "Toes_R", "mtp_l": "Toes_L"},
+)
 """The Bandai-Namco skeleton (both datasets: one 22-joint hierarchy, ``bandai-namco/SOURCE.md``) on the Rajagopal
 2016 model: its ``Spine`` joint, 19 cm above the hip centres as the model's lumbar joint is 18 cm, is the lumbar
 joint; ``UpperArm_*`` are the shoulders (glenohumeral), ``Hand_*`` the wrists. Neck, head and the clavicle joints
@@ -121,8 +135,10 @@ def joint_map_for(joint_names: tuple[str, ...] | list[str]) -> JointMap:
     for joint_map in KNOWN_MAPS.values():
         if set(joint_map.source_joints()) <= present:
             return joint_map
-    raise ConfigError(f"no built-in joint map fits a skeleton with joints {sorted(present)}; give one with "
-                      f"--joint-map FILE (JSON: {{\"centres\": {{model joint: skeleton joint}}, \"toes\": {{...}}}})")
+    raise ConfigError(
+        f"no built-in joint map fits a skeleton with joints {sorted(present)}; give one with "
+        f'--joint-map FILE (JSON: {{"centres": {{model joint: skeleton joint}}, "toes": {{...}}}})'
+    )
 
 
 @dataclass(frozen=True)
@@ -143,6 +159,7 @@ class SkeletonRetarget:
         ik_motion: the IK solution before filtering and the floor shift.
         tracked: the source points in the model's frame (faced forward), named after the model joints.
     """
+
     motion: Motion
     model: BodyModel
     factors: dict[str, tuple[float, float, float]]
@@ -163,13 +180,26 @@ class SkeletonRetarget:
         return float(np.nanmax(self.errors))
 
 
-def write_scaled_model(generic_path: str | Path, out: str | Path, generic: BodyModel,
-                       factors: Mapping[str, tuple[float, float, float]], name: str | None = None) -> Path:
+def write_scaled_model(
+    generic_path: str | Path,
+    out: str | Path,
+    generic: BodyModel,
+    factors: Mapping[str, tuple[float, float, float]],
+    name: str | None = None,
+) -> Path:
     """Write ``generic`` (read from ``generic_path``) scaled by ``factors`` as an .osim OpenSim loads
-    (`biomotion.body.scaling.osim_file.write_scaled_osim`; mass distribution preserved, markers moved with their bodies)."""
+    (`biomotion.body.scaling.osim_file.write_scaled_osim`; mass distribution preserved, markers moved with their
+    bodies)."""
     generic = generic.to(_F64)
-    result = ScaleResult(factors=dict(factors), measurements={}, mass=None, preserve_mass_distribution=True,
-                         model=scale_model(generic, factors), placement=None, generic=generic)
+    result = ScaleResult(
+        factors=dict(factors),
+        measurements={},
+        mass=None,
+        preserve_mass_distribution=True,
+        model=scale_model(generic, factors),
+        placement=None,
+        generic=generic,
+    )
     return write_scaled_osim(generic_path, out, result, name=name)
 
 
@@ -215,14 +245,17 @@ def _distance(source: Markers, a: str, b: str) -> float:
 def _flat_foot(source: Markers, ankle: str, toe: str) -> tuple[float, float, int]:
     """(horizontal, vertical) median toe-from-ankle offset over the frames where both are down, and the count."""
     a, t = source[ankle], source[toe]
-    down = ((a[:, 1] < np.nanpercentile(a[:, 1], 5) + FLAT_FOOT_TOLERANCE)
-            & (t[:, 1] < np.nanpercentile(t[:, 1], 5) + FLAT_FOOT_TOLERANCE))
+    down = (a[:, 1] < np.nanpercentile(a[:, 1], 5) + FLAT_FOOT_TOLERANCE) & (
+        t[:, 1] < np.nanpercentile(t[:, 1], 5) + FLAT_FOOT_TOLERANCE
+    )
     offset = (t - a)[down]
     if not len(offset):
-        raise DataFormatError(None, f"no frame with {ankle} and {toe} both down: cannot register the toe",
-                              field=toe)
-    return (float(np.median(np.linalg.norm(offset[:, [0, 2]], axis=1))), float(np.median(offset[:, 1])),
-            int(down.sum()))
+        raise DataFormatError(None, f"no frame with {ankle} and {toe} both down: cannot register the toe", field=toe)
+    return (
+        float(np.median(np.linalg.norm(offset[:, [0, 2]], axis=1))),
+        float(np.median(offset[:, 1])),
+        int(down.sum()),
+    )
 
 
 def _mapped_above(model: BodyModel, joint: str, mapped: Mapping[str, str] | list[str]) -> str | None:
@@ -267,7 +300,7 @@ def _segment_pairs(model: BodyModel, mapped: list[str]) -> dict[int, list[tuple[
                 pairs.setdefault(body, []).append((above, name))
         siblings.setdefault(model.joints[model.joint_names.index(name)].parent, []).append(name)
     for body, names in siblings.items():
-        pairs.setdefault(body, []).extend((a, b) for i, a in enumerate(names) for b in names[i + 1:])
+        pairs.setdefault(body, []).extend((a, b) for i, a in enumerate(names) for b in names[i + 1 :])
     return pairs
 
 
@@ -300,7 +333,7 @@ def segment_scales(model: BodyModel, source: Markers, joint_map: JointMap) -> di
         span = where[toe] - where[ankle]
         for body in _bodies_between(model, ankle, toe):
             factors[body] = np.full(3, horizontal / float(np.linalg.norm(span[[0, 2]])))
-    for joint in (model.joints[i] for i in model.joint_order):   # parents first: inherit the parent's mean
+    for joint in (model.joints[i] for i in model.joint_order):  # parents first: inherit the parent's mean
         if joint.child not in factors:
             factors[joint.child] = np.full(3, factors[joint.parent].mean()) if joint.parent in factors else np.ones(3)
     return {model.body_names[b]: tuple(float(x) for x in f) for b, f in sorted(factors.items())}
@@ -333,8 +366,13 @@ def _virtual_markers(model: BodyModel, source: Markers, joint_map: JointMap) -> 
     root = [c for c in range(model.n_q) if model.joints[model.coordinate_joint[c]].parent < 0]
     clamped = model.clamped.clone()
     clamped[root] = False
-    return dataclasses.replace(model, marker_names=tuple(names), marker_bodies=torch.tensor(bodies),
-                               marker_offsets=torch.stack(offsets).to(model.dtype), clamped=clamped)
+    return dataclasses.replace(
+        model,
+        marker_names=tuple(names),
+        marker_bodies=torch.tensor(bodies),
+        marker_offsets=torch.stack(offsets).to(model.dtype),
+        clamped=clamped,
+    )
 
 
 def _nearest(good: np.ndarray, frames: np.ndarray) -> np.ndarray:
@@ -348,8 +386,8 @@ def _solve(model: BodyModel, tracked: Markers) -> Motion:
     """IK on the virtual markers, then passes over the frames left with a mean joint error above `RETRY_ERROR`:
     solved again with every joint coordinate at the middle of its range, then at a quarter from either end (the
     root where the first solve put it), then from the solution of the nearest frame below the error; each frame
-    keeps its lowest objective. A limb can stall at its range limits in a basin the frame-to-frame warm start never leaves (an arm
-    held behind the back, solved with the humerus rotated 180° and the elbow straight at its limit)."""
+    keeps its lowest objective. A limb can stall at its range limits in a basin the frame-to-frame warm start never
+    leaves (an arm held behind the back, solved with the humerus rotated 180° and the elbow straight at its limit)."""
     first = solve_ik(model, tracked)
     values, cost = first.motion.values.copy(), first.cost.copy()
     error = np.nanmean(first.errors, axis=1)
@@ -394,8 +432,9 @@ def _points(model: BodyModel, q: np.ndarray) -> np.ndarray:
         return points_in_ground(poses, model.marker_bodies, model.marker_offsets).numpy()
 
 
-def retarget_skeleton(source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *,
-                      cutoff_hz: float = FILTER_HZ) -> SkeletonRetarget:
+def retarget_skeleton(
+    source: Markers, generic: BodyModel, joint_map: JointMap | None = None, *, cutoff_hz: float = FILTER_HZ
+) -> SkeletonRetarget:
     """Fit ``generic`` (scaled to the skeleton) to the joint positions ``source`` (metres, y up); see the module
     docstring for the steps."""
     joint_map = joint_map or joint_map_for(source.names)
@@ -412,10 +451,18 @@ def retarget_skeleton(source: Markers, generic: BodyModel, joint_map: JointMap |
     shift = float(np.percentile(lowest_foot_heights(model, motion.values), GROUND_PERCENTILE))
     values = motion.values.copy()
     values[:, motion.index("pelvis_ty")] -= shift
-    return SkeletonRetarget(motion=motion.with_values(values), model=model, factors=factors,
-                            joint_names=model.marker_names, errors=errors,
-                            feet_source=tracked.positions[:, _feet(model, joint_map)], feet_result=feet,
-                            floor_shift=shift, ik_motion=ik_motion, tracked=tracked)
+    return SkeletonRetarget(
+        motion=motion.with_values(values),
+        model=model,
+        factors=factors,
+        joint_names=model.marker_names,
+        errors=errors,
+        feet_source=tracked.positions[:, _feet(model, joint_map)],
+        feet_result=feet,
+        floor_shift=shift,
+        ik_motion=ik_motion,
+        tracked=tracked,
+    )
 
 
 def _feet(model: BodyModel, joint_map: JointMap) -> list[int]:

@@ -76,9 +76,12 @@ class Skeleton:
         path: list[int] = []  # the joints whose blocks are open when joint j starts, as in the file
         for j, (name, parent, chans, end) in enumerate(zip(self.names, self.parents, self.channels, self.end_sites)):
             if parent >= 0 and parent not in path:
-                raise DataFormatError(None, f"joint {name!r}: parent {parent} is not the previous joint or one of "
-                                            f"its ancestors (joints must be in depth-first file order)")
-            path = path[:path.index(parent) + 1] if parent >= 0 else []
+                raise DataFormatError(
+                    None,
+                    f"joint {name!r}: parent {parent} is not the previous joint or one of "
+                    f"its ancestors (joints must be in depth-first file order)",
+                )
+            path = path[: path.index(parent) + 1] if parent >= 0 else []
             path.append(j)
             if not name.split() or " ".join(name.split()) != name or "{" in name.split():
                 raise DataFormatError(None, f"joint name {name!r} cannot be written in BVH")
@@ -118,8 +121,12 @@ class Skeleton:
     @cached_property
     def _position_columns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(joint, axis, column) of every position channel."""
-        rows = [(j, _AXIS[c[0]], int(self._starts[j]) + k)
-                for j, chans in enumerate(self.channels) for k, c in enumerate(chans) if c.endswith("position")]
+        rows = [
+            (j, _AXIS[c[0]], int(self._starts[j]) + k)
+            for j, chans in enumerate(self.channels)
+            for k, c in enumerate(chans)
+            if c.endswith("position")
+        ]
         return tuple(np.array(v, dtype=int) for v in zip(*rows)) if rows else (np.zeros(0, int),) * 3
 
     @cached_property
@@ -131,8 +138,10 @@ class Skeleton:
             if rotations:
                 order = "".join(axis for axis, _ in rotations)
                 groups.setdefault(order, []).append((j, [col for _, col in rotations]))
-        return {order: (np.array([j for j, _ in rows]), np.array([cols for _, cols in rows]))
-                for order, rows in groups.items()}
+        return {
+            order: (np.array([j for j, _ in rows]), np.array([cols for _, cols in rows]))
+            for order, rows in groups.items()
+        }
 
 
 def axis_rotation(axis: str, radians: np.ndarray) -> np.ndarray:
@@ -147,8 +156,9 @@ def axis_rotation(axis: str, radians: np.ndarray) -> np.ndarray:
     return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
-def forward_kinematics(parents: tuple[int, ...] | list[int], rotations: np.ndarray,
-                       translations: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def forward_kinematics(
+    parents: tuple[int, ...] | list[int], rotations: np.ndarray, translations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Global joint rotations [..., J, 3, 3] and positions [..., J, 3] from local ones.
 
     ``rotations`` [..., J, 3, 3] and ``translations`` [..., J, 3] are each joint's transform in its parent's
@@ -163,7 +173,8 @@ def forward_kinematics(parents: tuple[int, ...] | list[int], rotations: np.ndarr
         else:
             parent_rotation = global_rotations[..., parent, :, :]
             positions[..., j, :] = positions[..., parent, :] + np.einsum(
-                "...ab,...b->...a", parent_rotation, translations[..., j, :])
+                "...ab,...b->...a", parent_rotation, translations[..., j, :]
+            )
             global_rotations[..., j, :, :] = parent_rotation @ rotations[..., j, :, :]
     return global_rotations, positions
 
@@ -196,8 +207,9 @@ class BVHMotion:
         if self.skeleton.n_channels == 0:
             raise DataFormatError(None, "a BVH skeleton needs at least one channel")
         if values.ndim != 2 or values.shape[1] != self.skeleton.n_channels or values.shape[0] < 1:
-            raise DataFormatError(None, f"values shape {values.shape} does not match "
-                                        f"[T >= 1, {self.skeleton.n_channels} channels]")
+            raise DataFormatError(
+                None, f"values shape {values.shape} does not match [T >= 1, {self.skeleton.n_channels} channels]"
+            )
         if not (np.isfinite(self.frame_time) and self.frame_time > 0):
             raise DataFormatError(None, f"frame time must be positive, got {self.frame_time}")
         bad = ~np.isfinite(values)
@@ -252,8 +264,9 @@ class BVHMotion:
         """Joint positions as `Markers` named after the joints (End Sites included unless ``end_sites=False``)."""
         positions = self.global_positions()
         keep = [j for j, end in enumerate(self.skeleton.end_sites) if end_sites or not end]
-        return Markers(times=self.times, names=tuple(self.skeleton.names[j] for j in keep),
-                       positions=positions[:, keep])
+        return Markers(
+            times=self.times, names=tuple(self.skeleton.names[j] for j in keep), positions=positions[:, keep]
+        )
 
 
 def detect_units(skeleton: Skeleton, values: np.ndarray) -> str:
@@ -296,7 +309,7 @@ def read_bvh(path: str | Path, *, units: str = "auto") -> BVHMotion:
     motion_match = _MOTION_LINE.search(text)
     if motion_match is None:
         raise DataFormatError(path, "no MOTION section", line=text.count("\n") + 1)
-    header = text[:motion_match.start()]
+    header = text[: motion_match.start()]
     skeleton = _parse_hierarchy(path, header)
     if skeleton.n_channels == 0:
         raise DataFormatError(path, "HIERARCHY declares no channels", line=1)
@@ -304,8 +317,9 @@ def read_bvh(path: str | Path, *, units: str = "auto") -> BVHMotion:
     frames, frame_time, block, first_data_line = _parse_motion_header(path, text, motion_match.end(), motion_line)
     values = _parse_frames(path, block, first_data_line, frames, skeleton.n_channels)
     chosen = detect_units(skeleton, values) if units == "auto" else units
-    metres = Skeleton(skeleton.names, skeleton.parents, skeleton.offsets * UNIT_SCALES[chosen], skeleton.channels,
-                      skeleton.end_sites)
+    metres = Skeleton(
+        skeleton.names, skeleton.parents, skeleton.offsets * UNIT_SCALES[chosen], skeleton.channels, skeleton.end_sites
+    )
     return BVHMotion(metres, values, frame_time, units=chosen, units_inferred=units == "auto")
 
 
@@ -323,7 +337,7 @@ def _read_text(path: Path) -> str:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as error:
-        line = raw[:error.start].count(b"\n") + 1
+        line = raw[: error.start].count(b"\n") + 1
         raise DataFormatError(path, f"not UTF-8 text: {error.reason}", line=line) from error
     return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
 
@@ -333,8 +347,9 @@ class _Tokens:
 
     def __init__(self, path: Path, header: str) -> None:
         self.path = path
-        self.items = [(token, number) for number, line in enumerate(header.split("\n"), start=1)
-                      for token in line.split()]
+        self.items = [
+            (token, number) for number, line in enumerate(header.split("\n"), start=1) for token in line.split()
+        ]
         self.position = 0
         self.last_line = header.count("\n") + 1
 
@@ -424,8 +439,9 @@ def _parse_hierarchy(path: Path, header: str) -> Skeleton:
                 name_token, name_line = tokens.next("a channel name")
                 canonical = _CANONICAL.get(name_token.lower())
                 if canonical is None:
-                    raise tokens.error(f"unknown channel {name_token!r} (expected one of "
-                                       f"{', '.join(CHANNEL_NAMES)})", name_line)
+                    raise tokens.error(
+                        f"unknown channel {name_token!r} (expected one of {', '.join(CHANNEL_NAMES)})", name_line
+                    )
                 if canonical in declared:
                     raise tokens.error(f"channel {name_token!r} repeated", name_line)
                 declared.append(canonical)
@@ -504,22 +520,26 @@ def _explain_frames(path: Path, block: str, first_line: int, frames: int, n_chan
         if frame >= frames:
             raise DataFormatError(path, f"more frame lines than Frames: {frames}", line=number, frame=frame)
         if len(words) != n_channels:
-            raise DataFormatError(path, f"{len(words)} values, expected {n_channels} (one per channel)",
-                                  line=number, frame=frame)
+            raise DataFormatError(
+                path, f"{len(words)} values, expected {n_channels} (one per channel)", line=number, frame=frame
+            )
         for column, word in enumerate(words):
             try:
                 value = float(word)
             except ValueError:
-                raise DataFormatError(path, f"{word!r} in column {column + 1} is not a number",
-                                      line=number, frame=frame) from None
+                raise DataFormatError(
+                    path, f"{word!r} in column {column + 1} is not a number", line=number, frame=frame
+                ) from None
             if not np.isfinite(value):
-                raise DataFormatError(path, f"{word!r} in column {column + 1} is not finite",
-                                      line=number, frame=frame)
+                raise DataFormatError(path, f"{word!r} in column {column + 1} is not finite", line=number, frame=frame)
         frame += 1
     if frame == frames:
         raise DataFormatError(path, "frame lines hold values NumPy cannot read as numbers", line=first_line)
-    raise DataFormatError(path, f"file ends after {frame} frame lines but Frames: says {frames} (truncated?)",
-                          line=first_line + len(lines) - 1)
+    raise DataFormatError(
+        path,
+        f"file ends after {frame} frame lines but Frames: says {frames} (truncated?)",
+        line=first_line + len(lines) - 1,
+    )
 
 
 def write_bvh(path: str | Path, motion: BVHMotion, *, units: str = "cm") -> None:

@@ -23,9 +23,10 @@ the file, frame and channel.
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import ezc3d
 import numpy as np
@@ -34,9 +35,23 @@ from biomotion.errors import ConfigError, DataFormatError
 from biomotion.motion import GroundReaction, Markers
 from biomotion.trial import Trial
 
-LENGTH_UNITS = {"mm": 1e-3, "millimeter": 1e-3, "millimeters": 1e-3, "millimetre": 1e-3, "millimetres": 1e-3,
-                "cm": 1e-2, "centimeter": 1e-2, "centimeters": 1e-2, "centimetre": 1e-2, "centimetres": 1e-2,
-                "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0}
+LENGTH_UNITS = {
+    "mm": 1e-3,
+    "millimeter": 1e-3,
+    "millimeters": 1e-3,
+    "millimetre": 1e-3,
+    "millimetres": 1e-3,
+    "cm": 1e-2,
+    "centimeter": 1e-2,
+    "centimeters": 1e-2,
+    "centimetre": 1e-2,
+    "centimetres": 1e-2,
+    "m": 1.0,
+    "meter": 1.0,
+    "meters": 1.0,
+    "metre": 1.0,
+    "metres": 1.0,
+}
 
 # POINT entries that Vicon Nexus and other model-based exporters list here are model outputs, not markers.
 NON_MARKER_LISTS = ("ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS")
@@ -102,8 +117,9 @@ def _checked_rotation(rotation: np.ndarray, given: Any) -> np.ndarray:
     return rotation
 
 
-def read_c3d_markers(path: str | Path, *, zero_is_missing: bool = True, units: str | None = None,
-                     axes: AxesSpec = None) -> Markers:
+def read_c3d_markers(
+    path: str | Path, *, zero_is_missing: bool = True, units: str | None = None, axes: AxesSpec = None
+) -> Markers:
     """Marker trajectories (POINT data) of a C3D file, in metres, NaN where occluded.
 
     Args:
@@ -119,8 +135,9 @@ def read_c3d_markers(path: str | Path, *, zero_is_missing: bool = True, units: s
     return _markers(_load(path), zero_is_missing=zero_is_missing, units=units, axes=lab_rotation(axes))
 
 
-def read_c3d_forces(path: str | Path, *, cop_threshold: float = 20.0, units: str | None = None,
-                    axes: AxesSpec = None) -> GroundReaction:
+def read_c3d_forces(
+    path: str | Path, *, cop_threshold: float = 20.0, units: str | None = None, axes: AxesSpec = None
+) -> GroundReaction:
     """Ground reaction of every force platform in a C3D file, in the lab frame, at the analog rate.
 
     Channel ``"1"``, ``"2"`` ... is plate 1, 2 ... of ``FORCE_PLATFORM``. Per plate: force [N]; centre of
@@ -141,14 +158,22 @@ def read_c3d_forces(path: str | Path, *, cop_threshold: float = 20.0, units: str
     return forces
 
 
-def read_c3d(path: str | Path, *, zero_is_missing: bool = True, units: str | None = None, axes: AxesSpec = None,
-             cop_threshold: float = 20.0) -> Trial:
+def read_c3d(
+    path: str | Path,
+    *,
+    zero_is_missing: bool = True,
+    units: str | None = None,
+    axes: AxesSpec = None,
+    cop_threshold: float = 20.0,
+) -> Trial:
     """A `Trial` with the markers and force platforms of a C3D file (forces None when it has no plate data)."""
     source = _load(path)
     rotation = lab_rotation(axes)
-    return Trial(markers=_markers(source, zero_is_missing=zero_is_missing, units=units, axes=rotation),
-                 forces=_forces(source, cop_threshold=cop_threshold, units=units, axes=rotation),
-                 source=source.path)
+    return Trial(
+        markers=_markers(source, zero_is_missing=zero_is_missing, units=units, axes=rotation),
+        forces=_forces(source, cop_threshold=cop_threshold, units=units, axes=rotation),
+        source=source.path,
+    )
 
 
 def _load(path: str | Path) -> _Source:
@@ -169,8 +194,11 @@ def _load(path: str | Path) -> _Source:
         raise DataFormatError(path, "no frames", field="POINT:FRAMES")
     declared = _declared_frames(path)
     if declared is not None and points.shape[2] < declared:
-        raise DataFormatError(path, f"truncated: the header declares {declared} frames, the file holds "
-                                    f"{points.shape[2]}", frame=points.shape[2])
+        raise DataFormatError(
+            path,
+            f"truncated: the header declares {declared} frames, the file holds {points.shape[2]}",
+            frame=points.shape[2],
+        )
     residuals = np.asarray(data["meta_points"]["residuals"], dtype=float).reshape(points.shape[1:])
     analogs = np.asarray(data["analogs"], dtype=float)
     analogs = analogs.reshape(analogs.shape[-2:])  # [channels, samples]
@@ -213,8 +241,11 @@ def _length_scale(source: _Source, units: str | None) -> float:
     declared = source.param("POINT", "UNITS", [""])
     name = (declared[0] if len(declared) else "").strip()
     if name.lower() not in LENGTH_UNITS:
-        raise DataFormatError(source.path, f"unknown length unit {name!r} (expected mm, cm or m; pass units= to "
-                                           "override)", field="POINT:UNITS")
+        raise DataFormatError(
+            source.path,
+            f"unknown length unit {name!r} (expected mm, cm or m; pass units= to override)",
+            field="POINT:UNITS",
+        )
     return LENGTH_UNITS[name.lower()]
 
 
@@ -241,8 +272,9 @@ def _markers(source: _Source, *, zero_is_missing: bool, units: str | None, axes:
     if infinite.any():
         frame, marker, axis = (int(i) for i in np.argwhere(infinite)[0])
         name = [label for label, kept in zip(labels, keep) if kept][marker]
-        raise DataFormatError(source.path, f"marker {name!r} has an infinite {'xyz'[axis]} coordinate",
-                              frame=frame, field="POINT:DATA")
+        raise DataFormatError(
+            source.path, f"marker {name!r} has an infinite {'xyz'[axis]} coordinate", frame=frame, field="POINT:DATA"
+        )
     missing = ~np.isfinite(positions).all(axis=-1) | (source.residuals.T[:, keep] < 0)
     if zero_is_missing:
         missing |= (positions == 0.0).all(axis=-1)
@@ -251,16 +283,16 @@ def _markers(source: _Source, *, zero_is_missing: bool, units: str | None, axes:
     return Markers(times=times, names=tuple(label for label, kept in zip(labels, keep) if kept), positions=positions)
 
 
-def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: np.ndarray
-            ) -> GroundReaction | None:
+def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: np.ndarray) -> GroundReaction | None:
     used = int(np.ravel(source.param("FORCE_PLATFORM", "USED", [0]))[0])
     if used <= 0 or source.analogs.size == 0:
         return None
     scale = _length_scale(source, units)
     ratio = source.analogs.shape[1] // source.n_frames
     if ratio * source.n_frames != source.analogs.shape[1]:
-        raise DataFormatError(source.path, f"{source.analogs.shape[1]} analog samples for {source.n_frames} "
-                                           "frames", field="ANALOG:RATE")
+        raise DataFormatError(
+            source.path, f"{source.analogs.shape[1]} analog samples for {source.n_frames} frames", field="ANALOG:RATE"
+        )
     types = np.ravel(source.param("FORCE_PLATFORM", "TYPE"))
     channels = np.asarray(source.param("FORCE_PLATFORM", "CHANNEL"))
     channels = channels.reshape(channels.shape[0], -1)
@@ -268,21 +300,30 @@ def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: n
     corners = corners.reshape(3, 4, -1, order="F") if corners.size >= 12 else np.zeros((3, 4, 0))
     origins = np.asarray(source.param("FORCE_PLATFORM", "ORIGIN"), dtype=float)
     origins = origins.reshape(3, -1, order="F") if origins.size >= 3 else np.zeros((3, 0))
-    for name, plates in (("TYPE", types.size), ("CHANNEL", channels.shape[1]), ("CORNERS", corners.shape[2]),
-                         ("ORIGIN", origins.shape[1])):
+    for name, plates in (
+        ("TYPE", types.size),
+        ("CHANNEL", channels.shape[1]),
+        ("CORNERS", corners.shape[2]),
+        ("ORIGIN", origins.shape[1]),
+    ):
         if plates < used:
-            raise DataFormatError(source.path, f"holds {plates} plates, USED says {used}",
-                                  field=f"FORCE_PLATFORM:{name}")
+            raise DataFormatError(
+                source.path, f"holds {plates} plates, USED says {used}", field=f"FORCE_PLATFORM:{name}"
+            )
     force, cop, moment = [], [], []
     for plate in range(used):
         kind = int(types[plate])
         if kind not in PLATE_CHANNELS:
-            raise DataFormatError(source.path, f"plate {plate + 1} has TYPE {kind}; supported: 1, 2, 3, 4",
-                                  field="FORCE_PLATFORM:TYPE")
-        index = np.asarray(channels[:PLATE_CHANNELS[kind], plate], dtype=int)
+            raise DataFormatError(
+                source.path, f"plate {plate + 1} has TYPE {kind}; supported: 1, 2, 3, 4", field="FORCE_PLATFORM:TYPE"
+            )
+        index = np.asarray(channels[: PLATE_CHANNELS[kind], plate], dtype=int)
         if index.size < PLATE_CHANNELS[kind] or index.min() < 1 or index.max() > source.analogs.shape[0]:
-            raise DataFormatError(source.path, f"plate {plate + 1} names analog channels {index.tolist()} but the "
-                                               f"file has {source.analogs.shape[0]}", field="FORCE_PLATFORM:CHANNEL")
+            raise DataFormatError(
+                source.path,
+                f"plate {plate + 1} names analog channels {index.tolist()} but the file has {source.analogs.shape[0]}",
+                field="FORCE_PLATFORM:CHANNEL",
+            )
         signals = source.analogs[index - 1]
         _check_analogs(source, signals, index, plate, ratio)
         if kind == 4:
@@ -297,8 +338,13 @@ def _forces(source: _Source, *, cop_threshold: float, units: str | None, axes: n
         moment.append(wrench[2] @ to_out.T)
     analog_rate = source.rate * ratio
     times = ((source.first_frame - 1) * ratio + np.arange(source.analogs.shape[1])) / analog_rate
-    return GroundReaction(times=times, names=tuple(str(p + 1) for p in range(used)),
-                          force=np.stack(force, axis=1), cop=np.stack(cop, axis=1), moment=np.stack(moment, axis=1))
+    return GroundReaction(
+        times=times,
+        names=tuple(str(p + 1) for p in range(used)),
+        force=np.stack(force, axis=1),
+        cop=np.stack(cop, axis=1),
+        moment=np.stack(moment, axis=1),
+    )
 
 
 def _check_analogs(source: _Source, signals: np.ndarray, index: np.ndarray, plate: int, ratio: int) -> None:
@@ -311,9 +357,13 @@ def _check_analogs(source: _Source, signals: np.ndarray, index: np.ndarray, plat
     channel = int(index[row])
     labels = [str(label).strip() for label in source.param("ANALOG", "LABELS", [])]
     name = labels[channel - 1] if channel <= len(labels) else f"channel {channel}"
-    raise DataFormatError(source.path, f"force platform {plate + 1}: analog channel {channel} ({name!r}) holds "
-                                       f"{signals[row, sample]} at analog sample {sample}, not a finite number",
-                          frame=sample // ratio, field="ANALOG:DATA")
+    raise DataFormatError(
+        source.path,
+        f"force platform {plate + 1}: analog channel {channel} ({name!r}) holds "
+        f"{signals[row, sample]} at analog sample {sample}, not a finite number",
+        frame=sample // ratio,
+        field="ANALOG:DATA",
+    )
 
 
 def _calibration(source: _Source, plate: int) -> np.ndarray:
@@ -325,16 +375,22 @@ def _calibration(source: _Source, plate: int) -> np.ndarray:
     if values.ndim == 2:
         values = values[..., None]
     if values.shape[:2] != (6, 6) or values.shape[2] <= plate:
-        raise DataFormatError(source.path, f"shape {values.shape} has no 6x6 matrix for plate {plate + 1}",
-                              field="FORCE_PLATFORM:CAL_MATRIX")
+        raise DataFormatError(
+            source.path,
+            f"shape {values.shape} has no 6x6 matrix for plate {plate + 1}",
+            field="FORCE_PLATFORM:CAL_MATRIX",
+        )
     return values[:, :, plate]
 
 
 def _refuse_cop_polynomial(source: _Source, plate: int) -> None:
     poly = np.ravel(np.asarray(source.param("FORCE_PLATFORM", "FPCOPPOLY", []), dtype=float))
-    if np.any(poly[12 * plate: 12 * plate + 12] != 0):
-        raise DataFormatError(source.path, f"plate {plate + 1}: Kistler CoP correction polynomials are not "
-                                           "supported", field="FORCE_PLATFORM:FPCOPPOLY")
+    if np.any(poly[12 * plate : 12 * plate + 12] != 0):
+        raise DataFormatError(
+            source.path,
+            f"plate {plate + 1}: Kistler CoP correction polynomials are not supported",
+            field="FORCE_PLATFORM:FPCOPPOLY",
+        )
 
 
 def plate_frame(corners: np.ndarray, path: Path | None = None, plate: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -348,15 +404,15 @@ def plate_frame(corners: np.ndarray, path: Path | None = None, plate: int = 0) -
     y_axis = corners[0] + corners[1] - corners[2] - corners[3]
     z_axis = np.cross(x_axis, y_axis)
     if not np.linalg.norm(z_axis) > 1e-9 * np.linalg.norm(x_axis) * np.linalg.norm(y_axis):
-        raise DataFormatError(path, f"corners of plate {plate + 1} do not span a plane",
-                              field="FORCE_PLATFORM:CORNERS")
+        raise DataFormatError(path, f"corners of plate {plate + 1} do not span a plane", field="FORCE_PLATFORM:CORNERS")
     y_axis = np.cross(z_axis, x_axis)
     rotation = np.stack([axis / np.linalg.norm(axis) for axis in (x_axis, y_axis, z_axis)], axis=1)
     return rotation, corners.mean(axis=0)
 
 
-def plate_wrench(kind: int, signals: np.ndarray, origin: np.ndarray, length_scale: float,
-                 cop_threshold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def plate_wrench(
+    kind: int, signals: np.ndarray, origin: np.ndarray, length_scale: float, cop_threshold: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Force [N], CoP [m] and free moment [N·m] in the plate frame (origin at the surface centre), [N, 3] each.
 
     ``signals`` [N, 6 or 8] are the scaled (and, for TYPE 4, calibrated) channels; moments and CoP channels are
@@ -389,8 +445,9 @@ def plate_wrench(kind: int, signals: np.ndarray, origin: np.ndarray, length_scal
             a, b, depth = origin[0], origin[1], -abs(origin[2])
             fx12, fx34, fy14, fy23, fz1, fz2, fz3, fz4 = signals.T
             force = np.column_stack([fx12 + fx34, fy14 + fy23, fz1 + fz2 + fz3 + fz4])
-            about_origin = np.column_stack([b * (fz1 + fz2 - fz3 - fz4), a * (-fz1 + fz2 + fz3 - fz4),
-                                            b * (fx34 - fx12) + a * (fy14 - fy23)])
+            about_origin = np.column_stack(
+                [b * (fz1 + fz2 - fz3 - fz4), a * (-fz1 + fz2 + fz3 - fz4), b * (fx34 - fx12) + a * (fy14 - fy23)]
+            )
             offset = np.array([0.0, 0.0, depth])
         else:
             force = signals[:, 0:3]

@@ -29,10 +29,10 @@ from biomotion.motion import Markers
 BLOCK = 512
 KEY = 0x50
 INTEL = 84
-MAX_ENTRIES = 255           # a dimension is one byte: longer label lists continue in LABELS2, LABELS3 ...
-MAX_FRAMES = 0xFFFF         # the header's first and last frame numbers are 16-bit
+MAX_ENTRIES = 255  # a dimension is one byte: longer label lists continue in LABELS2, LABELS3 ...
+MAX_FRAMES = 0xFFFF  # the header's first and last frame numbers are 16-bit
 INVALID = -1.0
-ROUNDING_S = 5e-4           # s: half a millisecond, the rounding of a time column written to 3 decimals
+ROUNDING_S = 5e-4  # s: half a millisecond, the rounding of a time column written to 3 decimals
 
 
 def _block_count(size: int) -> int:
@@ -67,8 +67,7 @@ def _record(name: str, group_id: int, body: bytes, *, last: bool = False) -> byt
     the next record (0 after the last: the end of the section), ``body``, an empty description."""
     encoded = name.upper().encode("ascii")
     rest = body + b"\x00"
-    return struct.pack("<bb", len(encoded), group_id) + encoded + struct.pack("<h", 0 if last else 2 + len(rest)) \
-        + rest
+    return struct.pack("<bb", len(encoded), group_id) + encoded + struct.pack("<h", 0 if last else 2 + len(rest)) + rest
 
 
 def _off_grid(times: np.ndarray, rate: float) -> tuple[int, np.ndarray]:
@@ -94,31 +93,44 @@ def _frame_grid(markers: Markers, rate: float | None, path: Path) -> tuple[float
     first, off_grid = _off_grid(markers.times, float(rate))
     if first < 0 or off_grid.any():
         frame = int(np.flatnonzero(off_grid)[0]) if off_grid.any() else 0
-        raise ConfigError(f"{path}: frame {frame} at t = {markers.times[frame]:g} s is not on the {rate:g} Hz grid "
-                          "from t >= 0 that C3D frame numbers need (resample the markers first)")
+        raise ConfigError(
+            f"{path}: frame {frame} at t = {markers.times[frame]:g} s is not on the {rate:g} Hz grid "
+            "from t >= 0 that C3D frame numbers need (resample the markers first)"
+        )
     if first + markers.n_frames > MAX_FRAMES:
-        raise ConfigError(f"{path}: frames {first + 1}-{first + markers.n_frames} run past C3D's 16-bit frame "
-                          f"numbers ({MAX_FRAMES})")
+        raise ConfigError(
+            f"{path}: frames {first + 1}-{first + markers.n_frames} run past C3D's 16-bit frame numbers ({MAX_FRAMES})"
+        )
     return float(rate), first
 
 
 def _parameters(markers: Markers, rate: float, first: int, data_start: int) -> bytes:
     """The parameter records: POINT (with LABELS2 ... past 255 markers), ANALOG (none used) and TRIAL."""
     names = list(markers.names)
-    chunks = [names[i:i + MAX_ENTRIES] for i in range(0, len(names), MAX_ENTRIES)] or [[]]
+    chunks = [names[i : i + MAX_ENTRIES] for i in range(0, len(names), MAX_ENTRIES)] or [[]]
     labels = []
     for k, chunk in enumerate(chunks):
         suffix = "" if k == 0 else str(k + 1)
-        labels += [(f"LABELS{suffix}", 1, _char_parameter(chunk)),
-                   (f"DESCRIPTIONS{suffix}", 1, _char_parameter([""] * len(chunk)))]
-    start, end = first + 1, first + markers.n_frames        # 1-based frame numbers
+        labels += [
+            (f"LABELS{suffix}", 1, _char_parameter(chunk)),
+            (f"DESCRIPTIONS{suffix}", 1, _char_parameter([""] * len(chunk))),
+        ]
+    start, end = first + 1, first + markers.n_frames  # 1-based frame numbers
     records = [
-        ("POINT", -1, b""), ("USED", 1, _int_parameter([len(names)])), ("SCALE", 1, _float_parameter(-1.0)),
-        ("RATE", 1, _float_parameter(rate)), ("DATA_START", 1, _int_parameter([data_start])),
-        ("FRAMES", 1, _int_parameter([markers.n_frames])), ("UNITS", 1, _char_parameter(["mm"])), *labels,
-        ("ANALOG", -2, b""), ("USED", 2, _int_parameter([0])), ("RATE", 2, _float_parameter(rate)),
+        ("POINT", -1, b""),
+        ("USED", 1, _int_parameter([len(names)])),
+        ("SCALE", 1, _float_parameter(-1.0)),
+        ("RATE", 1, _float_parameter(rate)),
+        ("DATA_START", 1, _int_parameter([data_start])),
+        ("FRAMES", 1, _int_parameter([markers.n_frames])),
+        ("UNITS", 1, _char_parameter(["mm"])),
+        *labels,
+        ("ANALOG", -2, b""),
+        ("USED", 2, _int_parameter([0])),
+        ("RATE", 2, _float_parameter(rate)),
         # frame numbers as two 16-bit words (low, high), the standard's way past 65535
-        ("TRIAL", -3, b""), ("ACTUAL_START_FIELD", 3, _int_parameter([start & 0xFFFF, start >> 16])),
+        ("TRIAL", -3, b""),
+        ("ACTUAL_START_FIELD", 3, _int_parameter([start & 0xFFFF, start >> 16])),
         ("ACTUAL_END_FIELD", 3, _int_parameter([end & 0xFFFF, end >> 16])),
     ]
     return b"".join(_record(*r, last=i == len(records) - 1) for i, r in enumerate(records))
@@ -137,7 +149,7 @@ def write_c3d(path: str | Path, markers: Markers, *, rate: float | None = None) 
     if rate is not None and not (np.isfinite(rate) and rate > 0):
         raise ConfigError(f"{path}: rate must be positive, got {rate}")
     rate, first = _frame_grid(markers, rate, path)
-    parameter_blocks = _block_count(4 + len(_parameters(markers, rate, first, 0)))   # DATA_START's value: same size
+    parameter_blocks = _block_count(4 + len(_parameters(markers, rate, first, 0)))  # DATA_START's value: same size
     data_start = 2 + parameter_blocks
     section = struct.pack("<BBBB", 1, KEY, parameter_blocks, INTEL) + _parameters(markers, rate, first, data_start)
     header = np.zeros(BLOCK // 2, dtype="<i2")
@@ -145,7 +157,7 @@ def write_c3d(path: str | Path, markers: Markers, *, rate: float | None = None) 
     header[6:8] = np.frombuffer(struct.pack("<f", -1.0), dtype="<i2")
     header[8:10] = [data_start, 0]
     header[10:12] = np.frombuffer(struct.pack("<f", rate), dtype="<i2")
-    missing = ~np.isfinite(markers.positions).all(axis=-1)                         # [T, M]
+    missing = ~np.isfinite(markers.positions).all(axis=-1)  # [T, M]
     points = np.empty((markers.n_frames, len(markers.names), 4), dtype="<f4")
     points[..., :3] = np.where(missing[..., None], 0.0, markers.positions * 1000.0)
     points[..., 3] = np.where(missing, INVALID, 0.0)

@@ -25,8 +25,7 @@ def write_markers_csv(path: str | Path, markers: Markers) -> Path:
     """Markers as CSV in metres, header ``time,<m>_x,<m>_y,<m>_z...``; occluded samples are empty."""
     header = ["time"] + [f"{name}_{axis}" for name in markers.names for axis in "xyz"]
     flat = markers.positions.reshape(markers.n_frames, -1)
-    rows = [[float(t)] + ["" if not np.isfinite(v) else float(v) for v in row]
-            for t, row in zip(markers.times, flat)]
+    rows = [[float(t)] + ["" if not np.isfinite(v) else float(v) for v in row] for t, row in zip(markers.times, flat)]
     return write_csv(path, header, rows)
 
 
@@ -69,8 +68,11 @@ def read_motion_csv(path: str | Path, *, allow_gaps: bool = False) -> Motion:
                 raise DataFormatError(path, f"not a number: {cell.strip()!r}", line=number, field=column) from None
             if np.isinf(value) or (np.isnan(value) and (not allow_gaps or column == "time")):
                 what = "empty" if not cell.strip() else f"{cell.strip()!r}, not a finite number"
-                hint = "" if np.isinf(value) or column == "time" else \
-                    " (a caller that handles gaps reads the file with allow_gaps=True)"
+                hint = (
+                    ""
+                    if np.isinf(value) or column == "time"
+                    else " (a caller that handles gaps reads the file with allow_gaps=True)"
+                )
                 raise DataFormatError(path, f"cell is {what}{hint}", line=number, field=column)
             row.append(value)
         rows.append(row)

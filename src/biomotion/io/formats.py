@@ -86,8 +86,12 @@ def _describe_model(path: Path) -> dict[str, Any]:
     from biomotion.io.xml import parse_tree
 
     summary = model_summary(read_osim(path))
-    forces = [force for force_set in parse_tree(path).getroot().iter("ForceSet")
-              for objects in force_set.findall("objects") for force in objects]
+    forces = [
+        force
+        for force_set in parse_tree(path).getroot().iter("ForceSet")
+        for objects in force_set.findall("objects")
+        for force in objects
+    ]
     kinds = collections.Counter(force.tag for force in forces if "Muscle" in force.tag)
     summary["muscles"] = sum(kinds.values())
     summary["muscle_types"] = dict(kinds)
@@ -108,8 +112,8 @@ def describe(path: str | Path) -> dict[str, Any]:
     if suffix_of(Path(path)) == ".osim":
         return _describe_model(Path(path))
     if suffix_of(Path(path)) == ".xml":
-        from biomotion.io.setup import describe_setup
         from biomotion.io.osim import describe_document, document_kind
+        from biomotion.io.setup import describe_setup
 
         return describe_document(path) if document_kind(path) else describe_setup(path)
     data = read_any(path)
@@ -121,8 +125,11 @@ def describe(path: str | Path) -> dict[str, Any]:
         series = [("", data.to_markers())]
         summary["units_in_file"] = getattr(data, "units", None)
     else:
-        series = [(name, getattr(data, name)) for name in ("motion", "markers", "forces")
-                  if getattr(data, name, None) is not None]
+        series = [
+            (name, getattr(data, name))
+            for name in ("motion", "markers", "forces")
+            if getattr(data, name, None) is not None
+        ]
     for prefix, item in series:
         key = f"{prefix}_" if prefix else ""
         summary[f"{key}frames"] = item.n_frames

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -129,30 +130,46 @@ def read_storage(path: str | Path, *, allow_gaps: bool = True) -> StorageTable:
                 try:
                     float(token)
                 except ValueError:
-                    raise DataFormatError(path, f"not a number: {token!r}", line=int(line_number),
-                                          field=labels[column]) from None
+                    raise DataFormatError(
+                        path, f"not a number: {token!r}", line=int(line_number), field=labels[column]
+                    ) from None
         raise
     declared = header.get("nRows")
     if declared is not None and declared.strip().isdigit() and int(declared) > len(values):
-        raise DataFormatError(path, f"truncated: header declares {declared} rows, file has {len(values)}",
-                              line=int(line_numbers[-1]))
+        raise DataFormatError(
+            path, f"truncated: header declares {declared} rows, file has {len(values)}", line=int(line_numbers[-1])
+        )
     bad_time = ~np.isfinite(values[:, 0])
     if bad_time.any():
-        raise DataFormatError(path, f"time is {'NaN' if np.isnan(values[bad_time, 0][0]) else 'infinite'}",
-                              line=int(line_numbers[bad_time][0]), field=labels[0])
+        raise DataFormatError(
+            path,
+            f"time is {'NaN' if np.isnan(values[bad_time, 0][0]) else 'infinite'}",
+            line=int(line_numbers[bad_time][0]),
+            field=labels[0],
+        )
     _check_finite(path, values[:, 1:], labels[1:], line_numbers, allow_gaps=allow_gaps)
     steps = np.diff(values[:, 0])
     if np.any(steps <= 0):
         row = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise DataFormatError(path, f"time does not increase ({values[row - 1, 0]} then {values[row, 0]})",
-                              line=int(line_numbers[row]))
-    return StorageTable(path=path, name=name, header=header, labels=tuple(labels[1:]), times=values[:, 0],
-                        data=values[:, 1:], simm=simm, header_lines=tuple(lines[:end]),
-                        line_numbers=tuple(int(n) for n in line_numbers))
+        raise DataFormatError(
+            path, f"time does not increase ({values[row - 1, 0]} then {values[row, 0]})", line=int(line_numbers[row])
+        )
+    return StorageTable(
+        path=path,
+        name=name,
+        header=header,
+        labels=tuple(labels[1:]),
+        times=values[:, 0],
+        data=values[:, 1:],
+        simm=simm,
+        header_lines=tuple(lines[:end]),
+        line_numbers=tuple(int(n) for n in line_numbers),
+    )
 
 
-def _check_finite(path: Path | None, data: np.ndarray, labels: Sequence[str], line_numbers: Sequence[int], *,
-                  allow_gaps: bool) -> None:
+def _check_finite(
+    path: Path | None, data: np.ndarray, labels: Sequence[str], line_numbers: Sequence[int], *, allow_gaps: bool
+) -> None:
     """DataFormatError at the first infinite value of ``data`` [rows, columns], or the first NaN unless
     ``allow_gaps``, naming its line (``line_numbers[row]``) and column label."""
     bad = np.isinf(data) if allow_gaps else ~np.isfinite(data)
@@ -161,10 +178,13 @@ def _check_finite(path: Path | None, data: np.ndarray, labels: Sequence[str], li
     row, column = (int(i) for i in np.argwhere(bad)[0])
     line = int(line_numbers[row]) if len(line_numbers) > row else None
     if np.isnan(data[row, column]):
-        raise DataFormatError(path, "value is NaN: every cell needs a number (a caller that handles gaps reads "
-                                    "the file with allow_gaps=True)", line=line, field=labels[column])
-    raise DataFormatError(path, f"value is {data[row, column]}: not a finite number", line=line,
-                          field=labels[column])
+        raise DataFormatError(
+            path,
+            "value is NaN: every cell needs a number (a caller that handles gaps reads the file with allow_gaps=True)",
+            line=line,
+            field=labels[column],
+        )
+    raise DataFormatError(path, f"value is {data[row, column]}: not a finite number", line=line, field=labels[column])
 
 
 def _angles_in_degrees(table: StorageTable, angles: Angles, rotational: np.ndarray) -> bool:
@@ -176,14 +196,18 @@ def _angles_in_degrees(table: StorageTable, angles: Angles, rotational: np.ndarr
     if not declared and rotational.any():
         peak = float(np.nanmax(np.abs(table.data[:, rotational])))
         if peak > 2 * np.pi + 0.1:
-            warnings.warn(f"{table.path}: header says inDegrees=no but angles reach {peak:.1f}, which looks like "
-                          "degrees; reading as the header says (pass angles='degrees' to override)",
-                          BiomotionWarning, stacklevel=3)
+            warnings.warn(
+                f"{table.path}: header says inDegrees=no but angles reach {peak:.1f}, which looks like "
+                "degrees; reading as the header says (pass angles='degrees' to override)",
+                BiomotionWarning,
+                stacklevel=3,
+            )
     return declared
 
 
-def read_motion(path: str | Path, *, angles: Angles = "header", columns: Sequence[str] | None = None,
-                allow_gaps: bool = False) -> Motion:
+def read_motion(
+    path: str | Path, *, angles: Angles = "header", columns: Sequence[str] | None = None, allow_gaps: bool = False
+) -> Motion:
     """Read a coordinate file (IK output, states) as a `Motion` in SI units.
 
     Args:
@@ -219,9 +243,16 @@ def _format_rows(times: np.ndarray, data: np.ndarray) -> str:
     return "\n".join("\t".join(map(repr, map(float, row))) for row in block) + "\n"
 
 
-def write_storage(path: str | Path, labels: Sequence[str], times: np.ndarray, data: np.ndarray, *,
-                  name: str | None = None, in_degrees: bool = False, extra_header: dict[str, str] | None = None
-                  ) -> Path:
+def write_storage(
+    path: str | Path,
+    labels: Sequence[str],
+    times: np.ndarray,
+    data: np.ndarray,
+    *,
+    name: str | None = None,
+    in_degrees: bool = False,
+    extra_header: dict[str, str] | None = None,
+) -> Path:
     """Write a version-1 storage file that OpenSim's `TimeSeriesTable` and `Storage` read back exactly.
 
     Numbers are written with the shortest decimal that round-trips the float64 value.
@@ -231,8 +262,13 @@ def write_storage(path: str | Path, labels: Sequence[str], times: np.ndarray, da
     data = np.asarray(data, dtype=float).reshape(len(times), -1)
     if data.shape[1] != len(labels):
         raise ValueError(f"{data.shape[1]} data columns for {len(labels)} labels")
-    header = [name or path.stem, "version=1", f"nRows={len(times)}", f"nColumns={len(labels) + 1}",
-              f"inDegrees={'yes' if in_degrees else 'no'}"]
+    header = [
+        name or path.stem,
+        "version=1",
+        f"nRows={len(times)}",
+        f"nColumns={len(labels) + 1}",
+        f"inDegrees={'yes' if in_degrees else 'no'}",
+    ]
     header += [f"{k}={v}" for k, v in (extra_header or {}).items()]
     header.append("endheader")
     with atomic_write(path) as handle:
@@ -256,9 +292,11 @@ _FORCE_COLUMN = re.compile(r"^(?P<prefix>.+)_v(?P<axis>[xyz])$")
 
 def torque_columns(prefix: str, labels: Sequence[str]) -> list[str] | None:
     """The three torque columns of GRF channel ``prefix`` in ``labels`` (any of the namings), or None."""
-    candidates = [[f"{prefix}_m{a}" for a in "xyz"],
-                  [f"{prefix.replace('force', 'torque')}_{a}" for a in "xyz"],
-                  [f"{prefix.replace('force', 'moment')}_{a}" for a in "xyz"]]
+    candidates = [
+        [f"{prefix}_m{a}" for a in "xyz"],
+        [f"{prefix.replace('force', 'torque')}_{a}" for a in "xyz"],
+        [f"{prefix.replace('force', 'moment')}_{a}" for a in "xyz"],
+    ]
     return next((c for c in candidates if all(name in labels for name in c)), None)
 
 
@@ -291,10 +329,16 @@ def read_ground_reaction(path: str | Path, *, allow_gaps: bool = False) -> Groun
         torque = torque_columns(prefix, labels)
         force.append(triples["v"])
         cop.append(triples["p"])
-        moment.append(np.zeros_like(triples["v"]) if torque is None
-                      else table.data[:, [labels.index(n) for n in torque]])
-    return GroundReaction(times=table.times, names=tuple(prefixes), force=np.stack(force, axis=1),
-                          cop=np.stack(cop, axis=1), moment=np.stack(moment, axis=1))
+        moment.append(
+            np.zeros_like(triples["v"]) if torque is None else table.data[:, [labels.index(n) for n in torque]]
+        )
+    return GroundReaction(
+        times=table.times,
+        names=tuple(prefixes),
+        force=np.stack(force, axis=1),
+        cop=np.stack(cop, axis=1),
+        moment=np.stack(moment, axis=1),
+    )
 
 
 def ground_reaction_labels(name: str) -> tuple[list[str], list[str], list[str]]:
@@ -315,8 +359,11 @@ def write_ground_reaction(path: str | Path, forces: GroundReaction, *, name: str
     for j, channel in enumerate(forces.names):
         force_labels, point_labels, torque_labels = ground_reaction_labels(channel)
         labels += force_labels + point_labels + torque_labels
-        columns += [forces.force[:, j], np.nan_to_num(forces.cop[:, j], nan=0.0),
-                    np.nan_to_num(forces.moment[:, j], nan=0.0)]
+        columns += [
+            forces.force[:, j],
+            np.nan_to_num(forces.cop[:, j], nan=0.0),
+            np.nan_to_num(forces.moment[:, j], nan=0.0),
+        ]
     data = np.concatenate(columns, axis=1)
     return write_storage(path, labels, forces.times, data, name=name or "ground_reaction")
 
@@ -339,12 +386,16 @@ def write_external_loads_xml(path: str | Path, forces: GroundReaction, data_file
             f"\t\t\t\t<force_identifier>{force_labels[0][:-1]}</force_identifier>\n"
             f"\t\t\t\t<point_identifier>{point_labels[0][:-1]}</point_identifier>\n"
             f"\t\t\t\t<torque_identifier>{torque_labels[0][:-1]}</torque_identifier>\n"
-            "\t\t\t</ExternalForce>\n")
-    xml = ('<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">\n'
-           '\t<ExternalLoads name="externalloads">\n\t\t<objects>\n' + "".join(entries) +
-           "\t\t</objects>\n\t\t<groups />\n"
-           f"\t\t<datafile>{data_file}</datafile>\n"
-           "\t</ExternalLoads>\n</OpenSimDocument>\n")
+            "\t\t\t</ExternalForce>\n"
+        )
+    xml = (
+        '<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">\n'
+        '\t<ExternalLoads name="externalloads">\n\t\t<objects>\n'
+        + "".join(entries)
+        + "\t\t</objects>\n\t\t<groups />\n"
+        f"\t\t<datafile>{data_file}</datafile>\n"
+        "\t</ExternalLoads>\n</OpenSimDocument>\n"
+    )
     with atomic_write(path) as handle:
         handle.write(xml)
     return Path(path)

@@ -20,7 +20,6 @@ import posixpath
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Union
 
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.xml import parse_with_lines
@@ -37,6 +36,7 @@ MUSCLE_TYPES = ("Thelen2003Muscle", "Millard2012EquilibriumMuscle")
 
 
 # --- functions -------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class ConstantFunction:
@@ -74,19 +74,28 @@ class PolynomialFunction:
 
 @dataclass(frozen=True)
 class MultiplierFunction:
-    function: "FunctionSpec"
+    function: FunctionSpec
     scale: float
 
 
-FunctionSpec = Union[ConstantFunction, LinearFunction, SimmSpline, NaturalCubicSpline, PiecewiseLinearFunction,
-                     PolynomialFunction, MultiplierFunction]
+FunctionSpec = (
+    ConstantFunction
+    | LinearFunction
+    | SimmSpline
+    | NaturalCubicSpline
+    | PiecewiseLinearFunction
+    | PolynomialFunction
+    | MultiplierFunction
+)
 
 
 # --- model parts -----------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Inertia:
     """Inertia about the centre of mass, in the body frame (OpenSim's ``<inertia>`` order)."""
+
     xx: float
     yy: float
     zz: float
@@ -98,7 +107,7 @@ class Inertia:
 @dataclass(frozen=True)
 class MeshSpec:
     name: str
-    frame: str            # absolute path of the frame the mesh is attached to
+    frame: str  # absolute path of the frame the mesh is attached to
     mesh_file: str
     scale_factors: Vec3
 
@@ -116,9 +125,10 @@ class BodySpec:
 @dataclass(frozen=True)
 class OffsetFrameSpec:
     """A PhysicalOffsetFrame: ``translation`` and body-fixed X-Y-Z ``orientation`` (rad) in its parent frame."""
+
     name: str
     path: str
-    parent: str           # absolute path of the parent frame
+    parent: str  # absolute path of the parent frame
     translation: Vec3
     orientation: Vec3
 
@@ -127,7 +137,7 @@ class OffsetFrameSpec:
 class CoordinateSpec:
     name: str
     joint: str
-    motion_type: str      # "rotational", "translational" or "coupled"
+    motion_type: str  # "rotational", "translational" or "coupled"
     default_value: float
     range: tuple[float, float]
     clamped: bool
@@ -137,7 +147,8 @@ class CoordinateSpec:
 @dataclass(frozen=True)
 class TransformAxisSpec:
     """One of a CustomJoint's six axes: ``function(coordinates)`` is an angle (rad) or a displacement (m)."""
-    name: str             # rotation1..3, translation1..3
+
+    name: str  # rotation1..3, translation1..3
     coordinates: tuple[str, ...]
     axis: Vec3
     function: FunctionSpec
@@ -151,6 +162,7 @@ class JointSpec:
     (``transform``: 3 rotation axes applied in order as body-fixed rotations, then 3 translation axes expressed
     in F), which is what the kinematics evaluates.
     """
+
     name: str
     type: str
     parent_frame: str
@@ -179,7 +191,7 @@ class MarkerSpec:
 @dataclass(frozen=True)
 class ContactGeometrySpec:
     name: str
-    type: str             # "ContactSphere" or "ContactHalfSpace"
+    type: str  # "ContactSphere" or "ContactHalfSpace"
     frame: str
     location: Vec3
     orientation: Vec3
@@ -189,6 +201,7 @@ class ContactGeometrySpec:
 @dataclass(frozen=True)
 class ModelSpec:
     """Everything kinematic and inertial in one .osim file, in file order (coordinates in CoordinateSet order)."""
+
     name: str
     path: str
     version: int
@@ -222,6 +235,7 @@ class ScaleSpec:
 
 # --- XML plumbing ----------------------------------------------------------------------------------------------
 
+
 class _Doc:
     """An XML tree that remembers each element's line, for error messages."""
 
@@ -248,14 +262,16 @@ class _Doc:
             return default
         return (child.text or "").strip()
 
-    def floats(self, elem: ET.Element, tag: str, n: int | None = None, default: str | None = None
-               ) -> tuple[float, ...]:
+    def floats(self, elem: ET.Element, tag: str, n: int | None = None, default: str | None = None) -> tuple[float, ...]:
         raw = self.text(elem, tag, default)
         try:
             values = tuple(float(v) for v in raw.split())
         except ValueError as exc:
-            raise self.format_error(elem.find(tag) if elem.find(tag) is not None else elem,
-                                    f"<{tag}> is not a list of numbers: {raw!r}", tag) from exc
+            raise self.format_error(
+                elem.find(tag) if elem.find(tag) is not None else elem,
+                f"<{tag}> is not a list of numbers: {raw!r}",
+                tag,
+            ) from exc
         if n is not None and len(values) != n:
             raise self.format_error(elem, f"<{tag}> must hold {n} numbers, found {len(values)}", tag)
         return values
@@ -292,9 +308,21 @@ def _socket(doc: _Doc, elem: ET.Element, name: str) -> str:
 
 # --- functions -------------------------------------------------------------------------------------------------
 
-_FUNCTION_TAGS = ("Constant", "LinearFunction", "SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction",
-                  "PolynomialFunction", "MultiplierFunction", "GCVSpline", "PiecewiseConstantFunction",
-                  "StepFunction", "Sine", "MultivariatePolynomialFunction", "FunctionAdapter")
+_FUNCTION_TAGS = (
+    "Constant",
+    "LinearFunction",
+    "SimmSpline",
+    "NaturalCubicSpline",
+    "PiecewiseLinearFunction",
+    "PolynomialFunction",
+    "MultiplierFunction",
+    "GCVSpline",
+    "PiecewiseConstantFunction",
+    "StepFunction",
+    "Sine",
+    "MultivariatePolynomialFunction",
+    "FunctionAdapter",
+)
 
 
 def _function_child(doc: _Doc, elem: ET.Element) -> ET.Element:
@@ -316,12 +344,14 @@ def _function(doc: _Doc, elem: ET.Element) -> FunctionSpec:
     if tag in ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction"):
         x, y = doc.floats(elem, "x"), doc.floats(elem, "y")
         if len(x) != len(y) or len(x) < 2:
-            raise doc.format_error(elem, f"{tag} needs x and y of equal length >= 2, found {len(x)} and {len(y)}",
-                                   "x")
+            raise doc.format_error(elem, f"{tag} needs x and y of equal length >= 2, found {len(x)} and {len(y)}", "x")
         if any(b <= a for a, b in zip(x, x[1:])):
             raise doc.format_error(elem, f"{tag} x values must increase", "x")
-        cls = {"SimmSpline": SimmSpline, "NaturalCubicSpline": NaturalCubicSpline,
-               "PiecewiseLinearFunction": PiecewiseLinearFunction}[tag]
+        cls = {
+            "SimmSpline": SimmSpline,
+            "NaturalCubicSpline": NaturalCubicSpline,
+            "PiecewiseLinearFunction": PiecewiseLinearFunction,
+        }[tag]
         return cls(x, y)
     if tag == "PolynomialFunction":
         return PolynomialFunction(doc.floats(elem, "coefficients"))
@@ -335,6 +365,7 @@ def _function(doc: _Doc, elem: ET.Element) -> FunctionSpec:
 
 # --- frames ----------------------------------------------------------------------------------------------------
 
+
 class _Frames:
     """Absolute paths of ground, bodies and offset frames, with OpenSim's relative-path resolution."""
 
@@ -346,9 +377,19 @@ class _Frames:
     def add_offset(self, elem: ET.Element, owner: str) -> None:
         name = elem.get("name") or ""
         path = posixpath.join(owner, name)
-        self.offsets.append((OffsetFrameSpec(name, path, _socket(self.doc, elem, "parent"),
-                                             self.doc.vec3(elem, "translation", "0 0 0"),
-                                             self.doc.vec3(elem, "orientation", "0 0 0")), elem, owner))
+        self.offsets.append(
+            (
+                OffsetFrameSpec(
+                    name,
+                    path,
+                    _socket(self.doc, elem, "parent"),
+                    self.doc.vec3(elem, "translation", "0 0 0"),
+                    self.doc.vec3(elem, "orientation", "0 0 0"),
+                ),
+                elem,
+                owner,
+            )
+        )
         self.known.add(path)
 
     def resolve(self, reference: str, owner: str, elem: ET.Element) -> str:
@@ -364,12 +405,13 @@ class _Frames:
         matches = sorted(p for p in self.known if posixpath.basename(p) == name)
         if len(matches) == 1:
             return matches[0]
-        raise self.doc.model_error(elem, f"frame {reference!r} not found" if not matches
-                                   else f"frame {reference!r} is ambiguous: {matches}")
+        raise self.doc.model_error(
+            elem, f"frame {reference!r} not found" if not matches else f"frame {reference!r} is ambiguous: {matches}"
+        )
 
     def resolved_offsets(self) -> tuple[OffsetFrameSpec, ...]:
         out = []
-        for spec, elem, owner in self.offsets:
+        for spec, elem, _owner in self.offsets:
             parent = self.resolve(spec.parent, spec.path, elem)
             if parent == spec.path:
                 raise self.doc.model_error(elem, "offset frame is its own parent")
@@ -381,9 +423,11 @@ def _meshes(doc: _Doc, elem: ET.Element, frame: str) -> list[MeshSpec]:
     geometry = elem.find("attached_geometry")
     if geometry is None:
         return []
-    return [MeshSpec(mesh.get("name") or "", frame, doc.text(mesh, "mesh_file"),
-                     doc.vec3(mesh, "scale_factors", "1 1 1"))
-            for mesh in geometry if mesh.tag == "Mesh"]
+    return [
+        MeshSpec(mesh.get("name") or "", frame, doc.text(mesh, "mesh_file"), doc.vec3(mesh, "scale_factors", "1 1 1"))
+        for mesh in geometry
+        if mesh.tag == "Mesh"
+    ]
 
 
 # --- joints ----------------------------------------------------------------------------------------------------
@@ -403,13 +447,11 @@ _FIXED_TYPES: dict[str, tuple[tuple[str, Vec3], ...]] = {
 }
 
 
-def _fixed_transform(kind: tuple[tuple[str, Vec3], ...], coordinates: tuple[str, ...]
-                     ) -> tuple[TransformAxisSpec, ...]:
+def _fixed_transform(kind: tuple[tuple[str, Vec3], ...], coordinates: tuple[str, ...]) -> tuple[TransformAxisSpec, ...]:
     rotations = [(c, ax) for c, (k, ax) in zip(coordinates, kind) if k == "rotation"]
     translations = [(c, ax) for c, (k, ax) in zip(coordinates, kind) if k == "translation"]
     axes = []
-    for prefix, used, defaults in (("rotation", rotations, (_X, _Y, _Z)), ("translation", translations,
-                                                                           (_X, _Y, _Z))):
+    for prefix, used, defaults in (("rotation", rotations, (_X, _Y, _Z)), ("translation", translations, (_X, _Y, _Z))):
         for i in range(3):
             if i < len(used):
                 coord, ax = used[i]
@@ -419,8 +461,7 @@ def _fixed_transform(kind: tuple[tuple[str, Vec3], ...], coordinates: tuple[str,
     return tuple(axes)
 
 
-def _custom_transform(doc: _Doc, joint: ET.Element, coordinates: tuple[str, ...]
-                      ) -> tuple[TransformAxisSpec, ...]:
+def _custom_transform(doc: _Doc, joint: ET.Element, coordinates: tuple[str, ...]) -> tuple[TransformAxisSpec, ...]:
     spatial = joint.find("SpatialTransform")
     if spatial is None:
         raise doc.format_error(joint, "CustomJoint has no <SpatialTransform>", "SpatialTransform")
@@ -439,8 +480,11 @@ def _custom_transform(doc: _Doc, joint: ET.Element, coordinates: tuple[str, ...]
         axis = doc.vec3(elem, "axis")
         if sum(a * a for a in axis) == 0.0:
             raise doc.model_error(elem, "transform axis is zero")
-        function = _function(doc, _function_child(doc, elem)) if any(
-            child.tag in _FUNCTION_TAGS for child in elem) else (_IDENTITY if coords else _ZERO)
+        function = (
+            _function(doc, _function_child(doc, elem))
+            if any(child.tag in _FUNCTION_TAGS for child in elem)
+            else (_IDENTITY if coords else _ZERO)
+        )
         axes.append(TransformAxisSpec(name, coords, axis, function))
     return tuple(axes)
 
@@ -451,7 +495,8 @@ def _motion_type(joint: JointSpec, coordinate: str) -> str:
     for axis in joint.transform:
         if coordinate in axis.coordinates:
             linear = isinstance(axis.function, LinearFunction) or (
-                isinstance(axis.function, MultiplierFunction) and isinstance(axis.function.function, LinearFunction))
+                isinstance(axis.function, MultiplierFunction) and isinstance(axis.function.function, LinearFunction)
+            )
             if not linear and joint.type == "CustomJoint":
                 return "coupled"
             return "rotational" if axis.name.startswith("rotation") else "translational"
@@ -459,6 +504,7 @@ def _motion_type(joint: JointSpec, coordinate: str) -> str:
 
 
 # --- the model -------------------------------------------------------------------------------------------------
+
 
 def _version(doc: _Doc) -> int:
     raw = doc.root.get("Version")
@@ -476,8 +522,10 @@ def read_osim(path: str | Path) -> ModelSpec:
     doc = _Doc(path)
     version = _version(doc)
     if version < MIN_VERSION:
-        raise ModelError(f"{path}: OpenSim format version {version} (OpenSim 3 layout, joints inside bodies) is "
-                         f"not supported; open and save it with OpenSim 4 to upgrade it")
+        raise ModelError(
+            f"{path}: OpenSim format version {version} (OpenSim 3 layout, joints inside bodies) is "
+            f"not supported; open and save it with OpenSim 4 to upgrade it"
+        )
     model = doc.root.find("Model")
     if model is None:
         raise DataFormatError(path, "no <Model> element", line=1)
@@ -499,8 +547,16 @@ def read_osim(path: str | Path) -> ModelSpec:
         body_path = f"/bodyset/{name}"
         frames.known.add(body_path)
         inertia = doc.floats(elem, "inertia", 6, "0 0 0 0 0 0")
-        bodies.append(BodySpec(name, body_path, doc.scalar(elem, "mass"), doc.vec3(elem, "mass_center", "0 0 0"),
-                               Inertia(*inertia), tuple(_meshes(doc, elem, body_path))))
+        bodies.append(
+            BodySpec(
+                name,
+                body_path,
+                doc.scalar(elem, "mass"),
+                doc.vec3(elem, "mass_center", "0 0 0"),
+                Inertia(*inertia),
+                tuple(_meshes(doc, elem, body_path)),
+            )
+        )
         for owned in (elem.find("components"), elem.find("frames")):
             for sub in [] if owned is None else owned:
                 if sub.tag == "PhysicalOffsetFrame":
@@ -534,21 +590,33 @@ def read_osim(path: str | Path) -> ModelSpec:
                 raise doc.model_error(elem, f"{elem.tag} needs {len(kind)} coordinates, found {len(coord_names)}")
             transform = _fixed_transform(kind, coord_names)
         else:
-            raise doc.model_error(elem, f"joint type {elem.tag} is not supported (supported: CustomJoint, "
-                                        f"{', '.join(_FIXED_TYPES)})")
+            raise doc.model_error(
+                elem, f"joint type {elem.tag} is not supported (supported: CustomJoint, {', '.join(_FIXED_TYPES)})"
+            )
         if elem.find("reverse") is not None and doc.boolean(elem, "reverse", "false"):
             raise doc.model_error(elem, "reversed joints are not supported")
-        joint = JointSpec(elem.get("name") or "", elem.tag,
-                          frames.resolve(_socket(doc, elem, "parent_frame"), joint_path, elem),
-                          frames.resolve(_socket(doc, elem, "child_frame"), joint_path, elem),
-                          coord_names, transform)
+        joint = JointSpec(
+            elem.get("name") or "",
+            elem.tag,
+            frames.resolve(_socket(doc, elem, "parent_frame"), joint_path, elem),
+            frames.resolve(_socket(doc, elem, "child_frame"), joint_path, elem),
+            coord_names,
+            transform,
+        )
         joints.append(joint)
         for c in coord_elems:
             low, high = doc.floats(c, "range", 2, "-99999.9 99999.9")
-            coordinates.append(CoordinateSpec(
-                c.get("name") or "", joint.name, _motion_type(joint, c.get("name") or ""),
-                doc.scalar(c, "default_value", "0"), (low, high), doc.boolean(c, "clamped", "false"),
-                doc.boolean(c, "locked", "false")))
+            coordinates.append(
+                CoordinateSpec(
+                    c.get("name") or "",
+                    joint.name,
+                    _motion_type(joint, c.get("name") or ""),
+                    doc.scalar(c, "default_value", "0"),
+                    (low, high),
+                    doc.boolean(c, "clamped", "false"),
+                    doc.boolean(c, "locked", "false"),
+                )
+            )
 
     couplers = []
     for elem in _objects(model.find("ConstraintSet")):
@@ -561,40 +629,68 @@ def read_osim(path: str | Path) -> ModelSpec:
             continue
         holder = elem.find("coupled_coordinates_function")
         if holder is None:
-            raise doc.format_error(elem, "coupler has no <coupled_coordinates_function>",
-                                   "coupled_coordinates_function")
+            raise doc.format_error(
+                elem, "coupler has no <coupled_coordinates_function>", "coupled_coordinates_function"
+            )
         independent = tuple(doc.text(elem, "independent_coordinate_names").split())
         if len(independent) != 1:
             raise doc.model_error(elem, "couplers with more than one independent coordinate are not supported")
-        couplers.append(CouplerSpec(elem.get("name") or "", independent, doc.text(elem, "dependent_coordinate_name"),
-                                    _function(doc, _function_child(doc, holder)),
-                                    doc.scalar(elem, "scale_factor", "1")))
+        couplers.append(
+            CouplerSpec(
+                elem.get("name") or "",
+                independent,
+                doc.text(elem, "dependent_coordinate_name"),
+                _function(doc, _function_child(doc, holder)),
+                doc.scalar(elem, "scale_factor", "1"),
+            )
+        )
 
     marker_elems = _objects(model.find("MarkerSet"))
     contact_elems = _objects(model.find("ContactGeometrySet"))
     offsets = frames.resolved_offsets()
 
-    markers = tuple(MarkerSpec(m.get("name") or "", frames.resolve(_socket(doc, m, "parent_frame"),
-                                                                   f"/markerset/{m.get('name')}", m),
-                               doc.vec3(m, "location", "0 0 0"), doc.boolean(m, "fixed", "false"))
-                    for m in marker_elems)
+    markers = tuple(
+        MarkerSpec(
+            m.get("name") or "",
+            frames.resolve(_socket(doc, m, "parent_frame"), f"/markerset/{m.get('name')}", m),
+            doc.vec3(m, "location", "0 0 0"),
+            doc.boolean(m, "fixed", "false"),
+        )
+        for m in marker_elems
+    )
     contacts = []
     for elem in contact_elems:
         if elem.tag not in ("ContactSphere", "ContactHalfSpace"):
             raise doc.model_error(elem, f"contact geometry {elem.tag} is not supported")
-        contacts.append(ContactGeometrySpec(
-            elem.get("name") or "", elem.tag,
-            frames.resolve(_socket(doc, elem, "frame"), f"/contactgeometryset/{elem.get('name')}", elem),
-            doc.vec3(elem, "location", "0 0 0"), doc.vec3(elem, "orientation", "0 0 0"),
-            doc.scalar(elem, "radius") if elem.tag == "ContactSphere" else None))
+        contacts.append(
+            ContactGeometrySpec(
+                elem.get("name") or "",
+                elem.tag,
+                frames.resolve(_socket(doc, elem, "frame"), f"/contactgeometryset/{elem.get('name')}", elem),
+                doc.vec3(elem, "location", "0 0 0"),
+                doc.vec3(elem, "orientation", "0 0 0"),
+                doc.scalar(elem, "radius") if elem.tag == "ContactSphere" else None,
+            )
+        )
 
     spec = ModelSpec(
-        name=model.get("name") or path.stem, path=str(path), version=version,
-        credits=doc.text(model, "credits", ""), publications=doc.text(model, "publications", ""),
-        length_units=doc.text(model, "length_units", "meters"), force_units=doc.text(model, "force_units", "N"),
-        gravity=doc.vec3(model, "gravity", "0 -9.80665 0"), ground_meshes=ground_meshes, bodies=tuple(bodies),
-        frames=offsets, joints=tuple(joints), coordinates=tuple(coordinates), couplers=tuple(couplers),
-        markers=markers, contact_geometry=tuple(contacts))
+        name=model.get("name") or path.stem,
+        path=str(path),
+        version=version,
+        credits=doc.text(model, "credits", ""),
+        publications=doc.text(model, "publications", ""),
+        length_units=doc.text(model, "length_units", "meters"),
+        force_units=doc.text(model, "force_units", "N"),
+        gravity=doc.vec3(model, "gravity", "0 -9.80665 0"),
+        ground_meshes=ground_meshes,
+        bodies=tuple(bodies),
+        frames=offsets,
+        joints=tuple(joints),
+        coordinates=tuple(coordinates),
+        couplers=tuple(couplers),
+        markers=markers,
+        contact_geometry=tuple(contacts),
+    )
     _check(spec, doc)
     return spec
 
@@ -623,11 +719,19 @@ def model_summary(spec: ModelSpec) -> dict:
         tags = [t for t, on in (("locked", c.locked), ("coupled", c.name in coupled)) if on]
         return f"{c.range[0] * scale:.4g} to {c.range[1] * scale:.4g} {unit}" + "".join(f", {t}" for t in tags)
 
-    return {"file": spec.path, "kind": "OpenSimModel", "name": spec.name, "version": spec.version,
-            "bodies": len(spec.bodies), "total_mass_kg": round(sum(b.mass for b in spec.bodies), 4),
-            "joints": len(spec.joints), "joint_types": joint_types, "coordinates": {c.name: shown(c)
-                                                                                   for c in spec.coordinates},
-            "markers": len(spec.markers), "contact_geometry": len(spec.contact_geometry)}
+    return {
+        "file": spec.path,
+        "kind": "OpenSimModel",
+        "name": spec.name,
+        "version": spec.version,
+        "bodies": len(spec.bodies),
+        "total_mass_kg": round(sum(b.mass for b in spec.bodies), 4),
+        "joints": len(spec.joints),
+        "joint_types": joint_types,
+        "coordinates": {c.name: shown(c) for c in spec.coordinates},
+        "markers": len(spec.markers),
+        "contact_geometry": len(spec.contact_geometry),
+    }
 
 
 def _set_items(path: str | Path, set_tag: str, item_tag: str) -> tuple[_Doc, list[ET.Element]]:
@@ -651,8 +755,10 @@ def _set_items(path: str | Path, set_tag: str, item_tag: str) -> tuple[_Doc, lis
 def read_scale_set(path: str | Path) -> tuple[ScaleSpec, ...]:
     """Parse an OpenSim ``<ScaleSet>`` file (per-segment x, y, z scale factors), as written by the ScaleTool."""
     doc, items = _set_items(path, "ScaleSet", "Scale")
-    return tuple(ScaleSpec(doc.text(elem, "segment"), doc.vec3(elem, "scales"), doc.boolean(elem, "apply", "true"))
-                 for elem in items)
+    return tuple(
+        ScaleSpec(doc.text(elem, "segment"), doc.vec3(elem, "scales"), doc.boolean(elem, "apply", "true"))
+        for elem in items
+    )
 
 
 def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
@@ -669,8 +775,11 @@ def read_marker_set(path: str | Path) -> tuple[MarkerSpec, ...]:
             frame = f"/bodyset/{body.text.strip()}"
         else:
             frame = _socket(doc, elem, "parent_frame")
-        out.append(MarkerSpec(elem.get("name") or "", frame, doc.vec3(elem, "location", "0 0 0"),
-                              doc.boolean(elem, "fixed", "false")))
+        out.append(
+            MarkerSpec(
+                elem.get("name") or "", frame, doc.vec3(elem, "location", "0 0 0"), doc.boolean(elem, "fixed", "false")
+            )
+        )
     return tuple(out)
 
 
@@ -679,7 +788,7 @@ DOCUMENTS = ("MarkerSet", "ScaleSet")
 
 
 def document_kind(path: str | Path) -> str | None:
-    """"MarkerSet" or "ScaleSet" for such an OpenSim document (bare or inside <OpenSimDocument>), else None."""
+    """ "MarkerSet" or "ScaleSet" for such an OpenSim document (bare or inside <OpenSimDocument>), else None."""
     root = _Doc(Path(path)).root
     for elem in (root, *root):
         if elem.tag in DOCUMENTS:
@@ -693,10 +802,17 @@ def describe_document(path: str | Path) -> dict:
     kind = document_kind(path)
     if kind == "MarkerSet":
         markers = read_marker_set(path)
-        return {"file": str(path), "kind": kind, "markers": len(markers),
-                "fixed": sum(m.fixed for m in markers),
-                "frames": dict(collections.Counter(m.frame for m in markers))}
+        return {
+            "file": str(path),
+            "kind": kind,
+            "markers": len(markers),
+            "fixed": sum(m.fixed for m in markers),
+            "frames": dict(collections.Counter(m.frame for m in markers)),
+        }
     if kind == "ScaleSet":
-        return {"file": str(path), "kind": kind, "scales": {s.segment: list(s.scales) for s in read_scale_set(path)
-                                                           if s.apply}}
+        return {
+            "file": str(path),
+            "kind": kind,
+            "scales": {s.segment: list(s.scales) for s in read_scale_set(path) if s.apply},
+        }
     raise DataFormatError(Path(path), f"not an OpenSim {' or '.join(DOCUMENTS)} document", line=1)

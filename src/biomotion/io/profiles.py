@@ -23,10 +23,15 @@ def read_profile(path: str | Path) -> Profile:
         data = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise ConfigError(f"profile file not found: {path}") from None
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the profile file: {error.strerror or error}") from None
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(path, f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
-                              line=None if mark is None else mark.line + 1) from None
+        raise DataFormatError(
+            path,
+            f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
+            line=None if mark is None else mark.line + 1,
+        ) from None
     if not isinstance(data, dict):
         raise DataFormatError(path, "a profile file holds a mapping of profile fields (age, sex, height, ...)")
     try:

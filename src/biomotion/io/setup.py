@@ -30,6 +30,7 @@ UNASSIGNED = ("", "unassigned")
 
 # --- documents with line numbers ------------------------------------------------------------------------------
 
+
 class _Xml:
     """An XML file parsed with expat so that every element knows its line (for error messages)."""
 
@@ -74,7 +75,7 @@ class _Xml:
             raise self.error(elem.find(tag), f"<{tag}> must be true or false, found {raw!r}", tag)
         return raw == "true"
 
-    def objects(self, elem: ET.Element | None) -> list[tuple["_Xml", ET.Element]]:
+    def objects(self, elem: ET.Element | None) -> list[tuple[_Xml, ET.Element]]:
         """Children of a set's ``<objects>``, following a ``file=`` reference to another document."""
         if elem is None:
             return []
@@ -112,6 +113,7 @@ def locate(raw: str | None, setup: str | Path, levels: int = 2) -> Path | None:
 
 # --- IK tasks --------------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class CoordinateTask:
     """An ``IKCoordinateTask``: weight x (q - target)^2 added to the IK objective.
@@ -119,6 +121,7 @@ class CoordinateTask:
     ``value_type`` is ``default_value`` (the model's default), ``manual_value`` (``value``, in the model's
     internal units: rad or m) or ``from_file`` (the coordinates file, interpolated at the marker times).
     """
+
     name: str
     weight: float
     value_type: str = "default_value"
@@ -129,6 +132,7 @@ class CoordinateTask:
 class TaskSet:
     """The applied tasks of an ``IKTaskSet``: marker weights (only markers listed here are tracked) and
     coordinate tasks."""
+
     marker_weights: dict[str, float]
     coordinate_tasks: tuple[CoordinateTask, ...]
 
@@ -153,8 +157,9 @@ def _task_set(doc: _Xml, elem: ET.Element | None) -> TaskSet:
             continue
         value_type = owner.text(task, "value_type", "default_value")
         if value_type not in _VALUE_TYPES:
-            raise owner.error(task, f"task {name!r}: value_type {value_type!r} is not one of {_VALUE_TYPES}",
-                              "value_type")
+            raise owner.error(
+                task, f"task {name!r}: value_type {value_type!r} is not one of {_VALUE_TYPES}", "value_type"
+            )
         coordinates.append(CoordinateTask(name, weight, value_type, owner.number(task, "value", 0.0)))
     return TaskSet(weights, tuple(coordinates))
 
@@ -170,18 +175,20 @@ def _time_range(doc: _Xml, elem: ET.Element) -> tuple[float, float] | None:
 
 # --- InverseKinematicsTool -------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class IKSetup:
     """An OpenSim ``InverseKinematicsTool`` setup. File names are as written; see `IKSetup.file`."""
+
     path: Path
     name: str
     model_file: str
     marker_file: str
     coordinate_file: str
     output_motion_file: str
-    time_range: tuple[float, float] | None   # None: the whole marker file
+    time_range: tuple[float, float] | None  # None: the whole marker file
     accuracy: float
-    constraint_weight: float                 # inf: constraints enforced exactly
+    constraint_weight: float  # inf: constraints enforced exactly
     tasks: TaskSet
 
     @property
@@ -203,24 +210,30 @@ def read_ik_setup(path: str | Path) -> IKSetup:
     doc = _Xml(path)
     tool = doc.tool("InverseKinematicsTool")
     return IKSetup(
-        path=path, name=tool.get("name") or path.stem, model_file=doc.text(tool, "model_file"),
+        path=path,
+        name=tool.get("name") or path.stem,
+        model_file=doc.text(tool, "model_file"),
         marker_file=doc.text(tool, "marker_file"),
         coordinate_file=doc.text(tool, "coordinate_file") or doc.text(tool, "coordinates_file"),
-        output_motion_file=doc.text(tool, "output_motion_file"), time_range=_time_range(doc, tool),
-        accuracy=doc.number(tool, "accuracy", 1e-5), constraint_weight=doc.number(tool, "constraint_weight",
-                                                                                  float("inf")),
-        tasks=_task_set(doc, tool.find("IKTaskSet")))
+        output_motion_file=doc.text(tool, "output_motion_file"),
+        time_range=_time_range(doc, tool),
+        accuracy=doc.number(tool, "accuracy", 1e-5),
+        constraint_weight=doc.number(tool, "constraint_weight", float("inf")),
+        tasks=_task_set(doc, tool.find("IKTaskSet")),
+    )
 
 
 # --- ScaleTool -------------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Measurement:
     """A ScaleTool measurement: the factor is the mean over ``pairs`` of experimental / model marker distance,
     applied to ``axes`` (a subset of ``"XYZ"``) of each body in ``bodies``."""
+
     name: str
     pairs: tuple[tuple[str, str], ...]
-    bodies: tuple[tuple[str, str], ...]      # (body, axes)
+    bodies: tuple[tuple[str, str], ...]  # (body, axes)
 
 
 @dataclass(frozen=True)
@@ -232,15 +245,16 @@ class ManualScale:
 @dataclass(frozen=True)
 class ScaleSetup:
     """An OpenSim ``ScaleTool`` setup: generic model, ModelScaler and MarkerPlacer settings."""
+
     path: Path
     name: str
-    mass: float                              # kg; <= 0: keep the model's mass
+    mass: float  # kg; <= 0: keep the model's mass
     height: float
     model_file: str
     marker_set_file: str
     scaler_apply: bool
-    scaling_order: tuple[str, ...]           # "measurements", "manualScale"
-    measurements: tuple[Measurement, ...]    # applied ones only
+    scaling_order: tuple[str, ...]  # "measurements", "manualScale"
+    measurements: tuple[Measurement, ...]  # applied ones only
     manual_scales: tuple[ManualScale, ...]
     scale_marker_file: str
     scale_time_range: tuple[float, float] | None
@@ -250,7 +264,7 @@ class ScaleSetup:
     placer_marker_file: str
     placer_coordinate_file: str
     placer_time_range: tuple[float, float] | None
-    max_marker_movement: float               # < 0: no check
+    max_marker_movement: float  # < 0: no check
 
     def file(self, which: str) -> Path | None:
         """A resolved file of the setup (``model_file``, ``scale_marker_file`` ...), None when absent."""
@@ -268,15 +282,15 @@ def _measurement(doc: _Xml, elem: ET.Element) -> Measurement | None:
     for owner, pair in doc.objects(elem.find("MarkerPairSet")):
         markers = owner.text(pair, "markers").split()
         if len(markers) != 2:
-            raise owner.error(pair, f"measurement {name!r}: a MarkerPair needs 2 marker names, found {markers}",
-                              "markers")
+            raise owner.error(
+                pair, f"measurement {name!r}: a MarkerPair needs 2 marker names, found {markers}", "markers"
+            )
         pairs.append((markers[0], markers[1]))
     bodies = []
     for owner, scale in doc.objects(elem.find("BodyScaleSet")):
         axes = owner.text(scale, "axes").upper().split()
         if not axes or any(a not in _AXES for a in axes):
-            raise owner.error(scale, f"measurement {name!r}: BodyScale axes must be among X Y Z, found {axes}",
-                              "axes")
+            raise owner.error(scale, f"measurement {name!r}: BodyScale axes must be among X Y Z, found {axes}", "axes")
         bodies.append((scale.get("name") or "", "".join(axes)))
     return Measurement(name, tuple(pairs), tuple(bodies))
 
@@ -293,8 +307,9 @@ def read_scale_setup(path: str | Path) -> ScaleSetup:
     scaler_present, placer_present = scaler is not None, placer is not None
     empty = ET.Element("none")
     maker, scaler, placer = (e if e is not None else empty for e in (maker, scaler, placer))
-    measurements = tuple(m for m in (_measurement(owner, e) for owner, e in doc.objects(
-        scaler.find("MeasurementSet"))) if m is not None)
+    measurements = tuple(
+        m for m in (_measurement(owner, e) for owner, e in doc.objects(scaler.find("MeasurementSet"))) if m is not None
+    )
     manual = []
     for owner, scale in doc.objects(scaler.find("ScaleSet")):
         if not owner.flag(scale, "apply", True):
@@ -306,22 +321,28 @@ def read_scale_setup(path: str | Path) -> ScaleSetup:
     order = tuple(doc.text(scaler, "scaling_order", "measurements").split())
     for token in order:
         if token not in ("measurements", "manualScale"):
-            raise doc.error(scaler.find("scaling_order"), f"unknown scaling_order entry {token!r}",
-                            "scaling_order")
+            raise doc.error(scaler.find("scaling_order"), f"unknown scaling_order entry {token!r}", "scaling_order")
     return ScaleSetup(
-        path=path, name=tool.get("name") or path.stem, mass=doc.number(tool, "mass", -1.0),
-        height=doc.number(tool, "height", -1.0), model_file=doc.text(maker, "model_file"),
+        path=path,
+        name=tool.get("name") or path.stem,
+        mass=doc.number(tool, "mass", -1.0),
+        height=doc.number(tool, "height", -1.0),
+        model_file=doc.text(maker, "model_file"),
         marker_set_file=doc.text(maker, "marker_set_file"),
         scaler_apply=scaler_present and doc.flag(scaler, "apply", True),
-        scaling_order=order, measurements=measurements, manual_scales=tuple(manual),
-        scale_marker_file=doc.text(scaler, "marker_file"), scale_time_range=_time_range(doc, scaler),
+        scaling_order=order,
+        measurements=measurements,
+        manual_scales=tuple(manual),
+        scale_marker_file=doc.text(scaler, "marker_file"),
+        scale_time_range=_time_range(doc, scaler),
         preserve_mass_distribution=doc.flag(scaler, "preserve_mass_distribution", False),
         placer_apply=placer_present and doc.flag(placer, "apply", True),
         placer_tasks=_task_set(doc, placer.find("IKTaskSet")),
         placer_marker_file=doc.text(placer, "marker_file"),
         placer_coordinate_file=doc.text(placer, "coordinate_file"),
         placer_time_range=_time_range(doc, placer),
-        max_marker_movement=doc.number(placer, "max_marker_movement", -1.0))
+        max_marker_movement=doc.number(placer, "max_marker_movement", -1.0),
+    )
 
 
 TOOLS = ("InverseKinematicsTool", "ScaleTool")
@@ -339,26 +360,42 @@ def describe_setup(path: str | Path) -> dict:
     `locate` resolves them), the time range, and its tasks (marker weights, coordinate tasks, measurements)."""
     path = Path(path)
     root = _Xml(path).root
-    tags = [root.tag, *(child.tag for child in root)]   # the tool, or <OpenSimDocument> around it
+    tags = [root.tag, *(child.tag for child in root)]  # the tool, or <OpenSimDocument> around it
     tool = next((tag for tag in tags if tag in TOOLS), tags[min(1, len(tags) - 1)])
     if tool == "InverseKinematicsTool":
         ik = read_ik_setup(path)
-        return {"file": str(path), "kind": "IKSetup", "name": ik.name,
-                "model_file": _file_entry(ik.model_file, path), "marker_file": _file_entry(ik.marker_file, path),
-                "coordinate_file": _file_entry(ik.coordinate_file, path), "time_range_s": ik.time_range,
-                "accuracy": ik.accuracy, "marker_tasks": len(ik.marker_weights),
-                "marker_weights": ik.marker_weights,
-                "coordinate_tasks": [task.name for task in ik.coordinate_tasks]}
+        return {
+            "file": str(path),
+            "kind": "IKSetup",
+            "name": ik.name,
+            "model_file": _file_entry(ik.model_file, path),
+            "marker_file": _file_entry(ik.marker_file, path),
+            "coordinate_file": _file_entry(ik.coordinate_file, path),
+            "time_range_s": ik.time_range,
+            "accuracy": ik.accuracy,
+            "marker_tasks": len(ik.marker_weights),
+            "marker_weights": ik.marker_weights,
+            "coordinate_tasks": [task.name for task in ik.coordinate_tasks],
+        }
     if tool == "ScaleTool":
         scale = read_scale_setup(path)
-        return {"file": str(path), "kind": "ScaleSetup", "name": scale.name, "mass_kg": scale.mass,
-                "height_m": scale.height, "model_file": _file_entry(scale.model_file, path),
-                "marker_set_file": _file_entry(scale.marker_set_file, path),
-                "scale_marker_file": _file_entry(scale.scale_marker_file, path),
-                "scaling_order": list(scale.scaling_order), "measurements": [m.name for m in scale.measurements],
-                "manual_scales": [m.segment for m in scale.manual_scales],
-                "preserve_mass_distribution": scale.preserve_mass_distribution,
-                "placer_marker_tasks": len(scale.placer_tasks.marker_weights),
-                "placer_time_range_s": scale.placer_time_range}
-    raise DataFormatError(path, f"inspect reads InverseKinematicsTool and ScaleTool setups, MarkerSets and "
-                                f"ScaleSets; this file holds <{tool}>")
+        return {
+            "file": str(path),
+            "kind": "ScaleSetup",
+            "name": scale.name,
+            "mass_kg": scale.mass,
+            "height_m": scale.height,
+            "model_file": _file_entry(scale.model_file, path),
+            "marker_set_file": _file_entry(scale.marker_set_file, path),
+            "scale_marker_file": _file_entry(scale.scale_marker_file, path),
+            "scaling_order": list(scale.scaling_order),
+            "measurements": [m.name for m in scale.measurements],
+            "manual_scales": [m.segment for m in scale.manual_scales],
+            "preserve_mass_distribution": scale.preserve_mass_distribution,
+            "placer_marker_tasks": len(scale.placer_tasks.marker_weights),
+            "placer_time_range_s": scale.placer_time_range,
+        }
+    raise DataFormatError(
+        path,
+        f"inspect reads InverseKinematicsTool and ScaleTool setups, MarkerSets and ScaleSets; this file holds <{tool}>",
+    )

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import csv
 import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any
 
 from biomotion.errors import DataFormatError
 from biomotion.io.atomic import atomic_write
@@ -123,8 +124,7 @@ SIMPLE = ColumnMapping(
 SCHREIBER_SOURCE = ColumnMapping(
     name="schreiber",
     subject_column="subjectID",
-    fields={"age": ("age", _number), "sex": ("gender", _sex), "height": ("height", _number),
-            "mass": ("mass", _number)},
+    fields={"age": ("age", _number), "sex": ("gender", _sex), "height": ("height", _number), "mass": ("mass", _number)},
     signature=("subjectID", "gender", "age", "height", "mass", "rightLegLength"),
 )
 
@@ -139,18 +139,23 @@ def _ansur_mapping(id_column: str) -> ColumnMapping:
     return ColumnMapping(
         name=f"ansur-{id_column}",
         subject_column=id_column,
-        fields={"age": ("Age", _number), "sex": ("Gender", _sex),
-                "height": ("stature", lambda v: None if _number(v) is None else _number(v) / 1000.0),
-                "mass": ("weightkg", lambda v: None if _number(v) is None else _number(v) / 10.0),
-                "dominance": ("WritingPreference", lambda v: None if _text(v) is None else
-                              {"Right hand": "R", "Left hand": "L"}.get(_text(v)))},
+        fields={
+            "age": ("Age", _number),
+            "sex": ("Gender", _sex),
+            "height": ("stature", lambda v: None if _number(v) is None else _number(v) / 1000.0),
+            "mass": ("weightkg", lambda v: None if _number(v) is None else _number(v) / 10.0),
+            "dominance": (
+                "WritingPreference",
+                lambda v: None if _text(v) is None else {"Right hand": "R", "Left hand": "L"}.get(_text(v)),
+            ),
+        },
         subject_id=_ansur_id,
         signature=(id_column, "stature", "weightkg", "Gender"),
     )
 
 
-ANSUR_MALE = _ansur_mapping("subjectid")      # the male file names its id column 'subjectid' ...
-ANSUR_FEMALE = _ansur_mapping("SubjectId")    # ... the female file 'SubjectId'
+ANSUR_MALE = _ansur_mapping("subjectid")  # the male file names its id column 'subjectid' ...
+ANSUR_FEMALE = _ansur_mapping("SubjectId")  # ... the female file 'SubjectId'
 
 MAPPINGS = {m.name: m for m in (FUKUCHI, MOTUS, SIMPLE, SCHREIBER_SOURCE, ANSUR_MALE, ANSUR_FEMALE)}
 
@@ -216,7 +221,7 @@ def table_schema(path: str | Path) -> ColumnMapping | None:
     """The known subject-table schema of the table at ``path`` (.csv, .tsv, .txt, .xlsx), or None when its header
     matches none, or it is not a table."""
     try:
-        header, _ = _read_rows(Path(path), check_widths=False)   # the header decides; reading checks the rows
+        header, _ = _read_rows(Path(path), check_widths=False)  # the header decides; reading checks the rows
         return detect_mapping(header)
     except DataFormatError:
         return None
@@ -228,11 +233,15 @@ def describe_subject_table(path: str | Path, schema: ColumnMapping) -> dict[str,
     invented)."""
     profiles = read_subject_table(path, schema)
     fields = ("age", "sex", "height", "mass", "dominance", "sport", "level", "experience_years")
-    return {"file": str(path), "kind": "SubjectTable", "schema": schema.name,
-            "subjects": len(profiles), "first_subjects": list(profiles)[:5],
-            "subjects_with_field": {name: sum(getattr(p, name) is not None for p in profiles.values())
-                                    for name in fields}
-            | {"injuries": sum(bool(p.injuries) for p in profiles.values())}}
+    return {
+        "file": str(path),
+        "kind": "SubjectTable",
+        "schema": schema.name,
+        "subjects": len(profiles),
+        "first_subjects": list(profiles)[:5],
+        "subjects_with_field": {name: sum(getattr(p, name) is not None for p in profiles.values()) for name in fields}
+        | {"injuries": sum(bool(p.injuries) for p in profiles.values())},
+    }
 
 
 def read_subject_table(path: str | Path, mapping: str | ColumnMapping = "auto") -> dict[str, Profile]:
@@ -249,8 +258,11 @@ def read_subject_table(path: str | Path, mapping: str | ColumnMapping = "auto") 
     missing = [c for c in (mapping.subject_column, *(col for col, _ in mapping.fields.values())) if c not in header]
     if missing:
         raise DataFormatError(path, f"columns missing for the {mapping.name!r} schema: {', '.join(missing)}")
-    used = {mapping.subject_column, *(col for col, _ in mapping.fields.values()),
-            *(c for group in mapping.injuries for c in group if c)}
+    used = {
+        mapping.subject_column,
+        *(col for col, _ in mapping.fields.values()),
+        *(c for group in mapping.injuries for c in group if c),
+    }
     profiles: dict[str, Profile] = {}
     for record in records:
         if mapping.row_filter is not None and not mapping.row_filter(record):
@@ -274,7 +286,7 @@ def read_subject_table(path: str | Path, mapping: str | ColumnMapping = "auto") 
         extra = {k: v for k, v in record.items() if k not in used and _text(v) is not None}
         try:
             profiles[subject] = Profile(subject_id=subject, injuries=tuple(injuries), extra=extra, **values)
-        except ValueError as error:   # a value outside its range (biomotion.profile.RANGES): name its column
+        except ValueError as error:  # a value outside its range (biomotion.profile.RANGES): name its column
             name = getattr(error, "field", None)
             column = mapping.fields[name][0] if name in mapping.fields else name
             raise DataFormatError(path, str(error), line=line, field=column) from None

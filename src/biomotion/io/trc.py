@@ -68,31 +68,38 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
         raise DataFormatError(path, "marker label line must start with 'Frame#\\tTime'", line=4)
     names = [name.strip() for name in label_fields[2:] if name.strip()]
     if len(names) != declared_markers:
-        raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}",
-                              line=4)
+        raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}", line=4)
     body = lines[5:]
     numbers = [number + 6 for number, text in enumerate(body) if text.strip()]
     if not numbers:
         raise DataFormatError(path, "no data rows", line=6)
     if len(numbers) < declared_frames:
-        raise DataFormatError(path, f"truncated: header declares {declared_frames} frames, file has "
-                                    f"{len(numbers)}", line=numbers[-1])
+        raise DataFormatError(
+            path, f"truncated: header declares {declared_frames} frames, file has {len(numbers)}", line=numbers[-1]
+        )
     if time_range is not None:
         times = _times(path, body, numbers)
         start, end = time_range
         keep = np.flatnonzero(within_window(times, start, end))
         if not len(keep):
-            raise DataFormatError(path, f"no frame within time range {start}-{end} s (the file spans "
-                                        f"{times[0]}-{times[-1]} s)", field="time_range")
+            raise DataFormatError(
+                path,
+                f"no frame within time range {start}-{end} s (the file spans {times[0]}-{times[-1]} s)",
+                field="time_range",
+            )
         numbers = [numbers[k] for k in keep]
     data = _data_rows(path, [body[number - 6] for number in numbers], numbers, 2 + 3 * len(names), len(names))
     infinite = np.isinf(data[:, 2:])
     if infinite.any():
         row, column = (int(i) for i in np.argwhere(infinite)[0])
-        raise DataFormatError(path, f"infinite value {data[row, 2 + column]} (a missing sample is an empty field "
-                                    "or NaN)", line=numbers[row], field=f"{names[column // 3]}.{'XYZ'[column % 3]}")
+        raise DataFormatError(
+            path,
+            f"infinite value {data[row, 2 + column]} (a missing sample is an empty field or NaN)",
+            line=numbers[row],
+            field=f"{names[column // 3]}.{'XYZ'[column % 3]}",
+        )
     times = data[:, 1]
-    if time_range is None:   # a window's times were checked, over the whole file, by `_times`
+    if time_range is None:  # a window's times were checked, over the whole file, by `_times`
         _check_times(path, times, numbers)
     positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
     return Markers(times=times, names=tuple(names), positions=positions)
@@ -121,8 +128,7 @@ def _check_times(path: Path, times: np.ndarray, numbers: list[int]) -> None:
     steps = np.diff(times)
     if np.any(steps <= 0):
         row = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise DataFormatError(path, f"time does not increase ({times[row - 1]} then {times[row]})",
-                              line=numbers[row])
+        raise DataFormatError(path, f"time does not increase ({times[row - 1]} then {times[row]})", line=numbers[row])
 
 
 def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, markers: int) -> np.ndarray:
@@ -133,7 +139,7 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
     row's field count and names the line of a short row, a long one or a bad token."""
     try:
         data = np.loadtxt([text.rstrip() for text in rows], delimiter="\t", dtype=float, ndmin=2)
-        if data.shape == (len(numbers), width):   # a stripped row only loses empty fields: each has >= width
+        if data.shape == (len(numbers), width):  # a stripped row only loses empty fields: each has >= width
             return data
     except ValueError:
         pass
@@ -144,9 +150,13 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
         if len(fields) > width and any(field.strip() for field in fields[width:]):
             raise DataFormatError(path, f"{len(fields)} fields, {expected}", line=number)
         if len(fields) < width:
-            raise DataFormatError(path, f"{len(fields)} fields, {expected}: a value is missing, so the values "
-                                        "after it would land in the wrong columns (leave a missing sample as an "
-                                        "empty field, keeping its tab)", line=number)
+            raise DataFormatError(
+                path,
+                f"{len(fields)} fields, {expected}: a value is missing, so the values "
+                "after it would land in the wrong columns (leave a missing sample as an "
+                "empty field, keeping its tab)",
+                line=number,
+            )
         table_rows.append([field.strip() or "nan" for field in fields[:width]])
     table = np.array(table_rows, dtype=object)
     try:

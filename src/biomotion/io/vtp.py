@@ -28,10 +28,11 @@ def read_vtp(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     made of polygons: a file holding strips is refused; vertex and line cells are ignored.
     """
     path = Path(path)
-    root = parse_tree(path).getroot()   # DataFormatError for a missing, malformed or DOCTYPE-bearing file
+    root = parse_tree(path).getroot()  # DataFormatError for a missing, malformed or DOCTYPE-bearing file
     if root.tag != "VTKFile" or root.get("type") != "PolyData":
-        raise DataFormatError(path, f"not a VTK PolyData file (root <{root.tag} type={root.get('type')!r}>)",
-                              field="VTKFile")
+        raise DataFormatError(
+            path, f"not a VTK PolyData file (root <{root.tag} type={root.get('type')!r}>)", field="VTKFile"
+        )
     pieces = root.findall("./PolyData/Piece")
     if not pieces:
         raise DataFormatError(path, "no <PolyData><Piece> element", field="Piece")
@@ -57,8 +58,11 @@ def _piece(path: Path, piece: ET.Element, number: int) -> tuple[np.ndarray, np.n
         raise DataFormatError(path, "points must have 3 components", field=f"{where}/Points")
     points = _numbers(path, point_array, f"{where}/Points")
     if points.size != 3 * n_points:
-        raise DataFormatError(path, f"{points.size} coordinates for NumberOfPoints={n_points} (expected "
-                                    f"{3 * n_points})", field=f"{where}/Points")
+        raise DataFormatError(
+            path,
+            f"{points.size} coordinates for NumberOfPoints={n_points} (expected {3 * n_points})",
+            field=f"{where}/Points",
+        )
     if not np.all(np.isfinite(points)):
         raise DataFormatError(path, "non-finite point coordinate", field=f"{where}/Points")
     arrays = {array.get("Name"): array for array in piece.findall("./Polys/DataArray")}
@@ -86,8 +90,7 @@ def _count(path: Path, piece: ET.Element, attribute: str, where: str) -> int:
 def _numbers(path: Path, array: ET.Element, field: str, *, integer: bool = False) -> np.ndarray:
     encoding = array.get("format", "ascii")
     if encoding != "ascii":
-        raise DataFormatError(path, f"DataArray format={encoding!r}: only ASCII .vtp files are supported",
-                              field=field)
+        raise DataFormatError(path, f"DataArray format={encoding!r}: only ASCII .vtp files are supported", field=field)
     try:
         values = np.array((array.text or "").split(), dtype=float)
     except ValueError as error:
@@ -99,8 +102,9 @@ def _numbers(path: Path, array: ET.Element, field: str, *, integer: bool = False
     return values.astype(np.int64)
 
 
-def _triangulate(path: Path, connectivity: np.ndarray, offsets: np.ndarray, n_points: int, n_polys: int,
-                 where: str) -> np.ndarray:
+def _triangulate(
+    path: Path, connectivity: np.ndarray, offsets: np.ndarray, n_points: int, n_polys: int, where: str
+) -> np.ndarray:
     """Fan triangles [sum(n_i - 2), 3] of polygons ``connectivity[offsets[i-1]:offsets[i]]``."""
     field = f"{where}/Polys"
     if offsets.size != n_polys:
@@ -111,8 +115,9 @@ def _triangulate(path: Path, connectivity: np.ndarray, offsets: np.ndarray, n_po
         bad = int(np.flatnonzero(sizes < 3)[0])
         raise DataFormatError(path, f"polygon {bad} has {sizes[bad]} vertices (at least 3 needed)", field=field)
     if offsets[-1] != connectivity.size:
-        raise DataFormatError(path, f"last offset {offsets[-1]} does not match {connectivity.size} indices",
-                              field=field)
+        raise DataFormatError(
+            path, f"last offset {offsets[-1]} does not match {connectivity.size} indices", field=field
+        )
     if connectivity.size and (connectivity.min() < 0 or connectivity.max() >= n_points):
         raise DataFormatError(path, f"point index out of range [0, {n_points})", field=field)
     fans = sizes - 2

@@ -44,9 +44,13 @@ def _parse(path: str | Path, *, namespaces: bool) -> tuple[ET.Element, dict[int,
         lines[id(elem)] = parser.CurrentLineNumber
 
     def refuse(what: str) -> None:
-        raise _Refused(DataFormatError(path, f"{what} declarations are refused (entity expansion is not "
-                                             "supported in biomotion's XML formats)",
-                                       line=parser.CurrentLineNumber))
+        raise _Refused(
+            DataFormatError(
+                path,
+                f"{what} declarations are refused (entity expansion is not supported in biomotion's XML formats)",
+                line=parser.CurrentLineNumber,
+            )
+        )
 
     parser.StartElementHandler = start
     parser.EndElementHandler = lambda tag: builder.end(fix(tag))
@@ -67,8 +71,9 @@ def _parse(path: str | Path, *, namespaces: bool) -> tuple[ET.Element, dict[int,
     except expat.ExpatError as error:
         if not lines and error.code == expat.errors.codes[expat.errors.XML_ERROR_NO_ELEMENTS]:
             raise DataFormatError(path, "empty file (no XML element)", line=error.lineno) from None
-        raise DataFormatError(path, f"not well-formed XML: {expat.ErrorString(error.code)}",
-                              line=error.lineno) from None
+        raise DataFormatError(
+            path, f"not well-formed XML: {expat.ErrorString(error.code)}", line=error.lineno
+        ) from None
     return builder.close(), lines
 
 

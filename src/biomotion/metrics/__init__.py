@@ -9,25 +9,63 @@ score sets of motions instead. `biomotion.metrics.registry` lists the metrics th
 
 from biomotion.metrics.base import Metric, MetricResult
 from biomotion.metrics.bounds import PercentileBounds, bound_excess
-from biomotion.metrics.contact import (FootContactVelocity, FootSliding, Floating, GroundPenetration,
-                                       LowestPointSliding, Penetration, SkateRatio, contact_from_force, contact_mask)
+from biomotion.metrics.contact import (
+    Floating,
+    FootContactVelocity,
+    FootSliding,
+    GroundPenetration,
+    LowestPointSliding,
+    Penetration,
+    SkateRatio,
+    contact_from_force,
+    contact_mask,
+)
 from biomotion.metrics.fidelity import Diversity, Fidelity, GaussianFidelity, MotionEntropy
-from biomotion.metrics.plausibility import (ActivationViolation, AngularVelocityViolation, ComAccelerationViolation,
-                                            ComVelocityViolation, JointRangeViolation)
+from biomotion.metrics.plausibility import (
+    ActivationViolation,
+    AngularVelocityViolation,
+    ComAccelerationViolation,
+    ComVelocityViolation,
+    JointRangeViolation,
+)
 from biomotion.metrics.probes import AgeProbe, IdentityProbe
 from biomotion.metrics.reconstruction import GlobalTrajectoryError, JointError, ProcrustesJointError
 from biomotion.metrics.smoothness import AccelerationError, EnergyConsistency, JerkIndex, VelocityError
 from biomotion.metrics.stability import BaseOfSupport, SupportDistance, ZMPInsideSupport
 
 __all__ = [
-    "Metric", "MetricResult", "PercentileBounds", "bound_excess",
-    "Penetration", "Floating", "FootContactVelocity", "FootSliding", "GroundPenetration", "SkateRatio",
-    "LowestPointSliding", "contact_mask", "contact_from_force",
-    "JerkIndex", "EnergyConsistency", "AccelerationError", "VelocityError",
-    "ZMPInsideSupport", "BaseOfSupport", "SupportDistance",
-    "AngularVelocityViolation", "ComVelocityViolation", "ComAccelerationViolation", "ActivationViolation",
+    "Metric",
+    "MetricResult",
+    "PercentileBounds",
+    "bound_excess",
+    "Penetration",
+    "Floating",
+    "FootContactVelocity",
+    "FootSliding",
+    "GroundPenetration",
+    "SkateRatio",
+    "LowestPointSliding",
+    "contact_mask",
+    "contact_from_force",
+    "JerkIndex",
+    "EnergyConsistency",
+    "AccelerationError",
+    "VelocityError",
+    "ZMPInsideSupport",
+    "BaseOfSupport",
+    "SupportDistance",
+    "AngularVelocityViolation",
+    "ComVelocityViolation",
+    "ComAccelerationViolation",
+    "ActivationViolation",
     "JointRangeViolation",
-    "JointError", "ProcrustesJointError", "GlobalTrajectoryError",
-    "Fidelity", "GaussianFidelity", "MotionEntropy", "Diversity",
-    "IdentityProbe", "AgeProbe",
+    "JointError",
+    "ProcrustesJointError",
+    "GlobalTrajectoryError",
+    "Fidelity",
+    "GaussianFidelity",
+    "MotionEntropy",
+    "Diversity",
+    "IdentityProbe",
+    "AgeProbe",
 ]

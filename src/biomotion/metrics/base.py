@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -115,8 +116,9 @@ def summarize(name: str, unit: str, values: Tensor) -> MetricResult:
     finite = values[torch.isfinite(values)]
     if finite.numel() == 0:
         return MetricResult(name, unit, float("nan"), float("nan"), 0, values)
-    return MetricResult(name, unit, float(finite.mean()), float(finite.std(unbiased=False)), int(finite.numel()),
-                        values)
+    return MetricResult(
+        name, unit, float(finite.mean()), float(finite.std(unbiased=False)), int(finite.numel()), values
+    )
 
 
 def as_tensor(x, name: str, *, min_dims: int = 1, last: int | tuple[int, ...] | None = None) -> Tensor:
@@ -131,8 +133,9 @@ def as_tensor(x, name: str, *, min_dims: int = 1, last: int | tuple[int, ...] | 
     if last is not None:
         allowed = (last,) if isinstance(last, int) else last
         if x.shape[-1] not in allowed:
-            raise DataFormatError(None, f"last dim must be {' or '.join(map(str, allowed))}, "
-                                        f"got shape {tuple(x.shape)}", field=name)
+            raise DataFormatError(
+                None, f"last dim must be {' or '.join(map(str, allowed))}, got shape {tuple(x.shape)}", field=name
+            )
     return x
 
 
@@ -144,8 +147,9 @@ def as_mask(mask, shape: tuple[int, ...] | torch.Size, name: str, device=None) -
     try:
         return torch.broadcast_to(mask.to(torch.bool), shape)
     except RuntimeError as err:
-        raise DataFormatError(None, f"shape {tuple(mask.shape)} does not broadcast to {tuple(shape)}",
-                              field=name) from err
+        raise DataFormatError(
+            None, f"shape {tuple(mask.shape)} does not broadcast to {tuple(shape)}", field=name
+        ) from err
 
 
 def frame_mask(valid, batch_time: tuple[int, ...] | torch.Size, device=None) -> Tensor:
@@ -153,8 +157,7 @@ def frame_mask(valid, batch_time: tuple[int, ...] | torch.Size, device=None) -> 
     return as_mask(valid, tuple(batch_time), "valid", device)
 
 
-def column_mask(mask, shape: tuple[int, ...] | torch.Size, order: int = 0, name: str = "mask",
-                device=None) -> Tensor:
+def column_mask(mask, shape: tuple[int, ...] | torch.Size, order: int = 0, name: str = "mask", device=None) -> Tensor:
     """Mask of the columns (coordinates, joints, muscles) of a [..., T, n] series, as [..., T - order, n].
 
     ``mask`` is per sequence, [..., n], or per frame, [..., T, n] (recognised by having as many dims as ``shape``);
@@ -190,7 +193,7 @@ def pair_mask(valid: Tensor, order: int = 1) -> Tensor:
     """[..., T - order]: True where frames t .. t + order are all valid (the frames a difference of that order uses)."""
     out = valid[..., : valid.shape[-1] - order]
     for k in range(1, order + 1):
-        out = out & valid[..., k: valid.shape[-1] - order + k]
+        out = out & valid[..., k : valid.shape[-1] - order + k]
     return out
 
 
@@ -203,8 +206,9 @@ def difference(x: Tensor, rate: float, order: int = 1, *, dim: int = -2) -> Tens
     if rate <= 0:
         raise DataFormatError(None, f"rate must be positive, got {rate}", field="rate")
     if x.shape[dim] <= order:
-        raise DataFormatError(None, f"needs more than {order} frames along dim {dim}, got shape {tuple(x.shape)}",
-                              field="T")
+        raise DataFormatError(
+            None, f"needs more than {order} frames along dim {dim}, got shape {tuple(x.shape)}", field="T"
+        )
     return torch.diff(x, n=order, dim=dim) * float(rate) ** order
 
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -67,8 +67,16 @@ class PercentileBounds:
         object.__setattr__(self, "percentiles", tuple(float(p) for p in self.percentiles))
 
     @classmethod
-    def from_samples(cls, values, names: Sequence[str], *, mask=None, percentiles: tuple[float, float] = (5.0, 95.0),
-                     quantity: str = "", unit: str = "") -> "PercentileBounds":
+    def from_samples(
+        cls,
+        values,
+        names: Sequence[str],
+        *,
+        mask=None,
+        percentiles: tuple[float, float] = (5.0, 95.0),
+        quantity: str = "",
+        unit: str = "",
+    ) -> PercentileBounds:
         """Percentiles per column of ``values`` [..., n] over every leading dim, where ``mask`` is True.
 
         ``mask`` broadcasts to ``values`` ([..., n] per-column, [..., T, 1] per-frame, or full); NaN samples are
@@ -77,15 +85,17 @@ class PercentileBounds:
         array = values.detach().cpu().numpy() if isinstance(values, Tensor) else np.asarray(values)
         array = np.asarray(array, dtype=np.float64)
         if array.ndim < 1 or array.shape[-1] != len(names):
-            raise DataFormatError(None, f"last dim of shape {array.shape} must match {len(names)} names",
-                                  field="values")
+            raise DataFormatError(
+                None, f"last dim of shape {array.shape} must match {len(names)} names", field="values"
+            )
         if mask is not None:
             keep = mask.detach().cpu().numpy() if isinstance(mask, Tensor) else np.asarray(mask)
             try:
                 keep = np.broadcast_to(keep.astype(bool), array.shape)
             except ValueError as err:
-                raise DataFormatError(None, f"shape {keep.shape} does not broadcast to {array.shape}",
-                                      field="mask") from err
+                raise DataFormatError(
+                    None, f"shape {keep.shape} does not broadcast to {array.shape}", field="mask"
+                ) from err
             array = np.where(keep, array, np.nan)
         flat = array.reshape(-1, len(names))
         counts = np.isfinite(flat).sum(axis=0)
@@ -96,15 +106,16 @@ class PercentileBounds:
             low[some], high[some] = np.nanpercentile(flat[:, some], percentiles, axis=0)
         return cls(tuple(names), low, high, percentiles, quantity, unit, counts)
 
-    def select(self, names: Sequence[str]) -> "PercentileBounds":
+    def select(self, names: Sequence[str]) -> PercentileBounds:
         """The bounds of ``names`` in that order; a name without bounds raises `DataFormatError`."""
         index = {name: i for i, name in enumerate(self.names)}
         missing = [name for name in names if name not in index]
         if missing:
             raise DataFormatError(None, f"no bounds for {', '.join(missing)}", field="names")
         rows = [index[name] for name in names]
-        return PercentileBounds(tuple(names), self.low[rows], self.high[rows], self.percentiles, self.quantity,
-                                self.unit, self.counts[rows])
+        return PercentileBounds(
+            tuple(names), self.low[rows], self.high[rows], self.percentiles, self.quantity, self.unit, self.counts[rows]
+        )
 
     def tensors(self, dtype=torch.float64, device=None) -> tuple[Tensor, Tensor]:
         """(low, high) as tensors with NaN replaced by -inf / +inf (an unknown side does not bound)."""
@@ -119,13 +130,18 @@ class PercentileBounds:
 
     def to_dict(self) -> dict:
         return {
-            "format": FORMAT, "quantity": self.quantity, "unit": self.unit, "percentiles": list(self.percentiles),
-            "columns": [{"name": name, "low": _json_float(lo), "high": _json_float(hi), "count": int(count)}
-                        for name, lo, hi, count in zip(self.names, self.low, self.high, self.counts)],
+            "format": FORMAT,
+            "quantity": self.quantity,
+            "unit": self.unit,
+            "percentiles": list(self.percentiles),
+            "columns": [
+                {"name": name, "low": _json_float(lo), "high": _json_float(hi), "count": int(count)}
+                for name, lo, hi, count in zip(self.names, self.low, self.high, self.counts)
+            ],
         }
 
     @classmethod
-    def from_dict(cls, data: dict, path: str | Path | None = None) -> "PercentileBounds":
+    def from_dict(cls, data: dict, path: str | Path | None = None) -> PercentileBounds:
         if data.get("format") != FORMAT:
             raise DataFormatError(path, f"not a {FORMAT} document (format={data.get('format')!r})", field="format")
         try:
@@ -140,8 +156,15 @@ class PercentileBounds:
         if len(percentiles) != 2:
             raise DataFormatError(path, f"needs two percentiles, got {percentiles}", field="percentiles")
         try:
-            return cls(names, np.array(low), np.array(high), percentiles, str(data.get("quantity", "")),
-                       str(data.get("unit", "")), np.array(counts, dtype=np.int64))
+            return cls(
+                names,
+                np.array(low),
+                np.array(high),
+                percentiles,
+                str(data.get("quantity", "")),
+                str(data.get("unit", "")),
+                np.array(counts, dtype=np.int64),
+            )
         except DataFormatError as err:
             raise DataFormatError(path, str(err), field=err.field) from err
 
@@ -151,7 +174,7 @@ class PercentileBounds:
             json.dump(self.to_dict(), handle, indent=1)
 
     @classmethod
-    def load(cls, path: str | Path) -> "PercentileBounds":
+    def load(cls, path: str | Path) -> PercentileBounds:
         path = Path(path)
         try:
             data = json.loads(path.read_text(encoding="utf-8"))

@@ -22,8 +22,7 @@ from __future__ import annotations
 import torch
 
 from biomotion.errors import DataFormatError
-from biomotion.metrics.base import (Metric, Tensor, as_mask, as_tensor, difference, frame_mask, masked_mean,
-                                    pair_mask)
+from biomotion.metrics.base import Metric, Tensor, as_mask, as_tensor, difference, frame_mask, masked_mean, pair_mask
 
 GROUND_MODES = ("absolute", "clip_median")
 CONTACT_HEIGHT = 0.05
@@ -68,8 +67,15 @@ def horizontal_speed(points, rate: float) -> Tensor:
     return torch.linalg.vector_norm(difference(points[..., [0, 2]], rate, dim=-3), dim=-1)
 
 
-def contact_mask(points, rate: float | None = None, *, height: float | Tensor = CONTACT_HEIGHT,
-                 speed: float | None = None, valid=None, ground: str = "absolute") -> Tensor:
+def contact_mask(
+    points,
+    rate: float | None = None,
+    *,
+    height: float | Tensor = CONTACT_HEIGHT,
+    speed: float | None = None,
+    valid=None,
+    ground: str = "absolute",
+) -> Tensor:
     """[..., T, K] True where a point is in contact: height below ``height`` (m; a float or one per point [K]) and,
     if ``speed`` (m/s) is given, horizontal speed (mean of the adjacent frame differences) below ``speed``."""
     points = _points(points)
@@ -83,9 +89,10 @@ def contact_mask(points, rate: float | None = None, *, height: float | Tensor = 
     pair_speed = horizontal_speed(points, rate)
     pairs = pair_mask(valid)[..., None].expand_as(pair_speed)
     zero = pair_speed.new_zeros(pair_speed.shape[:-2] + (1,) + pair_speed.shape[-1:])
-    speed_sum = (torch.cat([zero, torch.where(pairs, pair_speed, 0.0)], -2)
-                 + torch.cat([torch.where(pairs, pair_speed, 0.0), zero], -2))
-    count = (torch.cat([zero, pairs.to(points.dtype)], -2) + torch.cat([pairs.to(points.dtype), zero], -2))
+    speed_sum = torch.cat([zero, torch.where(pairs, pair_speed, 0.0)], -2) + torch.cat(
+        [torch.where(pairs, pair_speed, 0.0), zero], -2
+    )
+    count = torch.cat([zero, pairs.to(points.dtype)], -2) + torch.cat([pairs.to(points.dtype), zero], -2)
     return contact & (count > 0) & (speed_sum < speed * count)
 
 
@@ -114,8 +121,15 @@ def penetration(points, valid=None, *, ground: str = "absolute") -> Tensor:
     return masked_mean(torch.relu(-lowest), valid, -1)
 
 
-def floating(points, rate: float, valid=None, *, ground: str = "absolute", tolerance: float = 0.0,
-             stance_speed: float | None = STANCE_SPEED) -> Tensor:
+def floating(
+    points,
+    rate: float,
+    valid=None,
+    *,
+    ground: str = "absolute",
+    tolerance: float = 0.0,
+    stance_speed: float | None = STANCE_SPEED,
+) -> Tensor:
     """PG-BIG Sec. 4.2 "Floor Floating": ``max(0, z_t - eps)`` averaged over stance frames (m).
 
     Stance is decided without heights, so that a hovering planted foot counts: z_t is the height of the lowest
@@ -136,8 +150,9 @@ def floating(points, rate: float, valid=None, *, ground: str = "absolute", toler
     return masked_mean(torch.relu(lowest - tolerance), keep, -1)
 
 
-def foot_contact_velocity(points, rate: float, valid=None, *, contact=None, ground: str = "absolute",
-                          height: float | Tensor = CONTACT_HEIGHT) -> Tensor:
+def foot_contact_velocity(
+    points, rate: float, valid=None, *, contact=None, ground: str = "absolute", height: float | Tensor = CONTACT_HEIGHT
+) -> Tensor:
     """PG-BIG Sec. 4.2 "Foot Contact Velocity": mean horizontal speed ``||p_dot_xz||`` (m/s) of the points in
     contact at both frames t and t + 1. NaN for a sequence without contact."""
     points = _points(points)
@@ -147,8 +162,9 @@ def foot_contact_velocity(points, rate: float, valid=None, *, contact=None, grou
     return masked_mean(horizontal_speed(points, rate), both, (-2, -1))
 
 
-def foot_sliding(points, valid=None, *, contact=None, ground: str = "absolute",
-                 height: float | Tensor = CONTACT_HEIGHT) -> Tensor:
+def foot_sliding(
+    points, valid=None, *, contact=None, ground: str = "absolute", height: float | Tensor = CONTACT_HEIGHT
+) -> Tensor:
     """PhysPT Sec. 4 "FS": mean displacement ``||p_{t+1} - p_t||`` (m per frame, 3-D) of the points in contact at
     frames t and t + 1. Per frame, as in the paper, so it scales with 1/rate. NaN without contact."""
     points = _points(points)
@@ -170,8 +186,16 @@ def ground_penetration(points, valid=None, *, ground: str = "absolute") -> Tenso
     return torch.where(valid.any(-1), depth, torch.full_like(depth, float("nan")))
 
 
-def skate_ratio(points, rate: float, valid=None, *, height: float | Tensor = CONTACT_HEIGHT,
-                speed: float = SKATE_SPEED, window: float = SKATE_WINDOW, ground: str = "absolute") -> Tensor:
+def skate_ratio(
+    points,
+    rate: float,
+    valid=None,
+    *,
+    height: float | Tensor = CONTACT_HEIGHT,
+    speed: float = SKATE_SPEED,
+    window: float = SKATE_WINDOW,
+    ground: str = "absolute",
+) -> Tensor:
     """Share of frame pairs in which a foot skates (GMD / OmniControl skating ratio; HUMOS "skate").
 
     A point skates between frames t and t + 1 when it is below ``height`` at both frames, and both its horizontal
@@ -235,7 +259,7 @@ class Penetration(Metric):
 
     name, label, unit, display_unit, display_scale = "penetration", "Penetration", "m", "cm", 100.0
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Floor Penetration\", Table 2"
+    paper = 'PG-BIG Sec. 4.2 "Floor Penetration", Table 2'
     equation = "mean_t max(0, -z_t), z_t the height of the lowest point at frame t"
 
     def __init__(self, ground: str = "absolute") -> None:
@@ -252,19 +276,23 @@ class Floating(Metric):
 
     name, label, unit, display_unit, display_scale = "floating", "Floating", "m", "cm", 100.0
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Floor Floating\", Table 2"
-    equation = ("mean over stance frames of max(0, z_t - eps), z_t the height of the lowest planted point "
-                "(horizontal speed below stance_speed)")
+    paper = 'PG-BIG Sec. 4.2 "Floor Floating", Table 2'
+    equation = (
+        "mean over stance frames of max(0, z_t - eps), z_t the height of the lowest planted point "
+        "(horizontal speed below stance_speed)"
+    )
 
-    def __init__(self, ground: str = "absolute", tolerance: float = 0.0,
-                 stance_speed: float | None = STANCE_SPEED) -> None:
+    def __init__(
+        self, ground: str = "absolute", tolerance: float = 0.0, stance_speed: float | None = STANCE_SPEED
+    ) -> None:
         super().__init__()
         self.ground, self.tolerance, self.stance_speed = ground, tolerance, stance_speed
         _ground_variant(self, ground)
 
     def score(self, points, rate: float, valid=None) -> Tensor:
-        return floating(points, rate, valid, ground=self.ground, tolerance=self.tolerance,
-                        stance_speed=self.stance_speed)
+        return floating(
+            points, rate, valid, ground=self.ground, tolerance=self.tolerance, stance_speed=self.stance_speed
+        )
 
 
 class FootContactVelocity(Metric):
@@ -272,7 +300,7 @@ class FootContactVelocity(Metric):
 
     name, label, unit = "foot_contact_velocity", "Foot contact vel.", "m/s"
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Foot Contact Velocity\""
+    paper = 'PG-BIG Sec. 4.2 "Foot Contact Velocity"'
     equation = "mean ||p_dot_xz|| over the points in contact at frames t and t + 1"
 
     def __init__(self, height: float | Tensor = CONTACT_HEIGHT, ground: str = "absolute") -> None:
@@ -289,7 +317,7 @@ class FootSliding(Metric):
 
     name, label, unit, display_unit, display_scale = "foot_sliding", "FS", "m/frame", "mm/frame", 1000.0
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"FS\", Table 1"
+    paper = 'PhysPT Sec. 4 "FS", Table 1'
     equation = "mean ||p_{t+1} - p_t|| over the points in contact at frames t and t + 1"
 
     def __init__(self, height: float | Tensor = CONTACT_HEIGHT, ground: str = "absolute") -> None:
@@ -306,7 +334,7 @@ class GroundPenetration(Metric):
 
     name, label, unit, display_unit, display_scale = "ground_penetration", "GP", "m", "mm", 1000.0
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"GP\", Table 1"
+    paper = 'PhysPT Sec. 4 "GP", Table 1'
     equation = "mean depth -z of the points below the ground, over those points only (0 when none)"
 
     def __init__(self, ground: str = "absolute") -> None:
@@ -323,28 +351,41 @@ class SkateRatio(Metric):
 
     name, label, unit, display_unit, display_scale = "skate_ratio", "Skate", "1", "%", 100.0
     higher_is_better = False
-    paper = "GMD / OmniControl skating ratio (thresh_height 0.05 m, thresh_vel 0.5 m/s); HUMOS \"skate\""
-    equation = ("share of frame pairs in which a point below height at both frames moves horizontally faster than "
-                "speed, also on average over a centred window")
+    paper = 'GMD / OmniControl skating ratio (thresh_height 0.05 m, thresh_vel 0.5 m/s); HUMOS "skate"'
+    equation = (
+        "share of frame pairs in which a point below height at both frames moves horizontally faster than "
+        "speed, also on average over a centred window"
+    )
 
-    def __init__(self, height: float | Tensor = CONTACT_HEIGHT, speed: float = SKATE_SPEED,
-                 window: float = SKATE_WINDOW, ground: str = "absolute") -> None:
+    def __init__(
+        self,
+        height: float | Tensor = CONTACT_HEIGHT,
+        speed: float = SKATE_SPEED,
+        window: float = SKATE_WINDOW,
+        ground: str = "absolute",
+    ) -> None:
         super().__init__()
         self.height, self.speed, self.window, self.ground = height, speed, window, ground
         _ground_variant(self, ground)
 
     def score(self, points, rate: float, valid=None) -> Tensor:
-        return skate_ratio(points, rate, valid, height=self.height, speed=self.speed, window=self.window,
-                           ground=self.ground)
+        return skate_ratio(
+            points, rate, valid, height=self.height, speed=self.speed, window=self.window, ground=self.ground
+        )
 
 
 class LowestPointSliding(Metric):
     """`lowest_point_sliding` per sequence (m/frame): PG-BIG public evaluator's "Sliding"."""
 
-    name, label, unit, display_unit, display_scale = ("lowest_point_sliding", "Sliding (lowest point)", "m/frame",
-                                                      "cm/frame", 100.0)
+    name, label, unit, display_unit, display_scale = (
+        "lowest_point_sliding",
+        "Sliding (lowest point)",
+        "m/frame",
+        "cm/frame",
+        100.0,
+    )
     higher_is_better = False
-    paper = "PG-BIG public evaluator \"sliding\" (pg-big-reference-notes.md), PG-BIG Table 2 \"Sliding\""
+    paper = 'PG-BIG public evaluator "sliding" (pg-big-reference-notes.md), PG-BIG Table 2 "Sliding"'
     equation = "mean_t ||p_{t+1} - p_t||, p_t the lowest point at frame t (no contact mask, per frame)"
 
     def score(self, points, valid=None) -> Tensor:

@@ -43,8 +43,9 @@ def frame_distance(pred: Tensor, ref: Tensor, weights: Tensor) -> Tensor:
     """[B, N, M] mean over present joints of the distance between pred frame i and ref frame j.
 
     ``pred`` [B, N, J, 3], ``ref`` [B, M, J, 3], ``weights`` [B, J]."""
-    distance = torch.cdist(pred.transpose(1, 2).contiguous(), ref.transpose(1, 2).contiguous(),
-                           compute_mode="donot_use_mm_for_euclid_dist")                    # [B, J, N, M]
+    distance = torch.cdist(
+        pred.transpose(1, 2).contiguous(), ref.transpose(1, 2).contiguous(), compute_mode="donot_use_mm_for_euclid_dist"
+    )  # [B, J, N, M]
     return (distance * weights[..., None, None]).sum(1) / weights.sum(-1).clamp(min=1)[..., None, None]
 
 
@@ -61,10 +62,10 @@ def dtw(cost: Tensor, n: Tensor, m: Tensor) -> tuple[Tensor, Tensor]:
     rows_n, cols_m = n.cpu().numpy(), m.cpu().numpy()
     batch, rows, cols = c.shape
     flat = c.reshape(batch, rows * cols)
-    i = np.arange(1, rows + 1)                                              # D row index of entries 1..N
-    before = np.full((batch, rows + 1), np.inf)                             # diagonal s - 2
-    before[:, 0] = 0.0                                                      # D[0, 0] = 0
-    last = np.full((batch, rows + 1), np.inf)                               # diagonal s - 1 (s = 1: all inf)
+    i = np.arange(1, rows + 1)  # D row index of entries 1..N
+    before = np.full((batch, rows + 1), np.inf)  # diagonal s - 2
+    before[:, 0] = 0.0  # D[0, 0] = 0
+    last = np.full((batch, rows + 1), np.inf)  # diagonal s - 1 (s = 1: all inf)
     steps_before, steps_last = np.zeros((batch, rows + 1)), np.zeros((batch, rows + 1))
     total, steps = np.full(batch, np.inf), np.zeros(batch)
     every = np.arange(batch)
@@ -77,33 +78,37 @@ def dtw(cost: Tensor, n: Tensor, m: Tensor) -> tuple[Tensor, Tensor]:
         best = np.take_along_axis(candidates, choice[..., None], -1)[..., 0]
         counts = np.stack([steps_before[:, :-1], steps_last[:, :-1], steps_last[:, 1:]], -1)
         current = np.concatenate([np.full((batch, 1), np.inf), here + best], 1)
-        current_steps = np.concatenate([np.zeros((batch, 1)),
-                                        np.take_along_axis(counts, choice[..., None], -1)[..., 0] + 1], 1)
+        current_steps = np.concatenate(
+            [np.zeros((batch, 1)), np.take_along_axis(counts, choice[..., None], -1)[..., 0] + 1], 1
+        )
         done = rows_n + cols_m == diagonal
         total = np.where(done, current[every, rows_n], total)
         steps = np.where(done, current_steps[every, rows_n], steps)
         before, last, steps_before, steps_last = last, current, steps_last, current_steps
-    return (torch.as_tensor(total, dtype=cost.dtype, device=cost.device),
-            torch.as_tensor(steps, dtype=cost.dtype, device=cost.device))
+    return (
+        torch.as_tensor(total, dtype=cost.dtype, device=cost.device),
+        torch.as_tensor(steps, dtype=cost.dtype, device=cost.device),
+    )
 
 
 def _linear_error(pred: Tensor, ref: Tensor, weights: Tensor, n: Tensor, m: Tensor) -> Tensor:
     """Mean joint error after resampling each pred clip (n frames) linearly onto its ref clip's m frames."""
     cols = ref.shape[1]
     k = torch.arange(cols, device=pred.device, dtype=pred.dtype)
-    position = k[None] * ((n - 1).to(pred.dtype) / (m - 1).clamp(min=1).to(pred.dtype))[:, None]   # [B, M]
+    position = k[None] * ((n - 1).to(pred.dtype) / (m - 1).clamp(min=1).to(pred.dtype))[:, None]  # [B, M]
     lower = position.floor().long().clamp(max=pred.shape[1] - 1)
     upper = (lower + 1).clamp(max=(n - 1)[:, None])
     frac = (position - lower.to(pred.dtype))[..., None, None]
     gather = lambda index: torch.gather(pred, 1, index[..., None, None].expand(-1, -1, *pred.shape[2:]))
     resampled = (1 - frac) * gather(lower) + frac * gather(upper)
-    error = torch.linalg.vector_norm(resampled - ref, dim=-1)                                     # [B, M, J]
+    error = torch.linalg.vector_norm(resampled - ref, dim=-1)  # [B, M, J]
     per_frame = (error * weights[:, None]).sum(-1) / weights.sum(-1).clamp(min=1)[:, None]
     return masked_mean(per_frame, k[None] < m[:, None], -1)
 
 
-def aligned_joint_error(pred, ref, *, pred_valid=None, ref_valid=None, joints=None, align: str = "dtw",
-                        root: int | None = None) -> Tensor:
+def aligned_joint_error(
+    pred, ref, *, pred_valid=None, ref_valid=None, joints=None, align: str = "dtw", root: int | None = None
+) -> Tensor:
     """PG-BIG Sec. 4.2 "Fidelity": mean joint-centre error (m; Table 2 prints cm) between a generated clip ``pred``
     [..., N, J, 3] and the subject's real clip ``ref`` [..., M, J, 3] of the same action after temporal alignment.
 
@@ -118,11 +123,12 @@ def aligned_joint_error(pred, ref, *, pred_valid=None, ref_valid=None, joints=No
     if pred.shape[-2] != ref.shape[-2]:
         raise DataFormatError(None, f"pred has {pred.shape[-2]} joints, ref {ref.shape[-2]}", field="ref")
     if root is not None:
-        pred = pred - pred[..., root: root + 1, :]
-        ref = ref - ref[..., root: root + 1, :]
+        pred = pred - pred[..., root : root + 1, :]
+        ref = ref - ref[..., root : root + 1, :]
     batch = torch.broadcast_shapes(pred.shape[:-3], ref.shape[:-3])
-    n = _lengths(frame_mask(pred_valid, batch + pred.shape[-3:-2], pred.device).reshape(-1, pred.shape[-3]),
-                 "pred_valid")
+    n = _lengths(
+        frame_mask(pred_valid, batch + pred.shape[-3:-2], pred.device).reshape(-1, pred.shape[-3]), "pred_valid"
+    )
     m = _lengths(frame_mask(ref_valid, batch + ref.shape[-3:-2], ref.device).reshape(-1, ref.shape[-3]), "ref_valid")
     pred = pred.expand(*batch, *pred.shape[-3:]).reshape(-1, *pred.shape[-3:])
     ref = ref.expand(*batch, *ref.shape[-3:]).reshape(-1, *ref.shape[-3:])
@@ -150,8 +156,11 @@ def gaussian_w2(pred, ref, *, pred_valid=None, ref_valid=None, mask=None) -> Ten
     mu_p, sigma_p = moments(pred, pred_valid)
     mu_r, sigma_r = moments(ref, ref_valid)
     w2 = ((mu_p - mu_r).square() + (sigma_p - sigma_r).square()).sqrt()
-    features = torch.ones_like(w2, dtype=torch.bool) if mask is None else \
-        torch.broadcast_to(torch.as_tensor(mask, device=w2.device).to(torch.bool), w2.shape)
+    features = (
+        torch.ones_like(w2, dtype=torch.bool)
+        if mask is None
+        else torch.broadcast_to(torch.as_tensor(mask, device=w2.device).to(torch.bool), w2.shape)
+    )
     return masked_mean(w2, features, -1)
 
 
@@ -202,22 +211,24 @@ class Fidelity(Metric):
 
     name, label, unit, display_unit, display_scale = "fidelity", "Fidelity (DTW)", "m", "cm", 100.0
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Fidelity\", Table 2"
+    paper = 'PG-BIG Sec. 4.2 "Fidelity", Table 2'
 
     def __init__(self, align: str = "dtw", root: int | None = None) -> None:
         super().__init__()
         if align not in ALIGNMENTS:
             raise DataFormatError(None, f"align must be one of {ALIGNMENTS}, got {align!r}", field="align")
         self.align, self.root = align, root
-        self.equation = ("mean joint-centre error ||p_pred - p_ref|| along the optimal DTW path (path cost / path "
-                         "length)")
+        self.equation = (
+            "mean joint-centre error ||p_pred - p_ref|| along the optimal DTW path (path cost / path length)"
+        )
         if align == "linear":
             self.name, self.label = "fidelity_linear", "Fidelity (linear)"
             self.equation = "mean joint-centre error ||p_pred - p_ref|| with pred resampled linearly onto ref"
 
     def score(self, pred, ref, pred_valid=None, ref_valid=None, joints=None) -> Tensor:
-        return aligned_joint_error(pred, ref, pred_valid=pred_valid, ref_valid=ref_valid, joints=joints,
-                                   align=self.align, root=self.root)
+        return aligned_joint_error(
+            pred, ref, pred_valid=pred_valid, ref_valid=ref_valid, joints=joints, align=self.align, root=self.root
+        )
 
 
 class GaussianFidelity(Metric):
@@ -226,7 +237,7 @@ class GaussianFidelity(Metric):
 
     name, label, unit = "gaussian_w2", "Fidelity (W2)", "feature units"
     higher_is_better = False
-    paper = "PG-BIG public code's fidelity (pg-big-reference-notes.md, \"Evaluation in code\")"
+    paper = 'PG-BIG public code\'s fidelity (pg-big-reference-notes.md, "Evaluation in code")'
     equation = "mean over features of sqrt((mu_p - mu_r)^2 + (sigma_p - sigma_r)^2), moments over time"
 
     def __init__(self, unit: str = "feature units") -> None:
@@ -242,7 +253,7 @@ class MotionEntropy(Metric):
 
     name, label, unit = "entropy", "Entropy", "nat"
     higher_is_better = None
-    paper = "PG-BIG Sec. 4.2 \"Motion Entropy\", Table 2 \"Entropy\""
+    paper = 'PG-BIG Sec. 4.2 "Motion Entropy", Table 2 "Entropy"'
     equation = "H = -sum_k p_k log p_k of the histogram (equal bins over the clip's range) of the clip's values"
 
     def __init__(self, bins: int = ENTROPY_BINS) -> None:
@@ -262,7 +273,7 @@ class Diversity(Metric):
 
     name, label, unit = "diversity", "Diversity", "feature units"
     higher_is_better = None
-    paper = "FlexMotion Sec. 4 and App. \"DIV\" (after MDM); all pairs instead of MDM's random pairs"
+    paper = 'FlexMotion Sec. 4 and App. "DIV" (after MDM); all pairs instead of MDM\'s random pairs'
     equation = "mean over pairs i < j of ||f_i - f_j||, f the per-motion feature vectors"
 
     def __init__(self, unit: str = "feature units") -> None:

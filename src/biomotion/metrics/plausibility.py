@@ -21,8 +21,17 @@ from __future__ import annotations
 import torch
 
 from biomotion.errors import DataFormatError
-from biomotion.metrics.base import (Metric, Tensor, as_tensor, column_mask, difference, frame_mask,
-                                    masked_mean, masked_sum, pair_mask)
+from biomotion.metrics.base import (
+    Metric,
+    Tensor,
+    as_tensor,
+    column_mask,
+    difference,
+    frame_mask,
+    masked_mean,
+    masked_sum,
+    pair_mask,
+)
 from biomotion.metrics.bounds import PercentileBounds, bound_excess
 
 STATISTICS = ("rate", "excess")
@@ -49,8 +58,7 @@ def com_acceleration(com, rate: float) -> Tensor:
 def _limits(values: Tensor, bounds: PercentileBounds | None, low, high) -> tuple[Tensor, Tensor]:
     if bounds is not None:
         if len(bounds.names) != values.shape[-1]:
-            raise DataFormatError(None, f"{len(bounds.names)} bounds for {values.shape[-1]} columns",
-                                  field="bounds")
+            raise DataFormatError(None, f"{len(bounds.names)} bounds for {values.shape[-1]} columns", field="bounds")
         return bounds.tensors(values.dtype, values.device)
     inf = float("inf")
     low = torch.as_tensor(-inf if low is None else low, dtype=values.dtype, device=values.device)
@@ -58,8 +66,9 @@ def _limits(values: Tensor, bounds: PercentileBounds | None, low, high) -> tuple
     return torch.nan_to_num(low, nan=-inf), torch.nan_to_num(high, nan=inf)
 
 
-def bound_violation(values, *, low=None, high=None, bounds: PercentileBounds | None = None, mask=None,
-                    statistic: str = "rate") -> Tensor:
+def bound_violation(
+    values, *, low=None, high=None, bounds: PercentileBounds | None = None, mask=None, statistic: str = "rate"
+) -> Tensor:
     """Per sequence [...]: share of the masked entries of ``values`` [..., T, n] outside [low, high] (``"rate"``),
     or ``(1/T) sum_t sum_j excess_tj`` over the T frames with a masked entry (``"excess"``, PG-BIG Table 1).
 
@@ -84,8 +93,9 @@ def _column_mask(mask, values: Tensor, valid, order: int) -> Tensor:
     return frames & column_mask(mask, values.shape, order, "mask", values.device)
 
 
-def angular_velocity_violation(q, rate: float, *, bounds: PercentileBounds | None = None, high=None, mask=None,
-                               valid=None, statistic: str = "rate") -> Tensor:
+def angular_velocity_violation(
+    q, rate: float, *, bounds: PercentileBounds | None = None, high=None, mask=None, valid=None, statistic: str = "rate"
+) -> Tensor:
     """PG-BIG Table 1 L_omega: ``|dq_j/dt|`` above its 95th-percentile bound ``high_j`` (upper side only: the low
     side of ``bounds`` is ignored). Table 1 takes ``||q_dot_tj||`` per joint; biomotion bounds each coordinate (each
     degree of freedom of a joint) on its own, the Rajagopal coordinates being scalars."""
@@ -95,42 +105,79 @@ def angular_velocity_violation(q, rate: float, *, bounds: PercentileBounds | Non
     return bound_violation(speed, high=upper, mask=_column_mask(mask, q, valid, 1), statistic=statistic)
 
 
-def com_velocity_violation(com, rate: float, *, bounds: PercentileBounds | None = None, low=None, high=None,
-                           valid=None, statistic: str = "rate") -> Tensor:
+def com_velocity_violation(
+    com,
+    rate: float,
+    *,
+    bounds: PercentileBounds | None = None,
+    low=None,
+    high=None,
+    valid=None,
+    statistic: str = "rate",
+) -> Tensor:
     """PG-BIG Table 1 L_v: ``||c_dot||`` outside its 5-95th percentile bounds (one column, e.g. ``"com_speed"``)."""
     com = as_tensor(com, "com", min_dims=2, last=3)
     speed = com_speed(com, rate)
-    return bound_violation(speed, low=low, high=high, bounds=bounds,
-                           mask=pair_mask(frame_mask(valid, com.shape[:-1], com.device))[..., None],
-                           statistic=statistic)
+    return bound_violation(
+        speed,
+        low=low,
+        high=high,
+        bounds=bounds,
+        mask=pair_mask(frame_mask(valid, com.shape[:-1], com.device))[..., None],
+        statistic=statistic,
+    )
 
 
-def com_acceleration_violation(com, rate: float, *, bounds: PercentileBounds | None = None, low=None, high=None,
-                               valid=None, statistic: str = "rate") -> Tensor:
+def com_acceleration_violation(
+    com,
+    rate: float,
+    *,
+    bounds: PercentileBounds | None = None,
+    low=None,
+    high=None,
+    valid=None,
+    statistic: str = "rate",
+) -> Tensor:
     """PG-BIG Table 1 L_a: ``||c_ddot||`` outside its 5-95th percentile bounds (one column)."""
     com = as_tensor(com, "com", min_dims=2, last=3)
     accel = com_acceleration(com, rate)
-    return bound_violation(accel, low=low, high=high, bounds=bounds,
-                           mask=pair_mask(frame_mask(valid, com.shape[:-1], com.device), 2)[..., None],
-                           statistic=statistic)
+    return bound_violation(
+        accel,
+        low=low,
+        high=high,
+        bounds=bounds,
+        mask=pair_mask(frame_mask(valid, com.shape[:-1], com.device), 2)[..., None],
+        statistic=statistic,
+    )
 
 
-def activation_violation(activations, *, bounds: PercentileBounds | None = None, low=0.0, high=1.0, mask=None,
-                         valid=None, statistic: str = "rate") -> Tensor:
+def activation_violation(
+    activations,
+    *,
+    bounds: PercentileBounds | None = None,
+    low=0.0,
+    high=1.0,
+    mask=None,
+    valid=None,
+    statistic: str = "rate",
+) -> Tensor:
     """PG-BIG Table 1 L_act with 5-95th percentile ``bounds`` per muscle; without bounds, FlexMotion's "Muscle
     Limit" against the physiological range [0, 1]."""
     a = as_tensor(activations, "activations", min_dims=2)
-    return bound_violation(a, low=low, high=high, bounds=bounds, mask=_column_mask(mask, a, valid, 0),
-                           statistic=statistic)
+    return bound_violation(
+        a, low=low, high=high, bounds=bounds, mask=_column_mask(mask, a, valid, 0), statistic=statistic
+    )
 
 
-def joint_range_violation(q, *, low=None, high=None, bounds: PercentileBounds | None = None, mask=None,
-                          valid=None, statistic: str = "rate") -> Tensor:
+def joint_range_violation(
+    q, *, low=None, high=None, bounds: PercentileBounds | None = None, mask=None, valid=None, statistic: str = "rate"
+) -> Tensor:
     """Coordinates outside their range of motion [low_j, high_j] (the model's coordinate ranges, or percentile
     ``bounds`` of q)."""
     q = as_tensor(q, "q", min_dims=2)
-    return bound_violation(q, low=low, high=high, bounds=bounds, mask=_column_mask(mask, q, valid, 0),
-                           statistic=statistic)
+    return bound_violation(
+        q, low=low, high=high, bounds=bounds, mask=_column_mask(mask, q, valid, 0), statistic=statistic
+    )
 
 
 class _BoundMetric(Metric):
@@ -142,12 +189,10 @@ class _BoundMetric(Metric):
     excess_equation = ""
     higher_is_better = False
 
-    def __init__(self, bounds: PercentileBounds | None = None, *, low=None, high=None,
-                 statistic: str = "rate") -> None:
+    def __init__(self, bounds: PercentileBounds | None = None, *, low=None, high=None, statistic: str = "rate") -> None:
         super().__init__()
         if statistic not in STATISTICS:
-            raise DataFormatError(None, f"statistic must be one of {STATISTICS}, got {statistic!r}",
-                                  field="statistic")
+            raise DataFormatError(None, f"statistic must be one of {STATISTICS}, got {statistic!r}", field="statistic")
         self.bounds, self.low, self.high, self.statistic = bounds, low, high, statistic
         if statistic == "rate":
             self.unit, self.display_unit, self.display_scale = "1", "%", 100.0
@@ -165,8 +210,9 @@ class AngularVelocityViolation(_BoundMetric):
     excess_equation = "L_omega = (1/T) sum_t sum_j max(0, |dq_tj/dt| - qdot_j^high)"
 
     def score(self, q, rate: float, mask=None, valid=None) -> Tensor:
-        return angular_velocity_violation(q, rate, bounds=self.bounds, high=self.high, mask=mask, valid=valid,
-                                          statistic=self.statistic)
+        return angular_velocity_violation(
+            q, rate, bounds=self.bounds, high=self.high, mask=mask, valid=valid, statistic=self.statistic
+        )
 
 
 class ComVelocityViolation(_BoundMetric):
@@ -178,8 +224,9 @@ class ComVelocityViolation(_BoundMetric):
     excess_equation = "L_v = (1/T) sum_t max(0, ||c_dot_t|| - c_dot^high, c_dot^low - ||c_dot_t||)"
 
     def score(self, com, rate: float, valid=None) -> Tensor:
-        return com_velocity_violation(com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid,
-                                      statistic=self.statistic)
+        return com_velocity_violation(
+            com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid, statistic=self.statistic
+        )
 
 
 class ComAccelerationViolation(_BoundMetric):
@@ -191,25 +238,32 @@ class ComAccelerationViolation(_BoundMetric):
     excess_equation = "L_a = (1/T) sum_t max(0, ||c_ddot_t|| - c_ddot^high, c_ddot^low - ||c_ddot_t||)"
 
     def score(self, com, rate: float, valid=None) -> Tensor:
-        return com_acceleration_violation(com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid,
-                                          statistic=self.statistic)
+        return com_acceleration_violation(
+            com, rate, bounds=self.bounds, low=self.low, high=self.high, valid=valid, statistic=self.statistic
+        )
 
 
 class ActivationViolation(_BoundMetric):
     """`activation_violation` per sequence (PG-BIG Table 1 "Muscle Activation"; FlexMotion "Muscle Limit")."""
 
     name, label, excess_unit = "activation_violation", "Muscle activation violations", "1"
-    paper = "PG-BIG Sec. 3.3, Table 1 L_act; FlexMotion Sec. 4 and App. \"Muscle Limit\" (after Lee et al. 2019)"
+    paper = 'PG-BIG Sec. 3.3, Table 1 L_act; FlexMotion Sec. 4 and App. "Muscle Limit" (after Lee et al. 2019)'
     equation = "share of frames x muscles with a_tm outside [a_m^low, a_m^high] ([0, 1] without bounds)"
     excess_equation = "L_act = (1/T) sum_t sum_m max(0, a_tm - a_m^high, a_m^low - a_tm)"
 
-    def __init__(self, bounds: PercentileBounds | None = None, *, low=0.0, high=1.0,
-                 statistic: str = "rate") -> None:
+    def __init__(self, bounds: PercentileBounds | None = None, *, low=0.0, high=1.0, statistic: str = "rate") -> None:
         super().__init__(bounds, low=low, high=high, statistic=statistic)
 
     def score(self, activations, mask=None, valid=None) -> Tensor:
-        return activation_violation(activations, bounds=self.bounds, low=self.low, high=self.high, mask=mask,
-                                    valid=valid, statistic=self.statistic)
+        return activation_violation(
+            activations,
+            bounds=self.bounds,
+            low=self.low,
+            high=self.high,
+            mask=mask,
+            valid=valid,
+            statistic=self.statistic,
+        )
 
 
 class JointRangeViolation(_BoundMetric):
@@ -221,5 +275,6 @@ class JointRangeViolation(_BoundMetric):
     excess_equation = "(1/T) sum_t sum_j max(0, q_tj - q_j^high, q_j^low - q_tj)"
 
     def score(self, q, mask=None, valid=None) -> Tensor:
-        return joint_range_violation(q, low=self.low, high=self.high, bounds=self.bounds, mask=mask, valid=valid,
-                                     statistic=self.statistic)
+        return joint_range_violation(
+            q, low=self.low, high=self.high, bounds=self.bounds, mask=mask, valid=valid, statistic=self.statistic
+        )

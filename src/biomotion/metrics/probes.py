@@ -18,8 +18,7 @@ import numpy as np
 
 from biomotion.errors import DataFormatError
 
-CLASSIFIERS = ("logistic_regression", "linear_svm", "kernel_svm", "random_forest", "knn", "mlp",
-               "gradient_boosting")
+CLASSIFIERS = ("logistic_regression", "linear_svm", "kernel_svm", "random_forest", "knn", "mlp", "gradient_boosting")
 REGRESSORS = ("linear_regression", "ridge", "random_forest", "knn", "mlp", "gradient_boosting")
 
 
@@ -77,7 +76,8 @@ def _regressor(name: str, seed: int):
         "random_forest": lambda: RandomForestRegressor(n_estimators=300, random_state=seed),
         "knn": lambda: KNeighborsRegressor(n_neighbors=5),
         "mlp": lambda: TransformedTargetRegressor(  # standardised target: ages are far from the unit scale
-            MLPRegressor(hidden_layer_sizes=(128,), max_iter=500, random_state=seed), transformer=StandardScaler()),
+            MLPRegressor(hidden_layer_sizes=(128,), max_iter=500, random_state=seed), transformer=StandardScaler()
+        ),
         "gradient_boosting": lambda: HistGradientBoostingRegressor(random_state=seed),
     }[name]()
 
@@ -103,8 +103,9 @@ class _Probe:
         x = np.asarray(embeddings.detach().cpu() if hasattr(embeddings, "detach") else embeddings, dtype=np.float64)
         y = np.asarray(targets.detach().cpu() if hasattr(targets, "detach") else targets)
         if x.ndim != 2 or y.shape != (x.shape[0],):
-            raise DataFormatError(None, f"embeddings {x.shape} and targets {y.shape} must be [N, D] and [N]",
-                                  field="embeddings")
+            raise DataFormatError(
+                None, f"embeddings {x.shape} and targets {y.shape} must be [N, D] and [N]", field="embeddings"
+            )
         if not np.all(np.isfinite(x)):
             raise DataFormatError(None, "non-finite embedding values", field="embeddings")
         self._data[train][0].append(x)
@@ -139,16 +140,18 @@ class IdentityProbe(_Probe):
         results = {}
         for name in self.models:
             model = _classifier(name, self.seed).fit(x_train, y_train)
-            scores = model.predict_proba(x_test) if hasattr(model, "predict_proba") else \
-                model.decision_function(x_test)
+            scores = model.predict_proba(x_test) if hasattr(model, "predict_proba") else model.decision_function(x_test)
             scores = scores if scores.ndim == 2 else np.stack([-scores, scores], 1)
             ranked = model.classes_[np.argsort(-scores, axis=1)]
             predicted = ranked[:, 0]
             top3 = (ranked[:, :3] == y_test[:, None]).any(1)
             results[name] = ClassificationScores(
-                accuracy=float(np.mean(predicted == y_test)), top3=float(np.mean(top3)),
+                accuracy=float(np.mean(predicted == y_test)),
+                top3=float(np.mean(top3)),
                 macro_f1=float(f1_score(y_test, predicted, average="macro", zero_division=0)),
-                n_train=len(y_train), n_test=len(y_test))
+                n_train=len(y_train),
+                n_test=len(y_test),
+            )
         return results
 
 
@@ -167,6 +170,10 @@ class AgeProbe(_Probe):
             predicted = _regressor(name, self.seed).fit(x_train, y_train).predict(x_test)
             error = predicted - y_test
             results[name] = RegressionScores(
-                mae=float(np.mean(np.abs(error))), rmse=float(np.sqrt(np.mean(error**2))),
-                r2=float(r2_score(y_test, predicted)), n_train=len(y_train), n_test=len(y_test))
+                mae=float(np.mean(np.abs(error))),
+                rmse=float(np.sqrt(np.mean(error**2))),
+                r2=float(r2_score(y_test, predicted)),
+                n_train=len(y_train),
+                n_test=len(y_test),
+            )
         return results

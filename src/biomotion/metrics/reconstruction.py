@@ -20,8 +20,9 @@ def _pair(pred, target) -> tuple[Tensor, Tensor]:
     pred = as_tensor(pred, "pred", min_dims=3, last=3)
     target = as_tensor(target, "target", min_dims=3, last=3).to(pred.dtype)
     if pred.shape[-3:] != target.shape[-3:]:
-        raise DataFormatError(None, f"pred {tuple(pred.shape)} and target {tuple(target.shape)} differ in [T, J, 3]",
-                              field="target")
+        raise DataFormatError(
+            None, f"pred {tuple(pred.shape)} and target {tuple(target.shape)} differ in [T, J, 3]", field="target"
+        )
     return pred, target
 
 
@@ -37,8 +38,8 @@ def joint_error(pred, target, valid=None, *, joints=None, root: int | None = Non
     protocol); without, in the ground frame (PG-BIG's fidelity)."""
     pred, target = _pair(pred, target)
     if root is not None:
-        pred = pred - pred[..., root: root + 1, :]
-        target = target - target[..., root: root + 1, :]
+        pred = pred - pred[..., root : root + 1, :]
+        target = target - target[..., root : root + 1, :]
     error = torch.linalg.vector_norm(pred - target, dim=-1)
     return masked_mean(error, _joint_mask(joints, pred, valid), (-2, -1))
 
@@ -49,19 +50,22 @@ def procrustes_align(pred, target, weights=None) -> Tensor:
     ``weights`` [..., J] (e.g. a joint mask) default to 1."""
     pred = as_tensor(pred, "pred", min_dims=2, last=3)
     target = as_tensor(target, "target", min_dims=2, last=3).to(pred.dtype)
-    w = torch.ones(pred.shape[:-1], dtype=pred.dtype, device=pred.device) if weights is None else \
-        torch.broadcast_to(torch.as_tensor(weights, device=pred.device).to(pred.dtype), pred.shape[:-1])
+    w = (
+        torch.ones(pred.shape[:-1], dtype=pred.dtype, device=pred.device)
+        if weights is None
+        else torch.broadcast_to(torch.as_tensor(weights, device=pred.device).to(pred.dtype), pred.shape[:-1])
+    )
     total = w.sum(-1, keepdim=True).clamp(min=torch.finfo(pred.dtype).tiny)[..., None]
     mu_p = (w[..., None] * pred).sum(-2, keepdim=True) / total
     mu_t = (w[..., None] * target).sum(-2, keepdim=True) / total
     x, y = pred - mu_p, target - mu_t
-    cov = (w[..., None] * y).transpose(-1, -2) @ x                      # [..., 3, 3] = sum_i w_i y_i x_i^T
+    cov = (w[..., None] * y).transpose(-1, -2) @ x  # [..., 3, 3] = sum_i w_i y_i x_i^T
     u, s, vh = torch.linalg.svd(cov)
     d = torch.sign(torch.linalg.det(u @ vh))
     d = torch.where(d == 0, torch.ones_like(d), d)
     fix = torch.ones_like(s)
     fix[..., -1] = d
-    rotation = u @ torch.diag_embed(fix) @ vh                            # maps x onto y
+    rotation = u @ torch.diag_embed(fix) @ vh  # maps x onto y
     spread = (w * x.square().sum(-1)).sum(-1).clamp(min=torch.finfo(pred.dtype).tiny)
     scale = (s * fix).sum(-1) / spread
     return scale[..., None, None] * x @ rotation.transpose(-1, -2) + mu_t
@@ -77,8 +81,9 @@ def procrustes_joint_error(pred, target, valid=None, *, joints=None) -> Tensor:
     return masked_mean(error, mask, (-2, -1))
 
 
-def global_trajectory_error(pred, target, rate: float, valid=None, *, joints=None, root: int = 0,
-                            window: float = GLOBAL_WINDOW) -> Tensor:
+def global_trajectory_error(
+    pred, target, rate: float, valid=None, *, joints=None, root: int = 0, window: float = GLOBAL_WINDOW
+) -> Tensor:
     """PhysPT Supp. E "G-MPJPE": world-frame MJE (m) where, in consecutive windows of ``window`` seconds, the
     predicted motion is translated so that its ``root`` joint matches the target's at the window's first frame.
     Pass the root trajectory alone as [..., T, 1, 3] for a pure trajectory error."""
@@ -88,7 +93,7 @@ def global_trajectory_error(pred, target, rate: float, valid=None, *, joints=Non
     frames = pred.shape[-3]
     size = max(1, int(round(window * rate)))
     start = (torch.arange(frames, device=pred.device) // size) * size
-    offset = (target[..., root, :] - pred[..., root, :]).index_select(-2, start)   # [..., T, 3]
+    offset = (target[..., root, :] - pred[..., root, :]).index_select(-2, start)  # [..., T, 3]
     error = torch.linalg.vector_norm(pred + offset[..., None, :] - target, dim=-1)
     return masked_mean(error, _joint_mask(joints, pred, valid), (-2, -1))
 
@@ -98,7 +103,7 @@ class JointError(Metric):
 
     name, label, unit, display_unit, display_scale = "mje", "MJE", "m", "mm", 1000.0
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"MJE\", Table 1"
+    paper = 'PhysPT Sec. 4 "MJE", Table 1'
     equation = "mean over frames and joints of ||p_pred - p_target|| (relative to the root joint when given)"
 
     def __init__(self, root: int | None = None) -> None:
@@ -114,7 +119,7 @@ class ProcrustesJointError(Metric):
 
     name, label, unit, display_unit, display_scale = "p_mje", "P-MJE", "m", "mm", 1000.0
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"P-MJE\", Table 1"
+    paper = 'PhysPT Sec. 4 "P-MJE", Table 1'
     equation = "MJE after the per-frame similarity transform that best maps pred onto target (Umeyama 1991)"
 
     def score(self, pred, target, valid=None, joints=None) -> Tensor:
@@ -126,9 +131,8 @@ class GlobalTrajectoryError(Metric):
 
     name, label, unit, display_unit, display_scale = "g_mpjpe", "G-MPJPE", "m", "mm", 1000.0
     higher_is_better = False
-    paper = "PhysPT Supp. E, Table 6 \"G-MPJPE\""
-    equation = ("world-frame MJE with the root re-aligned to the target's at the first frame of each window "
-                "(10 s)")
+    paper = 'PhysPT Supp. E, Table 6 "G-MPJPE"'
+    equation = "world-frame MJE with the root re-aligned to the target's at the first frame of each window (10 s)"
 
     def __init__(self, root: int = 0, window: float = GLOBAL_WINDOW) -> None:
         super().__init__()

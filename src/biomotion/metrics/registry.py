@@ -25,12 +25,17 @@ import torch
 from biomotion.errors import BiomotionError
 from biomotion.metrics.base import DESCRIPTION, Metric, Tensor, pair_mask, summarize
 from biomotion.metrics.clip_set import ClipSet
-from biomotion.metrics.contact import FootContactVelocity, Floating, Penetration, SkateRatio
+from biomotion.metrics.contact import Floating, FootContactVelocity, Penetration, SkateRatio
 from biomotion.metrics.fidelity import Diversity, Fidelity, GaussianFidelity, MotionEntropy
 from biomotion.metrics.plausibility import JointRangeViolation
 from biomotion.metrics.reconstruction import JointError, ProcrustesJointError
-from biomotion.metrics.smoothness import (AccelerationError, EnergyConsistency, JerkIndex, VelocityError,
-                                          mechanical_energy)
+from biomotion.metrics.smoothness import (
+    AccelerationError,
+    EnergyConsistency,
+    JerkIndex,
+    VelocityError,
+    mechanical_energy,
+)
 from biomotion.metrics.stability import ZMPInsideSupport
 
 
@@ -80,6 +85,7 @@ def _body_energy(model) -> Callable[[ClipSet], tuple]:
         energy = s.q.new_zeros(s.valid.shape)
         energy[s.valid] = kinetic + potential
         return energy, s.valid
+
     return inputs
 
 
@@ -94,6 +100,7 @@ def _zmp(model) -> Callable[[ClipSet], tuple]:
         zmp = s.q.new_full((*s.valid.shape, 3), float("nan"))
         zmp[s.valid] = zmp_valid
         return zmp, s.feet, s.valid
+
     return inputs
 
 
@@ -116,8 +123,11 @@ def metrics(kind: str, model=None, *, physics: bool = False) -> list[ClipSetMetr
             raise BiomotionError("coordinate clips need the body model to check joint ranges")
         extra = [_joint_ranges(model)]
         if physics:
-            extra = [ClipSetMetric(EnergyConsistency(std=True, energy="body"), _body_energy(model)),
-                     ClipSetMetric(ZMPInsideSupport(), _zmp(model)), *extra]
+            extra = [
+                ClipSetMetric(EnergyConsistency(std=True, energy="body"), _body_energy(model)),
+                ClipSetMetric(ZMPInsideSupport(), _zmp(model)),
+                *extra,
+            ]
         entries[8:8] = extra
     return entries
 
@@ -125,8 +135,8 @@ def metrics(kind: str, model=None, *, physics: bool = False) -> list[ClipSetMetr
 def diversity_features(s: ClipSet) -> torch.Tensor:
     """[N, 4 J] per-clip features for the diversity, invariant to place and heading: mean and std over valid frames
     of each body point's height and of its horizontal distance from the pelvis (m)."""
-    relative = s.points - s.points[..., s.root: s.root + 1, :]
-    per_frame = torch.cat([s.points[..., 1], relative[..., [0, 2]].norm(dim=-1)], -1)       # [N, T, 2 J]
+    relative = s.points - s.points[..., s.root : s.root + 1, :]
+    per_frame = torch.cat([s.points[..., 1], relative[..., [0, 2]].norm(dim=-1)], -1)  # [N, T, 2 J]
     frames = s.valid[..., None].to(per_frame.dtype)
     count = frames.sum(1)
     mean = (per_frame * frames).sum(1) / count
@@ -147,8 +157,9 @@ def paired_metrics(root: int = 0) -> list[ClipSetMetric]:
         ClipSetMetric(AccelerationError(), lambda p, r, v: (p.points, r.points, p.rate, v)),
         ClipSetMetric(VelocityError(), lambda p, r, v: (p.points, r.points, p.rate, v)),
         ClipSetMetric(Fidelity(root=root), lambda p, r, v: (p.points, r.points, p.valid, r.valid)),
-        ClipSetMetric(GaussianFidelity(unit="m"),
-                      lambda p, r, v: (_relative_flat(p), _relative_flat(r), p.valid, r.valid)),
+        ClipSetMetric(
+            GaussianFidelity(unit="m"), lambda p, r, v: (_relative_flat(p), _relative_flat(r), p.valid, r.valid)
+        ),
     ]
 
 
@@ -159,7 +170,7 @@ def every_metric(kind: str, model=None, *, physics: bool = False) -> list[Metric
 
 
 def _relative_flat(s: ClipSet) -> torch.Tensor:
-    return (s.points - s.points[..., s.root: s.root + 1, :]).flatten(-2)
+    return (s.points - s.points[..., s.root : s.root + 1, :]).flatten(-2)
 
 
 def record(metric: Metric, values: torch.Tensor) -> dict:
@@ -167,8 +178,15 @@ def record(metric: Metric, values: torch.Tensor) -> dict:
     mean, std, count and values in the printed unit (``display_scale`` times SI; None where undefined)."""
     unit = metric.display_unit or metric.unit
     result = summarize(metric.name, unit, values.detach().to(torch.float64) * metric.display_scale)
-    return {"label": metric.label, "unit": unit, "better": metric.arrow, "mean": _num(result.mean),
-            "std": _num(result.std), "count": result.count, "values": [_num(v) for v in result.values.tolist()]}
+    return {
+        "label": metric.label,
+        "unit": unit,
+        "better": metric.arrow,
+        "mean": _num(result.mean),
+        "std": _num(result.std),
+        "count": result.count,
+        "values": [_num(v) for v in result.values.tolist()],
+    }
 
 
 def _num(x: float) -> float | None:
@@ -185,8 +203,14 @@ def score_set(clips: ClipSet, model=None, *, physics: bool = False) -> dict[str,
     return {metric.name: metric.score(clips) for metric in metrics(clips.kind, model, physics=physics)}
 
 
-def summarize_set(clips: ClipSet, model=None, *, physics: bool = False,
-                  selection: Sequence[int] | None = None, scores: dict[str, torch.Tensor] | None = None) -> dict:
+def summarize_set(
+    clips: ClipSet,
+    model=None,
+    *,
+    physics: bool = False,
+    selection: Sequence[int] | None = None,
+    scores: dict[str, torch.Tensor] | None = None,
+) -> dict:
     """Records (`record`) of every per-clip metric and of the diversity, over all clips or the ``selection``; pass
     ``scores`` from `score_set` to summarize groups without rescoring."""
     registered = metrics(clips.kind, model, physics=physics)
@@ -208,16 +232,35 @@ def _pad_time(s: ClipSet, length: int) -> ClipSet:
         if x is None:
             return None
         return torch.cat([x, x.new_zeros(x.shape[0], extra, *x.shape[2:])], 1)
-    return replace(s, valid=pad(s.valid), points=pad(s.points), feet=pad(s.feet), com=pad(s.com), q=pad(s.q),
-                   qd=pad(s.qd), qdd=pad(s.qdd))
+
+    return replace(
+        s,
+        valid=pad(s.valid),
+        points=pad(s.points),
+        feet=pad(s.feet),
+        com=pad(s.com),
+        q=pad(s.q),
+        qd=pad(s.qd),
+        qdd=pad(s.qdd),
+    )
 
 
 def _take(s: ClipSet, index: Sequence[int]) -> ClipSet:
     i = torch.as_tensor(list(index), dtype=torch.long)
-    pick = (lambda x: None if x is None else x[i])
-    return replace(s, names=tuple(s.names[k] for k in i), groups=tuple(s.groups[k] for k in i), valid=s.valid[i],
-                   points=s.points[i], feet=s.feet[i], com=s.com[i], q=pick(s.q), mask=pick(s.mask), qd=pick(s.qd),
-                   qdd=pick(s.qdd))
+    pick = lambda x: None if x is None else x[i]
+    return replace(
+        s,
+        names=tuple(s.names[k] for k in i),
+        groups=tuple(s.groups[k] for k in i),
+        valid=s.valid[i],
+        points=s.points[i],
+        feet=s.feet[i],
+        com=s.com[i],
+        q=pick(s.q),
+        mask=pick(s.mask),
+        qd=pick(s.qd),
+        qdd=pick(s.qdd),
+    )
 
 
 def pair_clips(pred: ClipSet, ref: ClipSet) -> list[tuple[int, int]]:
@@ -227,16 +270,20 @@ def pair_clips(pred: ClipSet, ref: ClipSet) -> list[tuple[int, int]]:
     if by_name:
         return by_name
     if len(pred) != len(ref):
-        raise BiomotionError(f"cannot pair {len(pred)} predicted with {len(ref)} reference clips: no clip name "
-                             "matches and the counts differ")
+        raise BiomotionError(
+            f"cannot pair {len(pred)} predicted with {len(ref)} reference clips: no clip name "
+            "matches and the counts differ"
+        )
     return [(i, i) for i in range(len(pred))]
 
 
 def score_pairs(pred: ClipSet, ref: ClipSet) -> tuple[list[tuple[int, int]], dict]:
     """Pairs and records of the paired metrics (frames compared up to the shorter clip of each pair)."""
     if pred.kind != ref.kind or pred.points.shape[-2] != ref.points.shape[-2]:
-        raise BiomotionError(f"pred ({pred.kind}, {pred.points.shape[-2]} points) and ref ({ref.kind}, "
-                             f"{ref.points.shape[-2]} points) have different skeletons")
+        raise BiomotionError(
+            f"pred ({pred.kind}, {pred.points.shape[-2]} points) and ref ({ref.kind}, "
+            f"{ref.points.shape[-2]} points) have different skeletons"
+        )
     if abs(pred.rate - ref.rate) > 1e-9:
         raise BiomotionError(f"pred at {pred.rate} Hz and ref at {ref.rate} Hz")
     pairs = pair_clips(pred, ref)

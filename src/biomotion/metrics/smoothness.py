@@ -12,8 +12,16 @@ from __future__ import annotations
 import torch
 
 from biomotion.errors import DataFormatError
-from biomotion.metrics.base import (Metric, Tensor, as_tensor, column_mask, difference, frame_mask, masked_mean,
-                                    pair_mask)
+from biomotion.metrics.base import (
+    Metric,
+    Tensor,
+    as_tensor,
+    column_mask,
+    difference,
+    frame_mask,
+    masked_mean,
+    pair_mask,
+)
 
 GRAVITY = 9.80665
 """m/s^2, standard gravity (potential energy m g y)."""
@@ -70,8 +78,9 @@ def energy_consistency(energy, valid=None, *, std: bool = False) -> Tensor:
 def _paired(pred, target) -> tuple[Tensor, Tensor]:
     pred, target = _trajectory(pred, "pred"), _trajectory(target, "target")
     if pred.shape[-3:] != target.shape[-3:]:
-        raise DataFormatError(None, f"pred {tuple(pred.shape)} and target {tuple(target.shape)} differ in [T, J, D]",
-                              field="target")
+        raise DataFormatError(
+            None, f"pred {tuple(pred.shape)} and target {tuple(target.shape)} differ in [T, J, D]", field="target"
+        )
     return pred, target
 
 
@@ -99,7 +108,7 @@ class JerkIndex(Metric):
 
     name, label = "jerk_index", "Jerk index"
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Jerk Index\", Table 2 \"Jerk\""
+    paper = 'PG-BIG Sec. 4.2 "Jerk Index", Table 2 "Jerk"'
 
     def __init__(self, squared: bool = True) -> None:
         super().__init__()
@@ -128,7 +137,7 @@ class EnergyConsistency(Metric):
 
     name, label = "energy_consistency", "Energy consistency"
     higher_is_better = False
-    paper = "PG-BIG Sec. 4.2 \"Energy Consistency\" E_var, Table 2 \"Energy\""
+    paper = 'PG-BIG Sec. 4.2 "Energy Consistency" E_var, Table 2 "Energy"'
 
     def __init__(self, std: bool = False, energy: str | None = None) -> None:
         super().__init__()
@@ -151,7 +160,7 @@ class AccelerationError(Metric):
 
     name, label = "accl", "ACCL"
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"ACCL\", Table 1"
+    paper = 'PhysPT Sec. 4 "ACCL", Table 1'
     equation = "mean over frames and joints of ||a_pred - a_target||, a the second finite difference"
 
     def __init__(self, per_frame: bool = False) -> None:
@@ -172,7 +181,7 @@ class VelocityError(Metric):
 
     name, label, unit = "vel", "VEL", "m/s"
     higher_is_better = False
-    paper = "PhysPT Sec. 4 \"VEL\", Table 1"
+    paper = 'PhysPT Sec. 4 "VEL", Table 1'
     equation = "mean over frames and joints of ||v_pred - v_target||, v the first finite difference"
 
     def __init__(self, per_frame: bool = False) -> None:

@@ -42,21 +42,21 @@ def signed_distance_to_hull(support, active, query) -> Tensor:
     active = as_mask(active, support.shape[:-1], "active", support.device)
     p = support
     n = p.shape[-2]
-    edge = p[..., None, :, :] - p[..., :, None, :]                        # [..., i, j, 2] = p_j - p_i
-    rel = edge                                                             # [..., i, k, 2] = p_k - p_i
-    cross = _cross(edge[..., :, :, None, :], rel[..., :, None, :, :])      # [..., i, j, k]
-    along = (edge[..., :, :, None, :] * rel[..., :, None, :, :]).sum(-1)   # [..., i, j, k]
-    length2 = edge.square().sum(-1)                                        # [..., i, j]
+    edge = p[..., None, :, :] - p[..., :, None, :]  # [..., i, j, 2] = p_j - p_i
+    rel = edge  # [..., i, k, 2] = p_k - p_i
+    cross = _cross(edge[..., :, :, None, :], rel[..., :, None, :, :])  # [..., i, j, k]
+    along = (edge[..., :, :, None, :] * rel[..., :, None, :, :]).sum(-1)  # [..., i, j, k]
+    length2 = edge.square().sum(-1)  # [..., i, j]
     on_segment = (cross.abs() <= TOLERANCE) & (along >= -TOLERANCE) & (along <= length2[..., None] + TOLERANCE)
     left = (cross > TOLERANCE) | on_segment | ~active[..., None, None, :]
     earlier = torch.ones(n, n, dtype=torch.bool, device=p.device).tril(-1)  # [i, k]: k < i
     duplicate = ((length2 <= TOLERANCE) & active[..., None, :] & earlier).any(-1)
     first = active & ~duplicate
-    hull_edge = (left.all(-1) & first[..., :, None] & first[..., None, :] & (length2 > TOLERANCE))
+    hull_edge = left.all(-1) & first[..., :, None] & first[..., None, :] & (length2 > TOLERANCE)
     area = 0.5 * torch.where(hull_edge, _cross(p[..., :, None, :], p[..., None, :, :]), 0.0).sum((-2, -1))
 
-    to_query = query[..., None, :] - p                                     # [..., i, 2]
-    side = _cross(edge, to_query[..., :, None, :])                         # [..., i, j]
+    to_query = query[..., None, :] - p  # [..., i, 2]
+    side = _cross(edge, to_query[..., :, None, :])  # [..., i, j]
     inside = (torch.where(hull_edge, side >= -TOLERANCE, True).all((-2, -1))) & (area > TOLERANCE)
     t = ((to_query[..., :, None, :] * edge).sum(-1) / length2.clamp(min=TOLERANCE)).clamp(0.0, 1.0)
     gap = torch.linalg.vector_norm(to_query[..., :, None, :] - t[..., None] * edge, dim=-1)
@@ -68,8 +68,9 @@ def signed_distance_to_hull(support, active, query) -> Tensor:
     return torch.where(active.any(-1), signed, torch.full_like(signed, float("nan")))
 
 
-def support_margin(query, points, valid=None, *, contact=None, margin: float = 0.0,
-                   height: float | Tensor = CONTACT_HEIGHT) -> Tensor:
+def support_margin(
+    query, points, valid=None, *, contact=None, margin: float = 0.0, height: float | Tensor = CONTACT_HEIGHT
+) -> Tensor:
     """[..., T] signed distance (m) of ``query`` to the boundary of the support of each frame, dilated by
     ``margin``: positive inside. NaN on invalid frames and frames without contact."""
     points = as_tensor(points, "points", min_dims=3, last=3)
@@ -85,8 +86,9 @@ def support_margin(query, points, valid=None, *, contact=None, margin: float = 0
     return torch.where(valid, signed, torch.full_like(signed, float("nan")))
 
 
-def share_inside_support(query, points, valid=None, *, contact=None, margin: float = 0.0,
-                         height: float | Tensor = CONTACT_HEIGHT) -> Tensor:
+def share_inside_support(
+    query, points, valid=None, *, contact=None, margin: float = 0.0, height: float | Tensor = CONTACT_HEIGHT
+) -> Tensor:
     """Share of supported frames whose ``query`` point lies inside the (dilated) support.
 
     For the ZMP it is HUMOS's "dynamic stability" (Sec. 3.4; 71.9 % for HUMOS), for the COM's ground projection
@@ -96,8 +98,9 @@ def share_inside_support(query, points, valid=None, *, contact=None, margin: flo
     return masked_mean((signed >= 0).to(signed.dtype), supported, -1)
 
 
-def mean_support_margin(query, points, valid=None, *, contact=None, margin: float = 0.0,
-                        height: float | Tensor = CONTACT_HEIGHT) -> Tensor:
+def mean_support_margin(
+    query, points, valid=None, *, contact=None, margin: float = 0.0, height: float | Tensor = CONTACT_HEIGHT
+) -> Tensor:
     """Mean over supported frames of the signed distance (m) of ``query`` to the support boundary, positive
     inside (HUMOS Sec. 3.4: distance of the ZMP to the base of support)."""
     signed = support_margin(query, points, valid, contact=contact, margin=margin, height=height)
@@ -115,7 +118,7 @@ class ZMPInsideSupport(_SupportMetric):
 
     name, label, unit, display_unit, display_scale = "zmp_in_support", "ZMP in support", "1", "%", 100.0
     higher_is_better = True
-    paper = "HUMOS Sec. 3.4 \"dynamic stability\""
+    paper = 'HUMOS Sec. 3.4 "dynamic stability"'
     equation = "share of supported frames whose ZMP lies in the convex hull of the contact points in contact"
 
     def score(self, zmp, points, valid=None, contact=None) -> Tensor:
@@ -128,9 +131,10 @@ class BaseOfSupport(_SupportMetric):
 
     name, label, unit, display_unit, display_scale = "base_of_support", "BOS", "1", "%", 100.0
     higher_is_better = True
-    paper = "PhysPT Supp. D, Table 5 \"BOS\" (after IPMAN)"
-    equation = ("share of supported frames whose COM ground projection lies in the convex hull of the contact "
-                "points in contact")
+    paper = 'PhysPT Supp. D, Table 5 "BOS" (after IPMAN)'
+    equation = (
+        "share of supported frames whose COM ground projection lies in the convex hull of the contact points in contact"
+    )
 
     def score(self, com, points, valid=None, contact=None) -> Tensor:
         return share_inside_support(com, points, valid, contact=contact, margin=self.margin, height=self.height)

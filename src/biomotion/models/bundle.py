@@ -3,9 +3,9 @@
 The guidance bounds are PG-BIG Table 1's statistical limits, measured on the training split per action (a run's
 COM speed has nothing in common with a squat's): the 95th percentile of each coordinate's |dq/dt| and the
 5th/95th percentiles of COM speed and COM acceleration magnitude; and, in the same form, the 95th percentile of
-each coordinate's |d3q/dt3| for the smoothness term we add (`biomotion.guidance.losses.angular_jerk`). Actions with too few frames fall back to the
-bounds over all actions (key ``"*"``). With them goes each action's population posture, from which
-`biomotion.generation.posture` measures how a person's reference clips deviate from the population: per
+each coordinate's |d3q/dt3| for the smoothness term we add (`biomotion.guidance.losses.angular_jerk`). Actions with too
+few frames fall back to the bounds over all actions (key ``"*"``). With them goes each action's population posture,
+from which `biomotion.generation.posture` measures how a person's reference clips deviate from the population: per
 coordinate, a least-squares line through the training clips' mean values against their labelled speed,
 P(v) = P + b (v - v_mean) (running faster bends the knees more: 4.7 deg per m/s on the training runners), or the
 mean of the clips' means where the action's clips do not all carry a speed or share one.
@@ -49,18 +49,31 @@ class GuidanceBounds:
 
     def to_dict(self) -> dict:
         finite = lambda values: [None if not np.isfinite(v) else v for v in values]
-        return {"speed_high": finite(self.speed_high), "jerk_high": finite(self.jerk_high),
-                "com_speed": list(self.com_speed), "com_acceleration": list(self.com_acceleration),
-                "frames": self.frames, "posture": finite(self.posture), "posture_slope": finite(self.posture_slope),
-                "posture_speed": finite([self.posture_speed])[0]}
+        return {
+            "speed_high": finite(self.speed_high),
+            "jerk_high": finite(self.jerk_high),
+            "com_speed": list(self.com_speed),
+            "com_acceleration": list(self.com_acceleration),
+            "frames": self.frames,
+            "posture": finite(self.posture),
+            "posture_slope": finite(self.posture_slope),
+            "posture_speed": finite([self.posture_speed])[0],
+        }
 
     @classmethod
     def from_dict(cls, d: dict) -> GuidanceBounds:
         values = lambda key: tuple(float("nan") if v is None else float(v) for v in d.get(key, ()))
         speed = d.get("posture_speed")
-        return cls(values("speed_high"), tuple(d["com_speed"]), tuple(d["com_acceleration"]), int(d["frames"]),
-                   values("jerk_high"), values("posture"), values("posture_slope"),
-                   float("nan") if speed is None else float(speed))
+        return cls(
+            values("speed_high"),
+            tuple(d["com_speed"]),
+            tuple(d["com_acceleration"]),
+            int(d["frames"]),
+            values("jerk_high"),
+            values("posture"),
+            values("posture_slope"),
+            float("nan") if speed is None else float(speed),
+        )
 
 
 def _p95(rows: np.ndarray) -> tuple[float, ...]:
@@ -68,8 +81,9 @@ def _p95(rows: np.ndarray) -> tuple[float, ...]:
         return tuple(float(np.nanpercentile(col, 95)) if np.isfinite(col).any() else float("nan") for col in rows.T)
 
 
-def population_posture(clip_means: np.ndarray, speeds: np.ndarray, *, with_speed: bool = True
-                       ) -> tuple[tuple[float, ...], tuple[float, ...], float]:
+def population_posture(
+    clip_means: np.ndarray, speeds: np.ndarray, *, with_speed: bool = True
+) -> tuple[tuple[float, ...], tuple[float, ...], float]:
     """(posture at the mean speed, slope per m/s, mean speed) from the clips' mean coordinates [C, 39] (NaN where
     a clip lacks a coordinate) and labelled speeds [C] (NaN where unlabelled). The slope is fitted, per coordinate,
     over the clips that have it, only when ``with_speed`` and every clip has a speed and not all are the same;
@@ -92,14 +106,25 @@ def population_posture(clip_means: np.ndarray, speeds: np.ndarray, *, with_speed
     return tuple(posture), tuple(slope), centre
 
 
-def _bounds(speeds: list[np.ndarray], jerks: list[np.ndarray], com_v: list[np.ndarray], com_a: list[np.ndarray],
-            clip_means: list[np.ndarray], clip_speeds: list[float], per_action: bool) -> GuidanceBounds:
+def _bounds(
+    speeds: list[np.ndarray],
+    jerks: list[np.ndarray],
+    com_v: list[np.ndarray],
+    com_a: list[np.ndarray],
+    clip_means: list[np.ndarray],
+    clip_speeds: list[float],
+    per_action: bool,
+) -> GuidanceBounds:
     v, a = np.concatenate(com_v), np.concatenate(com_a)
-    posture = population_posture(np.stack(clip_means), np.array(clip_speeds, dtype=np.float64),
-                                 with_speed=per_action)
-    return GuidanceBounds(_p95(np.concatenate(speeds)), (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
-                          (float(np.percentile(a, 5)), float(np.percentile(a, 95))), len(v),
-                          _p95(np.concatenate(jerks)), *posture)
+    posture = population_posture(np.stack(clip_means), np.array(clip_speeds, dtype=np.float64), with_speed=per_action)
+    return GuidanceBounds(
+        _p95(np.concatenate(speeds)),
+        (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
+        (float(np.percentile(a, 5)), float(np.percentile(a, 95))),
+        len(v),
+        _p95(np.concatenate(jerks)),
+        *posture,
+    )
 
 
 @torch.no_grad()
@@ -114,7 +139,7 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
     groups: dict[str, tuple[list, list, list, list]] = {}
     for i in indices:
         record = cache.records[i]
-        q = np.asarray(cache.values[record["offset"]: record["offset"] + record["n_frames"]], dtype=np.float64)
+        q = np.asarray(cache.values[record["offset"] : record["offset"] + record["n_frames"]], dtype=np.float64)
         if len(q) < 4:
             continue
         mask = cache.masks[i]
@@ -122,7 +147,7 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
         speed[:, ~mask] = np.nan
         mean = np.where(mask, q.mean(0), np.nan)
         labelled = record["labels"].get("speed")
-        jerk = np.abs(np.diff(q, 3, axis=0)) * rate ** 3
+        jerk = np.abs(np.diff(q, 3, axis=0)) * rate**3
         jerk[:, ~mask] = np.nan
         full = np.where(mask[None], q, defaults[None])
         com = center_of_mass(body, torch.from_numpy(full).to(body.dtype))
@@ -131,15 +156,24 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
             bucket = groups.setdefault(key, ([], [], [], [], [], []))
             for items, value in zip(bucket, (speed, jerk, v, a, mean, np.nan if labelled is None else labelled)):
                 items.append(value)
-    return {k: _bounds(*g, per_action=k != ALL_ACTIONS) for k, g in groups.items()
-            if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES}
+    return {
+        k: _bounds(*g, per_action=k != ALL_ACTIONS)
+        for k, g in groups.items()
+        if k == ALL_ACTIONS or sum(map(len, g[2])) >= MIN_FRAMES
+    }
 
 
 class GeneratorBundle:
     """A trained prior with its vocabulary and guidance bounds (saved together, loaded together)."""
 
-    def __init__(self, prior: ProfileActionPrior, vocabulary: ActionVocabulary, bounds: dict[str, GuidanceBounds],
-                 tokenizer_sha256: str = "", train_subjects: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        prior: ProfileActionPrior,
+        vocabulary: ActionVocabulary,
+        bounds: dict[str, GuidanceBounds],
+        tokenizer_sha256: str = "",
+        train_subjects: tuple[str, ...] = (),
+    ) -> None:
         self.prior, self.vocabulary, self.bounds = prior, vocabulary, bounds
         self.tokenizer_sha256 = tokenizer_sha256
         #: "source/subject" of every training clip's subject: anyone else is unseen (`biomotion eval generation`)
@@ -174,12 +208,15 @@ class GeneratorBundle:
         from biomotion.io.atomic import atomic_write
 
         state = {k: v.detach().contiguous().cpu() for k, v in self.prior.state_dict().items()}
-        metadata = {"format": FORMAT, "config": json.dumps(self.prior.config.to_dict()),
-                    "vocabulary": json.dumps(self.vocabulary.to_dict()),
-                    "bounds": json.dumps({k: b.to_dict() for k, b in self.bounds.items()}),
-                    "coordinates": json.dumps(list(CANONICAL_COORDINATES)),
-                    "tokenizer_sha256": self.tokenizer_sha256,
-                    "train_subjects": json.dumps(list(self.train_subjects))}
+        metadata = {
+            "format": FORMAT,
+            "config": json.dumps(self.prior.config.to_dict()),
+            "vocabulary": json.dumps(self.vocabulary.to_dict()),
+            "bounds": json.dumps({k: b.to_dict() for k, b in self.bounds.items()}),
+            "coordinates": json.dumps(list(CANONICAL_COORDINATES)),
+            "tokenizer_sha256": self.tokenizer_sha256,
+            "train_subjects": json.dumps(list(self.train_subjects)),
+        }
         with atomic_write(path, "wb") as handle:
             handle.write(save(state, metadata=metadata))
 
@@ -198,5 +235,10 @@ class GeneratorBundle:
         prior = ProfileActionPrior(PriorConfig.from_dict(json.loads(meta["config"])))
         prior.load_state_dict(load_file(str(path)))
         bounds = {k: GuidanceBounds.from_dict(v) for k, v in json.loads(meta["bounds"]).items()}
-        return cls(prior.eval(), ActionVocabulary.from_dict(json.loads(meta["vocabulary"])), bounds,
-                   meta.get("tokenizer_sha256", ""), tuple(json.loads(meta.get("train_subjects", "[]"))))
+        return cls(
+            prior.eval(),
+            ActionVocabulary.from_dict(json.loads(meta["vocabulary"])),
+            bounds,
+            meta.get("tokenizer_sha256", ""),
+            tuple(json.loads(meta.get("train_subjects", "[]"))),
+        )

@@ -33,10 +33,24 @@ INJURY_REGIONS: dict[str, tuple[str, ...]] = {
     "hip_thigh": ("hip", "thigh", "hamstring", "groin", "femur", "quadriceps"),
     "back": ("back", "spine", "lumbar"),
 }
-BIODATA_FIELDS = ("age", "sex", "mass", "height", *(f"sport_{s}" for s in SPORTS), "level", "experience",
-                  "injury_any", *(f"injury_{r}" for r in INJURY_REGIONS))
-METADATA_FIELDS = (*(f"speed_{c}" for c in CANONICAL_COORDINATES), "com_speed_mean", "com_speed_std",
-                   "com_acceleration_mean", "com_acceleration_std")
+BIODATA_FIELDS = (
+    "age",
+    "sex",
+    "mass",
+    "height",
+    *(f"sport_{s}" for s in SPORTS),
+    "level",
+    "experience",
+    "injury_any",
+    *(f"injury_{r}" for r in INJURY_REGIONS),
+)
+METADATA_FIELDS = (
+    *(f"speed_{c}" for c in CANONICAL_COORDINATES),
+    "com_speed_mean",
+    "com_speed_std",
+    "com_acceleration_mean",
+    "com_acceleration_std",
+)
 
 
 @dataclass(frozen=True)
@@ -119,7 +133,7 @@ def action_features(request: ActionRequest, vocabulary: ActionVocabulary) -> Fea
         mask[: len(actions)] = 1.0
     if request.style in styles:
         values[len(actions) + styles.index(request.style)] = 1.0
-        mask[len(actions): len(actions) + len(styles)] = 1.0
+        mask[len(actions) : len(actions) + len(styles)] = 1.0
     if request.speed is not None:
         values[-1], mask[-1] = request.speed / 5.0, 1.0
     return Features(torch.from_numpy(values), torch.from_numpy(mask))

@@ -18,8 +18,12 @@ import torch
 
 #: The tokenizer's contact channels and the foot points (`biomotion.body.contact.foot_points` names, without the
 #: side) each one covers.
-CONTACT_GROUPS = (("heel_r", ("heel_med", "heel_lat")), ("forefoot_r", ("met1", "met5", "toe")),
-                  ("heel_l", ("heel_med", "heel_lat")), ("forefoot_l", ("met1", "met5", "toe")))
+CONTACT_GROUPS = (
+    ("heel_r", ("heel_med", "heel_lat")),
+    ("forefoot_r", ("met1", "met5", "toe")),
+    ("heel_l", ("heel_med", "heel_lat")),
+    ("forefoot_l", ("met1", "met5", "toe")),
+)
 N_CONTACT = len(CONTACT_GROUPS)
 
 
@@ -29,8 +33,14 @@ def mean_horizontal_speed(q: torch.Tensor, rate: float) -> torch.Tensor:
     return ((horizontal[:, -1] - horizontal[:, 0]) * rate / max(q.shape[1] - 1, 1)).norm(dim=-1)
 
 
-def stance_mask(feet: torch.Tensor, q: torch.Tensor, rate: float, height: float = 0.05,
-                ratio: float | None = 1.5, floor: float = 0.5) -> torch.Tensor:
+def stance_mask(
+    feet: torch.Tensor,
+    q: torch.Tensor,
+    rate: float,
+    height: float = 0.05,
+    ratio: float | None = 1.5,
+    floor: float = 0.5,
+) -> torch.Tensor:
     """[B, T, K] which foot points [B, T, K, 3] of clips q [B, T, 39] are in stance (PG-BIG Table 1's contact
     mask m_t; L_foot "enforces zero velocity during stance phases"): below ``height`` (m) and, unless ``ratio`` is
     None, moving horizontally slower than ``ratio`` times the clip's mean horizontal speed (pelvis displacement
@@ -53,8 +63,8 @@ def stance_mask(feet: torch.Tensor, q: torch.Tensor, rate: float, height: float 
     low = feet[..., 1] < height
     if ratio is None:
         return low
-    speed = torch.gradient(feet[..., [0, 2]], spacing=1.0 / rate, dim=1)[0].norm(dim=-1)   # [B, T, K]
-    limit = torch.clamp(ratio * mean_horizontal_speed(q.detach(), rate), min=floor)      # [B]
+    speed = torch.gradient(feet[..., [0, 2]], spacing=1.0 / rate, dim=1)[0].norm(dim=-1)  # [B, T, K]
+    limit = torch.clamp(ratio * mean_horizontal_speed(q.detach(), rate), min=floor)  # [B]
     return low & (speed < limit[:, None, None])
 
 
@@ -103,7 +113,7 @@ class FootKinematics:
         with its defaults) in clips q [B, T, 39] (on the floor, as the dataset cache holds them)."""
         with torch.no_grad():
             q = torch.where(mask[:, None, :], q, self.defaults)
-            stance = stance_mask(self.points(q), q, rate)                              # [B, T, K]
+            stance = stance_mask(self.points(q), q, rate)  # [B, T, K]
             return (stance[..., None, :] & self.members).any(-1).to(torch.float32)
 
     def penetration_cm(self, q: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -67,14 +67,16 @@ class ProfileActionPrior(nn.Module):
         self.profiler = SubjectProfiler(c.code_dim, c.width) if c.use_profile else None
         self.action = nn.Sequential(nn.Linear(2 * c.action_size, c.width), nn.LayerNorm(c.width), nn.GELU())
         cond = 2 * c.width if c.use_profile else c.width
-        self.expand = nn.Sequential(nn.Linear(cond, 2 * c.width), nn.GELU(),
-                                    nn.Linear(2 * c.width, c.memory_tokens * c.width))
+        self.expand = nn.Sequential(
+            nn.Linear(cond, 2 * c.width), nn.GELU(), nn.Linear(2 * c.width, c.memory_tokens * c.width)
+        )
         self.query_cond = nn.Linear(cond, c.width)
         self.codes = nn.Embedding(c.codebook_size + 1, c.width)  # last row: the start code
         self.position = nn.Parameter(torch.zeros(c.max_tokens, c.width))
         nn.init.normal_(self.position, std=0.02)
-        layer = nn.TransformerDecoderLayer(c.width, c.heads, 4 * c.width, c.dropout, batch_first=True,
-                                           norm_first=True, activation="gelu")
+        layer = nn.TransformerDecoderLayer(
+            c.width, c.heads, 4 * c.width, c.dropout, batch_first=True, norm_first=True, activation="gelu"
+        )
         self.decoder = nn.TransformerDecoder(layer, c.layers)
         self.head = nn.Sequential(nn.LayerNorm(c.width), nn.Linear(c.width, c.codebook_size))
 
@@ -107,8 +109,16 @@ class ProfileActionPrior(nn.Module):
         return self.logits(torch.cat([start, codes[:, :-1].clamp_min(0)], 1), z_cond, self.memory(z_cond))
 
     @torch.no_grad()
-    def sample(self, cond: Condition, n_tokens: int, *, temperature: float = 1.0, top_k: int | None = None,
-               generator: torch.Generator | None = None, prefix: torch.Tensor | None = None) -> torch.Tensor:
+    def sample(
+        self,
+        cond: Condition,
+        n_tokens: int,
+        *,
+        temperature: float = 1.0,
+        top_k: int | None = None,
+        generator: torch.Generator | None = None,
+        prefix: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """Draw codes [B, n_tokens] autoregressively. Beyond ``max_tokens`` the context slides: each new code sees
         the last ``max_tokens - 1`` codes (the start code is dropped). ``prefix`` [B, P] primes the context with
         given codes (e.g. a reference clip of the person): they are seen, not returned."""
@@ -117,7 +127,7 @@ class ProfileActionPrior(nn.Module):
         batch = z_cond.shape[0]
         context = torch.full((batch, 1), self.config.codebook_size, dtype=torch.long, device=z_cond.device)
         if prefix is not None:
-            context = torch.cat([context, prefix.to(context)], 1)[:, -(self.config.max_tokens - 1):]
+            context = torch.cat([context, prefix.to(context)], 1)[:, -(self.config.max_tokens - 1) :]
         drawn = []
         for _ in range(n_tokens):
             logits = self.logits(context, z_cond, memory)[:, -1] / max(temperature, 1e-6)
@@ -126,5 +136,5 @@ class ProfileActionPrior(nn.Module):
                 logits = logits.masked_fill(logits < kth, float("-inf"))
             code = torch.multinomial(torch.softmax(logits, -1), 1, generator=generator)
             drawn.append(code)
-            context = torch.cat([context, code], 1)[:, -self.config.max_tokens:]
+            context = torch.cat([context, code], 1)[:, -self.config.max_tokens :]
         return torch.cat(drawn, 1)

@@ -46,15 +46,22 @@ class SubjectProfiler(nn.Module):
         self.absent = nn.Parameter(torch.zeros(3, width))
         self.fuse = nn.Sequential(nn.Linear(3 * width, width), nn.LayerNorm(width))
 
-    def forward(self, latents: torch.Tensor, latent_valid: torch.Tensor, biodata: torch.Tensor,
-                metadata: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, latents: torch.Tensor, latent_valid: torch.Tensor, biodata: torch.Tensor, metadata: torch.Tensor
+    ) -> torch.Tensor:
         """Args: latents [B, N, code_dim] of the reference clips (concatenated), latent_valid [B, N] bool,
         biodata [B, 2 * n_bio] and metadata [B, 2 * n_meta] in `Features.cat` layout (values, then masks)."""
         has_motion = latent_valid.any(-1, keepdim=True)
-        has_bio = biodata[:, len(BIODATA_FIELDS):].sum(-1, keepdim=True) > 0
-        has_meta = metadata[:, len(METADATA_FIELDS):].sum(-1, keepdim=True) > 0
-        parts = [torch.where(has, part, self.absent[i]) for i, (has, part) in enumerate((
-            (has_motion, self.motion(self.pool(latents, latent_valid))),
-            (has_bio, self.biodata(biodata)),
-            (has_meta, self.metadata(metadata))))]
+        has_bio = biodata[:, len(BIODATA_FIELDS) :].sum(-1, keepdim=True) > 0
+        has_meta = metadata[:, len(METADATA_FIELDS) :].sum(-1, keepdim=True) > 0
+        parts = [
+            torch.where(has, part, self.absent[i])
+            for i, (has, part) in enumerate(
+                (
+                    (has_motion, self.motion(self.pool(latents, latent_valid))),
+                    (has_bio, self.biodata(biodata)),
+                    (has_meta, self.metadata(metadata)),
+                )
+            )
+        ]
         return self.fuse(torch.cat(parts, -1))

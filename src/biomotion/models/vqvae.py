@@ -83,7 +83,7 @@ class ResBlock1D(nn.Module):
 
 def resnet1d(width: int, depth: int, growth: int) -> nn.Sequential:
     """``depth`` residual blocks with dilations growth**k, largest first (1, 3, 9 reversed, as in T2M-GPT)."""
-    return nn.Sequential(*[ResBlock1D(width, growth ** k) for k in reversed(range(depth))])
+    return nn.Sequential(*[ResBlock1D(width, growth**k) for k in reversed(range(depth))])
 
 
 def down_stage(width: int, depth: int, growth: int) -> nn.Sequential:
@@ -93,8 +93,11 @@ def down_stage(width: int, depth: int, growth: int) -> nn.Sequential:
 
 def up_stage(width: int, depth: int, growth: int) -> nn.Sequential:
     """ResNet1D, nearest-neighbour x2 upsampling, then a smoothing convolution: doubles the frame count."""
-    return nn.Sequential(resnet1d(width, depth, growth), nn.Upsample(scale_factor=2, mode="nearest"),
-                         nn.Conv1d(width, width, 3, padding=1))
+    return nn.Sequential(
+        resnet1d(width, depth, growth),
+        nn.Upsample(scale_factor=2, mode="nearest"),
+        nn.Conv1d(width, width, 3, padding=1),
+    )
 
 
 class EMAQuantizer(nn.Module):
@@ -116,7 +119,7 @@ class EMAQuantizer(nn.Module):
 
     def nearest(self, z: torch.Tensor) -> torch.Tensor:
         """Index of the nearest code for each row of z [N, D]."""
-        distance = (z.pow(2).sum(1, keepdim=True) - 2 * z @ self.codebook.T + self.codebook.pow(2).sum(1))
+        distance = z.pow(2).sum(1, keepdim=True) - 2 * z @ self.codebook.T + self.codebook.pow(2).sum(1)
         return distance.argmin(1)
 
     def _random_rows(self, z: torch.Tensor, n: int) -> torch.Tensor:
@@ -177,13 +180,22 @@ class MotionVQVAE(nn.Module):
         w = config.width
         d, g = config.depth, config.dilation_growth
         # encoder input: standardised features and the mask, 2 x 39 channels
-        self.encoder = nn.Sequential(nn.Conv1d(2 * N_COORDS, w, 3, padding=1), nn.ReLU(),
-                                     down_stage(w, d, g), down_stage(w, d, g),
-                                     nn.Conv1d(w, config.code_dim, 3, padding=1))
-        self.decoder = nn.Sequential(nn.Conv1d(config.code_dim, w, 3, padding=1), nn.ReLU(),
-                                     up_stage(w, d, g), up_stage(w, d, g),
-                                     nn.Conv1d(w, w, 3, padding=1), nn.ReLU(),
-                                     nn.Conv1d(w, N_COORDS + self.contact_channels, 3, padding=1))
+        self.encoder = nn.Sequential(
+            nn.Conv1d(2 * N_COORDS, w, 3, padding=1),
+            nn.ReLU(),
+            down_stage(w, d, g),
+            down_stage(w, d, g),
+            nn.Conv1d(w, config.code_dim, 3, padding=1),
+        )
+        self.decoder = nn.Sequential(
+            nn.Conv1d(config.code_dim, w, 3, padding=1),
+            nn.ReLU(),
+            up_stage(w, d, g),
+            up_stage(w, d, g),
+            nn.Conv1d(w, w, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv1d(w, N_COORDS + self.contact_channels, 3, padding=1),
+        )
         self.quantiser = EMAQuantizer(config.codebook_size, config.code_dim, config.ema_decay, config.dead_threshold)
         self.register_buffer("mean", torch.zeros(N_COORDS))
         self.register_buffer("std", torch.ones(N_COORDS))
@@ -231,8 +243,10 @@ class MotionVQVAE(nn.Module):
     # -- model ----------------------------------------------------------------------------------------------
     def _check(self, x: torch.Tensor, mask: torch.Tensor) -> None:
         if x.ndim != 3 or x.shape[-1] != N_COORDS or mask.shape != (x.shape[0], N_COORDS):
-            raise ModelError(f"tokenizer expects x [B, T, {N_COORDS}] and mask [B, {N_COORDS}]; got "
-                             f"{tuple(x.shape)} and {tuple(mask.shape)}")
+            raise ModelError(
+                f"tokenizer expects x [B, T, {N_COORDS}] and mask [B, {N_COORDS}]; got "
+                f"{tuple(x.shape)} and {tuple(mask.shape)}"
+            )
         if x.shape[1] % DOWNSAMPLE:
             raise ModelError(f"tokenizer needs T divisible by {DOWNSAMPLE}; got T = {x.shape[1]}")
 
@@ -250,8 +264,9 @@ class MotionVQVAE(nn.Module):
         indices = self.quantiser.nearest(z.reshape(-1, z.shape[-1])).view(z.shape[:2])
         return self.quantiser.codebook[indices], indices
 
-    def decode_with_contact(self, z: torch.Tensor, origin: torch.Tensor | None = None
-                            ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def decode_with_contact(
+        self, z: torch.Tensor, origin: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Latents [B, N, code_dim] -> (coordinates [B, 4N, 39] (SI; pelvis_tx/tz start at ``origin``), contact
         probabilities [B, 4N, 4] of heel and forefoot of each foot, or None without contact channels)."""
         out = self.decoder(z.transpose(1, 2)).transpose(1, 2)
@@ -267,8 +282,9 @@ class MotionVQVAE(nn.Module):
         """Token indices [B, N] -> coordinates [B, 4N, 39] (SI units, canonical order)."""
         return self.decode_latents(self.quantiser.codebook[indices], origin)
 
-    def forward(self, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def forward(
+        self, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Reconstruction [B, T, 39] (SI, horizontal pelvis from x's first frame) and the losses:
         ``recon`` (masked smooth-L1 on standardised features), ``velocity`` (masked smooth-L1 on their first
         differences), ``commit`` (encoder-to-code MSE), ``loss`` (weighted sum) and ``perplexity``; with contact
@@ -283,14 +299,21 @@ class MotionVQVAE(nn.Module):
         target = self.normalise(x, mask)
         m = mask.unsqueeze(1).to(f_hat.dtype)
         recon = (F.smooth_l1_loss(f_hat, target, reduction="none") * m).sum() / (m.sum() * x.shape[1]).clamp_min(1)
-        velocity = (F.smooth_l1_loss(torch.diff(f_hat, dim=1), torch.diff(target, dim=1), reduction="none")
-                    * m).sum() / (m.sum() * (x.shape[1] - 1)).clamp_min(1)
-        acceleration = (F.smooth_l1_loss(torch.diff(f_hat, 2, dim=1), torch.diff(target, 2, dim=1), reduction="none")
-                        * m).sum() / (m.sum() * (x.shape[1] - 2)).clamp_min(1)
+        velocity = (
+            F.smooth_l1_loss(torch.diff(f_hat, dim=1), torch.diff(target, dim=1), reduction="none") * m
+        ).sum() / (m.sum() * (x.shape[1] - 1)).clamp_min(1)
+        acceleration = (
+            F.smooth_l1_loss(torch.diff(f_hat, 2, dim=1), torch.diff(target, 2, dim=1), reduction="none") * m
+        ).sum() / (m.sum() * (x.shape[1] - 2)).clamp_min(1)
         c = self.config
         loss = c.w_recon * recon + c.w_velocity * velocity + c.w_acceleration * acceleration + c.w_commit * commit
-        terms = {"recon": recon, "velocity": velocity, "acceleration": acceleration, "commit": commit,
-                 "perplexity": perplexity}
+        terms = {
+            "recon": recon,
+            "velocity": velocity,
+            "acceleration": acceleration,
+            "commit": commit,
+            "perplexity": perplexity,
+        }
         if self.contact_channels and contact is not None:
             terms["contact"] = F.binary_cross_entropy_with_logits(logits, contact)
             terms["contact_accuracy"] = ((logits > 0) == (contact > 0.5)).float().mean()

@@ -17,8 +17,6 @@ from biomotion.muscles.static_optimization import (
     solve_static_optimization,
 )
 
-
-
 __all__ = [
     "MuscleParameters",
     "MusclePaths",

@@ -10,8 +10,9 @@ J Biomech 46:1455, and Sobinov et al. 2020): the moment arm is ``r_j = -dL/dq_j`
 torch; OpenSim is needed only to build them.
 
 Coordinates are normalised per muscle group as ``x = (q - center) / half_range`` (so the sampled box is
-[-1, 1]^k) and expanded in Chebyshev polynomials, which keeps high-degree least-squares fits well conditioned. Outside the sampled ranges the polynomials extrapolate, so
-lengths there are unvalidated; `MusclePaths.ranges` gives the sampled box.
+[-1, 1]^k) and expanded in Chebyshev polynomials, which keeps high-degree least-squares fits well conditioned. Outside
+the sampled ranges the polynomials extrapolate, so lengths there are unvalidated; `MusclePaths.ranges` gives the
+sampled box.
 
 Piecewise paths: where OpenSim's path jumps between configurations (a conditional via point switching on or off,
 a wrap cylinder with a quadrant constraint snapping on or flipping sides), the length is discontinuous or kinked
@@ -33,7 +34,7 @@ from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.atomic import atomic_write
 
 FORMAT = "biomotion.muscle_paths/2"
-READABLE_FORMATS = ("biomotion.muscle_paths/1", FORMAT)   # /1: no gates
+READABLE_FORMATS = ("biomotion.muscle_paths/1", FORMAT)  # /1: no gates
 
 
 @dataclass(frozen=True)
@@ -44,32 +45,39 @@ class PathGroup:
     column; a piecewise muscle has one per piece, and then ``gates`` (same basis) scores the pieces: at a pose the
     column with the highest gate score among that muscle's columns applies (see the module docstring).
     """
-    coordinates: torch.Tensor   # [k] long, indices into MusclePaths.coordinate_names
-    center: torch.Tensor        # [k]
-    half_range: torch.Tensor    # [k]
-    exponents: torch.Tensor     # [n_terms, k] long: Chebyshev degree of each coordinate in each term
+
+    coordinates: torch.Tensor  # [k] long, indices into MusclePaths.coordinate_names
+    center: torch.Tensor  # [k]
+    half_range: torch.Tensor  # [k]
+    exponents: torch.Tensor  # [n_terms, k] long: Chebyshev degree of each coordinate in each term
     coefficients: torch.Tensor  # [n_terms, m] length (m) per basis term
-    muscles: torch.Tensor       # [m] long, indices into MusclePaths.muscle_names
-    gates: torch.Tensor | None = None   # [n_terms, m] gate score per basis term (None: one column per muscle)
+    muscles: torch.Tensor  # [m] long, indices into MusclePaths.muscle_names
+    gates: torch.Tensor | None = None  # [n_terms, m] gate score per basis term (None: one column per muscle)
 
     def to(self, dtype: torch.dtype) -> PathGroup:
-        return PathGroup(self.coordinates, self.center.to(dtype), self.half_range.to(dtype), self.exponents,
-                         self.coefficients.to(dtype), self.muscles,
-                         None if self.gates is None else self.gates.to(dtype))
+        return PathGroup(
+            self.coordinates,
+            self.center.to(dtype),
+            self.half_range.to(dtype),
+            self.exponents,
+            self.coefficients.to(dtype),
+            self.muscles,
+            None if self.gates is None else self.gates.to(dtype),
+        )
 
     def active(self, values: torch.Tensor) -> torch.Tensor | None:
         """[..., m] 1.0 where a column applies at basis ``values`` [..., n_terms], 0.0 elsewhere (None: all apply).
         Among a muscle's columns the highest gate score wins; ties go to the first column."""
         if self.gates is None:
             return None
-        scores = values @ self.gates.to(values)                                          # [..., m]
+        scores = values @ self.gates.to(values)  # [..., m]
         m, device = len(self.muscles), values.device
         muscles = self.muscles.to(device)
         rivals = (muscles[:, None] == muscles[None, :]) & ~torch.eye(m, dtype=torch.bool, device=device)
         order = torch.arange(m, device=device)
-        earlier = order[:, None] > order[None, :]                                         # [j, i]: i before j
+        earlier = order[:, None] > order[None, :]  # [j, i]: i before j
         mine, theirs = scores[..., :, None], scores[..., None, :]
-        loses = rivals & ((theirs > mine) | ((theirs == mine) & earlier))              # [..., j, i]
+        loses = rivals & ((theirs > mine) | ((theirs == mine) & earlier))  # [..., j, i]
         return (~loses.any(-1)).to(values.dtype)
 
 
@@ -81,7 +89,7 @@ def chebyshev(x: torch.Tensor, degree: int) -> tuple[torch.Tensor, torch.Tensor]
     for _ in range(degree - 1):  # loop over polynomial degree, vectorised over everything else
         t.append(2 * x * t[-1] - t[-2])
         u.append(2 * x * u[-1] - u[-2])
-    values = torch.stack(t[:degree + 1], -1)
+    values = torch.stack(t[: degree + 1], -1)
     derivatives = torch.stack([torch.zeros_like(x)] + [n * u[n - 1] for n in range(1, degree + 1)], -1)
     return values, derivatives
 
@@ -90,9 +98,9 @@ def basis_terms(x: torch.Tensor, exponents: torch.Tensor) -> tuple[torch.Tensor,
     """`basis` with the derivatives laid out [..., k, n_terms] (the layout evaluation wants)."""
     k = x.shape[-1]
     degree = max(int(exponents.max()) if exponents.numel() else 0, 1)
-    values, slopes = chebyshev(x, degree)                              # [..., k, d+1]
+    values, slopes = chebyshev(x, degree)  # [..., k, d+1]
     exponents = exponents.to(x.device)
-    factors = [values[..., j, :].index_select(-1, exponents[:, j]) for j in range(k)]      # k x [..., n_terms]
+    factors = [values[..., j, :].index_select(-1, exponents[:, j]) for j in range(k)]  # k x [..., n_terms]
     factor_slopes = [slopes[..., j, :].index_select(-1, exponents[:, j]) for j in range(k)]
     # products of all factors but one, from prefix and suffix products (k <= a handful of coordinates)
     prefix = [torch.ones_like(factors[0])]
@@ -121,11 +129,12 @@ class MusclePaths:
     coordinates that no muscle spans are ignored, and coupled coordinates (e.g. Rajagopal's knee_angle_beta) are
     folded into their independent coordinate, whose moment arm is the total derivative.
     """
+
     model: str
     muscle_names: tuple[str, ...]
     coordinate_names: tuple[str, ...]
     groups: tuple[PathGroup, ...]
-    ranges: torch.Tensor        # [n_q, 2] the box the fit was sampled in (NaN where no muscle spans)
+    ranges: torch.Tensor  # [n_q, 2] the box the fit was sampled in (NaN where no muscle spans)
     info: dict
 
     @property
@@ -141,8 +150,14 @@ class MusclePaths:
         return self.ranges.dtype
 
     def to(self, dtype: torch.dtype) -> MusclePaths:
-        return MusclePaths(self.model, self.muscle_names, self.coordinate_names,
-                           tuple(g.to(dtype) for g in self.groups), self.ranges.to(dtype), self.info)
+        return MusclePaths(
+            self.model,
+            self.muscle_names,
+            self.coordinate_names,
+            tuple(g.to(dtype) for g in self.groups),
+            self.ranges.to(dtype),
+            self.info,
+        )
 
     def spanned(self) -> torch.Tensor:
         """[M, n_q] bool: which coordinates each muscle's path function depends on."""
@@ -156,8 +171,9 @@ class MusclePaths:
         cached = self.__dict__.get("_scatter")
         if cached is None:
             muscles = torch.cat([g.muscles for g in self.groups])
-            flat = torch.cat([(g.muscles[:, None] * self.n_q + g.coordinates[None, :]).reshape(-1)
-                              for g in self.groups])
+            flat = torch.cat(
+                [(g.muscles[:, None] * self.n_q + g.coordinates[None, :]).reshape(-1) for g in self.groups]
+            )
             cached = self.__dict__["_scatter"] = (muscles, flat)
         return cached
 
@@ -169,10 +185,10 @@ class MusclePaths:
         for g in self.groups:
             half = g.half_range.to(q)
             x = (q[..., g.coordinates.to(q.device)] - g.center.to(q)) / half
-            values, derivatives = basis_terms(x, g.exponents)                               # [..., t], [..., k, t]
+            values, derivatives = basis_terms(x, g.exponents)  # [..., t], [..., k, t]
             coefficients = g.coefficients.to(q)
-            column_lengths = values @ coefficients                                          # [..., m]
-            block = -(derivatives @ coefficients).transpose(-1, -2) / half                  # [..., m, k]
+            column_lengths = values @ coefficients  # [..., m]
+            block = -(derivatives @ coefficients).transpose(-1, -2) / half  # [..., m, k]
             active = g.active(values)
             if active is not None:
                 column_lengths = column_lengths * active
@@ -214,15 +230,26 @@ class MusclePaths:
 
         tensors = {"ranges": self.ranges.to(torch.float64).contiguous()}
         for i, g in enumerate(self.groups):
-            tensors.update({f"group{i}.coordinates": g.coordinates, f"group{i}.center": g.center.double(),
-                            f"group{i}.half_range": g.half_range.double(), f"group{i}.exponents": g.exponents,
-                            f"group{i}.coefficients": g.coefficients.double().contiguous(),
-                            f"group{i}.muscles": g.muscles})
+            tensors.update(
+                {
+                    f"group{i}.coordinates": g.coordinates,
+                    f"group{i}.center": g.center.double(),
+                    f"group{i}.half_range": g.half_range.double(),
+                    f"group{i}.exponents": g.exponents,
+                    f"group{i}.coefficients": g.coefficients.double().contiguous(),
+                    f"group{i}.muscles": g.muscles,
+                }
+            )
             if g.gates is not None:
                 tensors[f"group{i}.gates"] = g.gates.double().contiguous()
-        metadata = {"format": FORMAT, "model": self.model, "muscles": json.dumps(list(self.muscle_names)),
-                    "coordinates": json.dumps(list(self.coordinate_names)), "groups": str(len(self.groups)),
-                    "info": json.dumps(self.info)}
+        metadata = {
+            "format": FORMAT,
+            "model": self.model,
+            "muscles": json.dumps(list(self.muscle_names)),
+            "coordinates": json.dumps(list(self.coordinate_names)),
+            "groups": str(len(self.groups)),
+            "info": json.dumps(self.info),
+        }
         with atomic_write(path, "wb") as handle:
             handle.write(save(tensors, metadata=metadata))
 
@@ -241,12 +268,24 @@ class MusclePaths:
         if meta.get("format") not in READABLE_FORMATS:
             raise DataFormatError(path, f"not a muscle-path file (format {meta.get('format')!r})", field="format")
         try:
-            groups = tuple(PathGroup(*(tensors[f"group{i}.{name}"] for name in
-                                       ("coordinates", "center", "half_range", "exponents", "coefficients",
-                                        "muscles")), gates=tensors.get(f"group{i}.gates"))
-                           for i in range(int(meta["groups"])))
-            return cls(meta["model"], tuple(json.loads(meta["muscles"])), tuple(json.loads(meta["coordinates"])),
-                       groups, tensors["ranges"], json.loads(meta["info"])).to(dtype)
+            groups = tuple(
+                PathGroup(
+                    *(
+                        tensors[f"group{i}.{name}"]
+                        for name in ("coordinates", "center", "half_range", "exponents", "coefficients", "muscles")
+                    ),
+                    gates=tensors.get(f"group{i}.gates"),
+                )
+                for i in range(int(meta["groups"]))
+            )
+            return cls(
+                meta["model"],
+                tuple(json.loads(meta["muscles"])),
+                tuple(json.loads(meta["coordinates"])),
+                groups,
+                tensors["ranges"],
+                json.loads(meta["info"]),
+            ).to(dtype)
         except KeyError as exc:
             raise DataFormatError(path, f"missing entry {exc.args[0]!r}", field=str(exc.args[0])) from exc
 
@@ -259,8 +298,11 @@ def balanced_coordinates(paths: MusclePaths, model) -> tuple[str, ...]:
     coordinates): unlocked, independent (no coupler drives them) and spanned by some muscle."""
     spanned = paths.spanned().any(0)
     dependent = {c.dependent for c in model.couplers}
-    return tuple(name for j, name in enumerate(model.coordinate_names)
-                 if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent)
+    return tuple(
+        name
+        for j, name in enumerate(model.coordinate_names)
+        if bool(spanned[j]) and not bool(model.locked[j]) and j not in dependent
+    )
 
 
 def shipped_paths(name: str, dtype: torch.dtype = torch.float64) -> MusclePaths:

@@ -8,14 +8,17 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-FD_STEP = 1e-5         # rad (or m): central-difference step of the length derivatives (span probe, -dL/dq)
-PROGRESS_FROM = 200     # sampling passes over this many poses show a progress bar
+FD_STEP = 1e-5  # rad (or m): central-difference step of the length derivatives (span probe, -dL/dq)
+PROGRESS_FROM = 200  # sampling passes over this many poses show a progress bar
+
 
 class OpenSimPaths:
     """Musculotendon lengths and moment arms of an .osim model from OpenSim (the oracle; needs ``opensim``)."""
 
     def __init__(self, model_path: str | Path) -> None:
-        import opensim
+        from biomotion.settings import opensim_oracle
+
+        opensim = opensim_oracle()
 
         opensim.Logger.setLevelString("error")
         self.opensim = opensim
@@ -30,15 +33,20 @@ class OpenSimPaths:
         self.muscles = [muscles.get(i) for i in range(muscles.getSize())]
         self.muscle_names = tuple(m.getName() for m in self.muscles)
         self.paths = [m.getGeometryPath() for m in self.muscles]
-        self.couplers = []   # (dependent index, independent index, function, scale)
+        self.couplers = []  # (dependent index, independent index, function, scale)
         constraints = self.model.getConstraintSet()
         index = {n: i for i, n in enumerate(self.coordinate_names)}
         for i in range(constraints.getSize()):
             coupler = opensim.CoordinateCouplerConstraint.safeDownCast(constraints.get(i))
             if coupler is not None and coupler.get_isEnforced():
-                self.couplers.append((index[coupler.getDependentCoordinateName()],
-                                      index[coupler.getIndependentCoordinateNames().get(0)],
-                                      coupler.getFunction(), float(coupler.getPropertyByName("scale_factor").toString())))
+                self.couplers.append(
+                    (
+                        index[coupler.getDependentCoordinateName()],
+                        index[coupler.getIndependentCoordinateNames().get(0)],
+                        coupler.getFunction(),
+                        float(coupler.getPropertyByName("scale_factor").toString()),
+                    )
+                )
         self.dependent = {d for d, _, _, _ in self.couplers}
         self.ranges = np.array([[c.getRangeMin(), c.getRangeMax()] for c in self.coordinates])
         self.defaults = np.array([c.getDefaultValue() for c in self.coordinates])
@@ -85,7 +93,7 @@ class OpenSimPaths:
         object that touches the path named where it acts, with the side it wraps on (sign of the z component of
         the two tangent points' cross product in the wrap object's frame: for a cylinder, which way round)."""
         path = self.paths[m]
-        path.getLength(self.state)   # brings the path up to date
+        path.getLength(self.state)  # brings the path up to date
         current = path.getCurrentPath(self.state)
         ground = self.model.getGround()
         names, tangent = [], []
@@ -95,8 +103,9 @@ class OpenSimPaths:
                 names.append(point.getName())
                 continue
             wrap = self.opensim.PathWrapPoint.safeDownCast(point).getWrapObject()
-            local = ground.findStationLocationInAnotherFrame(self.state, point.getLocationInGround(self.state),
-                                                             wrap.getFrame())
+            local = ground.findStationLocationInAnotherFrame(
+                self.state, point.getLocationInGround(self.state), wrap.getFrame()
+            )
             local = wrap.getTransform().shiftBaseStationToFrame(local)
             tangent.append((local.get(0), local.get(1)))
             if len(tangent) == 2:

@@ -32,20 +32,21 @@ from biomotion.errors import ModelError
 from biomotion.muscles.geometry import MusclePaths
 from biomotion.muscles.properties import MuscleParameters, max_active_force
 
-STALL_ITERATIONS = 15   # a frame whose torque imbalance has not dropped by STALL_GAIN in this many iterations
-STALL_GAIN = 0.01       # stops: the bounded actuators cannot balance it (it is reported as not converged)
+STALL_ITERATIONS = 15  # a frame whose torque imbalance has not dropped by STALL_GAIN in this many iterations
+STALL_GAIN = 0.01  # stops: the bounded actuators cannot balance it (it is reported as not converged)
 
 
 @dataclass(frozen=True)
 class StaticOptimizationResult:
     """Per-frame solution. ``residual`` = achieved - requested torque; ``converged`` frames meet the tolerance
     (a frame that cannot be balanced within the bounds does not converge and keeps its last iterate)."""
-    activations: torch.Tensor       # [T, M]
-    muscle_forces: torch.Tensor     # [T, M] N along the tendon
+
+    activations: torch.Tensor  # [T, M]
+    muscle_forces: torch.Tensor  # [T, M] N along the tendon
     reserve_controls: torch.Tensor  # [T, C]
-    reserve_torques: torch.Tensor   # [T, C] N·m or N
-    residual: torch.Tensor          # [T, C]
-    converged: torch.Tensor         # [T] bool
+    reserve_torques: torch.Tensor  # [T, C] N·m or N
+    residual: torch.Tensor  # [T, C]
+    converged: torch.Tensor  # [T] bool
     iterations: int
     coordinate_names: tuple[str, ...] = ()
     muscle_names: tuple[str, ...] = ()
@@ -55,13 +56,17 @@ class StaticOptimizationResult:
         usage = {}
         for j, name in enumerate(self.coordinate_names or range(self.reserve_torques.shape[-1])):
             column = self.reserve_torques[:, j].abs()
-            usage[str(name)] = {"rms": float(column.pow(2).mean().sqrt()), "max": float(column.max()),
-                                "frames_over_1": float((column > 1).double().mean())}
+            usage[str(name)] = {
+                "rms": float(column.pow(2).mean().sqrt()),
+                "max": float(column.max()),
+                "frames_over_1": float((column > 1).double().mean()),
+            }
         return usage
 
 
-def _actuator_response(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, exponent: float,
-                       max_slope: float = 1e8) -> tuple[torch.Tensor, torch.Tensor]:
+def _actuator_response(
+    s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, exponent: float, max_slope: float = 1e8
+) -> tuple[torch.Tensor, torch.Tensor]:
     """argmin_{lower <= w <= upper} |w|^p - s w and its derivative with respect to s."""
     if exponent == 2:
         free = s / 2
@@ -69,7 +74,7 @@ def _actuator_response(s: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor
     else:
         k = 1 / (exponent - 1)
         magnitude = (s.abs() / exponent).clamp(min=1e-300)
-        free = torch.sign(s) * magnitude ** k
+        free = torch.sign(s) * magnitude**k
         slope = (k / exponent * magnitude ** (k - 1)).clamp(max=max_slope)
     inside = (free > lower) & (free < upper)
     return torch.minimum(torch.maximum(free, lower), upper), torch.where(inside, slope, torch.zeros_like(slope))
@@ -85,16 +90,24 @@ def _apply_transposed(b: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
     return (b * lam[:, :, None]).sum(-2)
 
 
-def _dual_value(lam: torch.Tensor, w: torch.Tensor, s: torch.Tensor, tau: torch.Tensor, exponent: float
-                ) -> torch.Tensor:
+def _dual_value(
+    lam: torch.Tensor, w: torch.Tensor, s: torch.Tensor, tau: torch.Tensor, exponent: float
+) -> torch.Tensor:
     return (lam * tau).sum(-1) + (w.abs() ** exponent - s * w).sum(-1)
 
 
-def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tensor, torques: torch.Tensor,
-                              reserve_optimal_force: torch.Tensor, *, exponent: float = 2.0,
-                              activation_bounds: tuple[torch.Tensor | float, torch.Tensor | float] = (0.01, 1.0),
-                              reserve_bound: float = 1.0, tolerance: float = 1e-8, max_iterations: int = 100
-                              ) -> StaticOptimizationResult:
+def solve_static_optimization(
+    moment_arms: torch.Tensor,
+    max_forces: torch.Tensor,
+    torques: torch.Tensor,
+    reserve_optimal_force: torch.Tensor,
+    *,
+    exponent: float = 2.0,
+    activation_bounds: tuple[torch.Tensor | float, torch.Tensor | float] = (0.01, 1.0),
+    reserve_bound: float = 1.0,
+    tolerance: float = 1e-8,
+    max_iterations: int = 100,
+) -> StaticOptimizationResult:
     """Solve the static-optimization problem of every frame at once.
 
     moment_arms [T, M, C] (m), max_forces [T, M] (N, force at full activation), torques [T, C] (N·m or N),
@@ -105,19 +118,21 @@ def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tenso
         raise ModelError(f"static optimization needs an exponent > 1, got {exponent}")
     t, m, c = moment_arms.shape
     if max_forces.shape != (t, m) or torques.shape != (t, c) or reserve_optimal_force.shape != (c,):
-        raise ModelError(f"static optimization: shapes moment_arms {tuple(moment_arms.shape)}, max_forces "
-                         f"{tuple(max_forces.shape)}, torques {tuple(torques.shape)}, reserves "
-                         f"{tuple(reserve_optimal_force.shape)} do not agree")
+        raise ModelError(
+            f"static optimization: shapes moment_arms {tuple(moment_arms.shape)}, max_forces "
+            f"{tuple(max_forces.shape)}, torques {tuple(torques.shape)}, reserves "
+            f"{tuple(reserve_optimal_force.shape)} do not agree"
+        )
     dtype = torques.dtype
-    muscle_columns = moment_arms.transpose(-1, -2) * max_forces[:, None, :]            # [T, C, M]
+    muscle_columns = moment_arms.transpose(-1, -2) * max_forces[:, None, :]  # [T, C, M]
     reserve_columns = torch.diag_embed(reserve_optimal_force.to(dtype)).expand(t, c, c)
-    b = torch.cat([muscle_columns, reserve_columns], -1)                                 # [T, C, M + C]
+    b = torch.cat([muscle_columns, reserve_columns], -1)  # [T, C, M + C]
     if bool(((b.abs().amax(-1)) == 0).any()):
         raise ModelError("static optimization: a coordinate has neither a muscle nor a reserve acting on it")
     lo_a, hi_a = (torch.as_tensor(v, dtype=dtype).expand(m) for v in activation_bounds)
     lower = torch.cat([lo_a, torch.full((c,), -reserve_bound, dtype=dtype)])
     upper = torch.cat([hi_a, torch.full((c,), reserve_bound, dtype=dtype)])
-    scale = b.abs().amax((-1, -2))                                                      # [T] N·m
+    scale = b.abs().amax((-1, -2))  # [T] N·m
     eye = torch.eye(c, dtype=dtype)
     damping = torch.full((t,), 1e-3, dtype=dtype)
 
@@ -130,9 +145,9 @@ def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tenso
     best = torch.full((t,), torch.inf, dtype=dtype)
     since_best = torch.zeros(t, dtype=torch.long)
     iterations = 0
-    for iterations in range(1, max_iterations + 1):
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
         b_l, tau_l, lam_l, s_l, w_l, slope_l = b[live], torques[live], lam[live], s[live], w[live], slope[live]
-        gradient = tau_l - _apply(b_l, w_l)                                # dual ascent direction
+        gradient = tau_l - _apply(b_l, w_l)  # dual ascent direction
         imbalance = gradient.abs().amax(-1)
         improved = imbalance < (1 - STALL_GAIN) * best[live]
         best[live] = torch.where(improved, imbalance, best[live])
@@ -143,10 +158,11 @@ def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tenso
         if not bool(keep.all()):
             live = live[keep]
             b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance = (
-                x[keep] for x in (b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance))
+                x[keep] for x in (b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance)
+            )
         n, scale_l, damping_l = len(live), scale[live], damping[live]
         # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
-        mu = damping_l * scale_l * imbalance + 1e-12 * scale_l ** 2
+        mu = damping_l * scale_l * imbalance + 1e-12 * scale_l**2
         hessian = (b_l * slope_l[:, None, :]) @ b_l.transpose(-1, -2) + mu[:, None, None] * eye
         step = torch.linalg.solve(hessian, gradient)
         value = _dual_value(lam_l, w_l, s_l, tau_l, exponent)
@@ -162,28 +178,46 @@ def solve_static_optimization(moment_arms: torch.Tensor, max_forces: torch.Tenso
             # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
             drop = (tau_l - _apply(b_l, w_trial)).abs().amax(-1) <= 0.5 * imbalance
             take = (gain | drop) & ~accepted
-            new = tuple(torch.where(take.view(-1, *([1] * (x.dim() - 1))), y, x)
-                        for x, y in zip(new, (trial, s_trial, w_trial, slope_trial)))
+            new = tuple(
+                torch.where(take.view(-1, *([1] * (x.dim() - 1))), y, x)
+                for x, y in zip(new, (trial, s_trial, w_trial, slope_trial))
+            )
             accepted = accepted | take
             if bool(accepted.all()):
                 break
             alpha = torch.where(accepted, alpha, alpha / 2)
         lam[live], s[live], w[live], slope[live] = new
         full = accepted & (alpha == 1)
-        damping[live] = torch.where(accepted, torch.where(full, damping_l / 3, damping_l),
-                                    damping_l * 10).clamp(1e-9, 1e6)
+        damping[live] = torch.where(accepted, torch.where(full, damping_l / 3, damping_l), damping_l * 10).clamp(
+            1e-9, 1e6
+        )
     residual = _apply(b, w) - torques
     activations, controls = w[:, :m], w[:, m:]
-    return StaticOptimizationResult(activations, activations * max_forces, controls,
-                                    controls * reserve_optimal_force.to(dtype), residual,
-                                    residual.abs().amax(-1) <= tolerance * 10, iterations)
+    return StaticOptimizationResult(
+        activations,
+        activations * max_forces,
+        controls,
+        controls * reserve_optimal_force.to(dtype),
+        residual,
+        residual.abs().amax(-1) <= tolerance * 10,
+        iterations,
+    )
 
 
-def optimize_activations(paths: MusclePaths, muscles: MuscleParameters, q: torch.Tensor, qdot: torch.Tensor,
-                        torques: torch.Tensor, coordinates: tuple[str, ...] | list[str],
-                        reserves: dict[str, float] | float = 0.0, *, exponent: float = 2.0,
-                        reserve_bound: float = 1.0, tolerance: float = 1e-8, max_iterations: int = 100
-                        ) -> StaticOptimizationResult:
+def optimize_activations(
+    paths: MusclePaths,
+    muscles: MuscleParameters,
+    q: torch.Tensor,
+    qdot: torch.Tensor,
+    torques: torch.Tensor,
+    coordinates: tuple[str, ...] | list[str],
+    reserves: dict[str, float] | float = 0.0,
+    *,
+    exponent: float = 2.0,
+    reserve_bound: float = 1.0,
+    tolerance: float = 1e-8,
+    max_iterations: int = 100,
+) -> StaticOptimizationResult:
     """Activations of ``paths``' muscles that balance ``torques`` [T, len(coordinates)] on ``coordinates``.
 
     q, qdot [T, n_q] in the order of ``paths.coordinate_names`` (rad, rad/s, m, m/s); ``reserves``: optimal
@@ -191,8 +225,10 @@ def optimize_activations(paths: MusclePaths, muscles: MuscleParameters, q: torch
     by ``reserve_bound``. Muscle forces per unit activation come from `max_active_force`.
     """
     if q.shape != qdot.shape or q.shape[:-1] != torques.shape[:-1] or torques.shape[-1] != len(coordinates):
-        raise ModelError(f"static optimization: q {tuple(q.shape)}, qdot {tuple(qdot.shape)}, torques "
-                         f"{tuple(torques.shape)} for {len(coordinates)} coordinates do not agree")
+        raise ModelError(
+            f"static optimization: q {tuple(q.shape)}, qdot {tuple(qdot.shape)}, torques "
+            f"{tuple(torques.shape)} for {len(coordinates)} coordinates do not agree"
+        )
     muscles = muscles.select(paths.muscle_names)
     lengths, arms = paths.lengths_and_moment_arms(q)
     speeds = -(arms @ qdot[..., None])[..., 0]
@@ -205,11 +241,25 @@ def optimize_activations(paths: MusclePaths, muscles: MuscleParameters, q: torch
         optimal = torch.tensor([float(reserves.get(n, 0.0)) for n in coordinates], dtype=q.dtype)
     else:
         optimal = torch.full((len(coordinates),), float(reserves), dtype=q.dtype)
-    result = solve_static_optimization(arms[..., columns], forces, torques, optimal, exponent=exponent,
-                                       activation_bounds=(muscles.min_control.to(q.dtype),
-                                                          muscles.max_control.to(q.dtype)),
-                                       reserve_bound=reserve_bound, tolerance=tolerance,
-                                       max_iterations=max_iterations)
-    return StaticOptimizationResult(result.activations, result.muscle_forces, result.reserve_controls,
-                                    result.reserve_torques, result.residual, result.converged, result.iterations,
-                                    tuple(coordinates), paths.muscle_names)
+    result = solve_static_optimization(
+        arms[..., columns],
+        forces,
+        torques,
+        optimal,
+        exponent=exponent,
+        activation_bounds=(muscles.min_control.to(q.dtype), muscles.max_control.to(q.dtype)),
+        reserve_bound=reserve_bound,
+        tolerance=tolerance,
+        max_iterations=max_iterations,
+    )
+    return StaticOptimizationResult(
+        result.activations,
+        result.muscle_forces,
+        result.reserve_controls,
+        result.reserve_torques,
+        result.residual,
+        result.converged,
+        result.iterations,
+        tuple(coordinates),
+        paths.muscle_names,
+    )

@@ -43,12 +43,12 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
 standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
 replicate padding; block i dilated by ``config.dilation ** i``, so the receptive field is 1 + (kernel - 1)
 (1 + sum_i dilation^i) frames: 17 with the shipped kernel 5, depth 3 and dilation 1) shared by two 1x1 heads:
-the activations (sigmoid) and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame, m/s and m/s^2; PG-BIG
-A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2), de-standardised with
-the ``com_mean``/``com_std`` buffers of the training labels. With ``config.members`` m > 1 (ours) the network is
-m such networks side by side, each ``width`` wide and started from its own random weights: one stem, then grouped
-convolutions and heads, so a member's channels see only its own; each member is fitted to the labels on its own
-(`predict_members`, `biomotion.training.train_surrogate`) and a prediction is the members' mean, a deep ensemble
+the activations (sigmoid) and the whole-body COM velocity and acceleration [B, T, 6] (``COM_OUTPUTS``, ground frame,
+m/s and m/s^2; PG-BIG A.7-A.8: "80 activations plus COM terms", validated by COM velocity and acceleration R^2),
+de-standardised with the ``com_mean``/``com_std`` buffers of the training labels. With ``config.members`` m > 1 (ours)
+the network is m such networks side by side, each ``width`` wide and started from its own random weights: one stem,
+then grouped convolutions and heads, so a member's channels see only its own; each member is fitted to the labels on
+its own (`predict_members`, `biomotion.training.train_surrogate`) and a prediction is the members' mean, a deep ensemble
 (Lakshminarayanan, Pritzel & Blundell 2017, "Simple and scalable predictive uncertainty estimation using deep
 ensembles", NeurIPS), which removes part of the error that depends on the random start. Measured once and not
 kept (2026-12-05, seed 0, the shipped cache and training settings, 27 minutes: ``python -m
@@ -79,9 +79,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
 from biomotion.body.contact import ContactSettings, foot_points
 from biomotion.body.kinematics import forward_kinematics, points_in_ground
-from biomotion.body.canonical import CANONICAL_COORDINATES, COUPLED_COORDINATES, DEFAULT_RATE
 from biomotion.body.mirror import NEGATED, mirror_permutation
 from biomotion.errors import ConfigError, ModelError
 from biomotion.settings import settings_from_dict
@@ -124,7 +124,7 @@ class SurrogateConfig:
     def context(self) -> int:
         """Frames on each side that one output frame depends on: the convolutions' half receptive field,
         (kernel - 1) / 2 (1 + sum_i dilation^i), plus the one frame of the central differences of the features."""
-        return (self.kernel - 1) // 2 * (1 + sum(self.dilation ** i for i in range(self.depth))) + 1
+        return (self.kernel - 1) // 2 * (1 + sum(self.dilation**i for i in range(self.depth))) + 1
 
     @classmethod
     def from_dict(cls, values: dict) -> SurrogateConfig:
@@ -136,8 +136,10 @@ class SurrogateConfig:
         if config.dilation < 1:
             raise ConfigError(f"surrogate dilation must be at least 1, got {config.dilation}")
         if not 0.0 <= config.smooth_hz < config.rate / 2:
-            raise ConfigError(f"surrogate smooth_hz must be 0 (off) or below the Nyquist frequency {config.rate / 2:g} "
-                              f"Hz, got {config.smooth_hz}")
+            raise ConfigError(
+                f"surrogate smooth_hz must be 0 (off) or below the Nyquist frequency {config.rate / 2:g} "
+                f"Hz, got {config.smooth_hz}"
+            )
         return config
 
 
@@ -148,8 +150,8 @@ def finite_differences(q: torch.Tensor, rate: float) -> tuple[torch.Tensor, torc
     t = q.shape[-2]
     if t >= 3:
         velocity = (q[..., 2:, :] - q[..., :-2, :]) * (rate / 2)
-        acceleration = (q[..., 2:, :] - 2 * q[..., 1:-1, :] + q[..., :-2, :]) * rate ** 2
-        pad = (lambda x: torch.cat([x[..., :1, :], x, x[..., -1:, :]], dim=-2))
+        acceleration = (q[..., 2:, :] - 2 * q[..., 1:-1, :] + q[..., :-2, :]) * rate**2
+        pad = lambda x: torch.cat([x[..., :1, :], x, x[..., -1:, :]], dim=-2)
         return pad(velocity), pad(acceleration)
     if t == 2:
         velocity = (q[..., 1:, :] - q[..., :1, :]) * rate
@@ -157,8 +159,7 @@ def finite_differences(q: torch.Tensor, rate: float) -> tuple[torch.Tensor, torc
     return torch.zeros_like(q), torch.zeros_like(q)
 
 
-def smoothing_taps(cutoff_hz: float, rate: float, order: int = LABEL_FILTER_ORDER, tail: float = 1e-4
-                   ) -> torch.Tensor:
+def smoothing_taps(cutoff_hz: float, rate: float, order: int = LABEL_FILTER_ORDER, tail: float = 1e-4) -> torch.Tensor:
     """The impulse response of the labels' zero-lag Butterworth low-pass (`biomotion.motion.lowpass`: ``order``
     per pass, run forward and backward) as a symmetric FIR [2K + 1], cut where its taps fall below ``tail`` of the
     peak. A convolution with it low-passes q the way `biomotion.training.surrogate_labels` does before its inverse
@@ -169,7 +170,7 @@ def smoothing_taps(cutoff_hz: float, rate: float, order: int = LABEL_FILTER_ORDE
     impulse[n] = 1.0
     response = scipy.signal.sosfiltfilt(sos, impulse, padlen=0)
     k = int(np.max(np.flatnonzero(np.abs(response) >= tail * np.abs(response).max())) - n)
-    taps = response[n - k:n + k + 1]
+    taps = response[n - k : n + k + 1]
     return torch.as_tensor(taps / taps.sum(), dtype=torch.float32)
 
 
@@ -179,8 +180,8 @@ def smooth(q: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
     by their edge value."""
     k = (len(taps) - 1) // 2
     if q.shape[-2] > k:
-        head = 2 * q[..., :1, :] - q[..., 1:k + 1, :].flip(-2)
-        tail = 2 * q[..., -1:, :] - q[..., -k - 1:-1, :].flip(-2)
+        head = 2 * q[..., :1, :] - q[..., 1 : k + 1, :].flip(-2)
+        tail = 2 * q[..., -1:, :] - q[..., -k - 1 : -1, :].flip(-2)
     else:
         head, tail = q[..., :1, :].expand(*q.shape[:-2], k, -1), q[..., -1:, :].expand(*q.shape[:-2], k, -1)
     padded = torch.cat([head, q, tail], dim=-2).transpose(-1, -2)
@@ -194,8 +195,15 @@ class _Block(nn.Module):
 
     def __init__(self, width: int, kernel: int, dropout: float, groups: int = 1, dilation: int = 1) -> None:
         super().__init__()
-        self.conv = nn.Conv1d(width, width, kernel, padding=dilation * (kernel // 2), padding_mode="replicate",
-                              groups=groups, dilation=dilation)
+        self.conv = nn.Conv1d(
+            width,
+            width,
+            kernel,
+            padding=dilation * (kernel // 2),
+            padding_mode="replicate",
+            groups=groups,
+            dilation=dilation,
+        )
         self.mix = nn.Conv1d(width, width, 1, groups=groups)
         self.dropout = nn.Dropout(dropout)
 
@@ -223,8 +231,10 @@ class MuscleSurrogate(nn.Module):
         n_features = N_FEATURES
         if config.contact:
             if body is None:
-                raise ModelError("this muscle surrogate computes foot-contact features: give it the canonical body "
-                                 "model (biomotion.data.clips.body_model(data_root), Rajagopal 2016)")
+                raise ModelError(
+                    "this muscle surrogate computes foot-contact features: give it the canonical body "
+                    "model (biomotion.data.clips.body_model(data_root), Rajagopal 2016)"
+                )
             self.body = body.to(torch.float32)
             self.points = foot_points(self.body)
             self.point_mirror = torch.as_tensor(mirror_permutation(self.points.names))
@@ -234,8 +244,7 @@ class MuscleSurrogate(nn.Module):
             n_features += N_FEATURES
         w, k, m = config.width * config.members, config.kernel, config.members
         self.stem = nn.Conv1d(n_features, w, k, padding=k // 2, padding_mode="replicate")
-        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout, m, config.dilation ** i)
-                                      for i in range(config.depth)])
+        self.blocks = nn.Sequential(*[_Block(w, k, config.dropout, m, config.dilation**i) for i in range(config.depth)])
         self.head = nn.Conv1d(w, m * len(self.names), 1, groups=m)
         self.com_head = nn.Conv1d(w, m * len(COM_OUTPUTS), 1, groups=m)
         self.register_buffer("mean", torch.zeros(n_features))
@@ -272,8 +281,9 @@ class MuscleSurrogate(nn.Module):
         poses = forward_kinematics(self.body, q.reshape(-1, q.shape[-1]))
         return points_in_ground(poses, self.points.bodies, self.points.offsets)[..., 1].reshape(*q.shape[:2], -1)
 
-    def raw_features(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                     heights: torch.Tensor | None = None) -> torch.Tensor:
+    def raw_features(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Unstandardised per-frame features [B, T, F]: positions, velocities, accelerations and, with contact
         features, the foot points' heights above their rest height and vertical velocities (``heights`` [B, T, K]
         as `foot_heights` gives them, computed here when not given)."""
@@ -292,14 +302,20 @@ class MuscleSurrogate(nn.Module):
             parts += [above, finite_differences(above, self.config.rate)[0]]
         return torch.cat(parts, dim=-1)
 
-    def features(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                 heights: torch.Tensor | None = None) -> torch.Tensor:
+    def features(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Standardised features [B, T, F]."""
         return (self.raw_features(q, mask, heights) - self.mean) / self.std
 
     @torch.no_grad()
-    def set_normalisation(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                          weights: torch.Tensor | None = None, heights: torch.Tensor | None = None) -> None:
+    def set_normalisation(
+        self,
+        q: torch.Tensor,
+        mask: torch.Tensor | None = None,
+        weights: torch.Tensor | None = None,
+        heights: torch.Tensor | None = None,
+    ) -> None:
         """Feature mean/std from training windows q [N, T, 39] (mask [N, 39], foot heights [N, T, K]);
         ``weights`` [N, T] leaves out padding frames. Constant features keep std 1."""
         f = self.raw_features(q, mask, heights).double()
@@ -331,8 +347,9 @@ class MuscleSurrogate(nn.Module):
         self.com_std.copy_(torch.where(std > 1e-6, std, torch.ones_like(std)).to(self.com_std.dtype))
 
     # -- model ----------------------------------------------------------------------------------------------
-    def _trunk(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-               heights: torch.Tensor | None = None) -> torch.Tensor:
+    def _trunk(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Hidden sequence [B, members x width, T]: the members' channels side by side."""
         return F.gelu(self.blocks(self.stem(self.features(q, mask, heights).transpose(1, 2))))
 
@@ -340,29 +357,33 @@ class MuscleSurrogate(nn.Module):
         """A head's output [B, members x C, T] as [B, members, T, C]."""
         return out.view(out.shape[0], self.config.members, -1, out.shape[-1]).transpose(2, 3)
 
-    def predict_members(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                        heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def predict_members(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Each member's activations [B, members, T, M] and COM velocity and acceleration [B, members, T, 6]
         (what training fits, each member on its own)."""
         hidden = self._trunk(q, mask, heights)
         com = self._per_member(self.com_head(hidden)) * self.com_std + self.com_mean
         return torch.sigmoid(self._per_member(self.head(hidden))), com
 
-    def forward(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                heights: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Activations [B, T, M] in (0, 1) from canonical coordinates q [B, T, 39] (mask [B, 39] optional:
         masked coordinates are treated as 0; foot heights [B, T, K] optional, see `raw_features`)."""
         return self.predict(q, mask, heights)[0]
 
-    def predict(self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor]:
+    def predict(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """Activations [B, T, M] and COM velocity and acceleration [B, T, 6] (`COM_OUTPUTS`, ground frame, m/s and
         m/s^2) in one pass: the mean over the members."""
         activations, com = self.predict_members(q, mask, heights)
         return activations.mean(1), com.mean(1)
 
-    def predict_symmetric(self, q: torch.Tensor, mask: torch.Tensor | None = None,
-                          heights: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def predict_symmetric(
+        self, q: torch.Tensor, mask: torch.Tensor | None = None, heights: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """`predict` made exactly left-right equivariant: the mean of the prediction on the motion and the mirror
         image of the prediction on its mirror image (`biomotion.body.mirror`: limb coordinates change sides,
         midline rotations and pelvis_tz change sign; muscles change sides, the COM's z components change sign).
@@ -388,8 +409,10 @@ class MuscleSurrogate(nn.Module):
         count = q.shape[0]
         muscles = torch.as_tensor(mirror_permutation(self.names))
         flip_z = torch.tensor([1.0, 1.0, -1.0] * (len(COM_OUTPUTS) // 3), dtype=com.dtype)
-        return (0.5 * (activations[:count] + activations[count:][..., muscles]),
-                0.5 * (com[:count] + com[count:] * flip_z))
+        return (
+            0.5 * (activations[:count] + activations[count:][..., muscles]),
+            0.5 * (com[:count] + com[count:] * flip_z),
+        )
 
     # -- persistence ----------------------------------------------------------------------------------------
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
@@ -400,8 +423,12 @@ class MuscleSurrogate(nn.Module):
         from biomotion.io.atomic import atomic_write
 
         state = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
-        meta = {"format": FORMAT, "config": json.dumps(asdict(self.config)), "muscles": json.dumps(list(self.names)),
-                **(metadata or {})}
+        meta = {
+            "format": FORMAT,
+            "config": json.dumps(asdict(self.config)),
+            "muscles": json.dumps(list(self.names)),
+            **(metadata or {}),
+        }
         with atomic_write(path, "wb") as handle:
             handle.write(save(state, metadata=meta))
 

@@ -19,27 +19,29 @@ WITHIN_CLIP_FRAMES = 30  # clips with at least this many converged frames get a 
 COM_LABEL_COLUMNS = [COM_COLUMNS.index(name) for name in COM_OUTPUTS]
 
 
-def agreement(predicted: np.ndarray, reference: np.ndarray, names: tuple[str, ...], min_std: float = 0.02
-              ) -> dict:
+def agreement(predicted: np.ndarray, reference: np.ndarray, names: tuple[str, ...], min_std: float = 0.02) -> dict:
     """R^2 / RMSE of activations [N, M] against reference labels [N, M] (see the module docstring)."""
     predicted, reference = predicted.astype(np.float64), reference.astype(np.float64)
     error = predicted - reference
-    sse = (error ** 2).sum(0)
+    sse = (error**2).sum(0)
     sst = ((reference - reference.mean(0)) ** 2).sum(0)
     varying = reference.std(0) > min_std
     per_muscle = 1 - sse / np.maximum(sst, 1e-12)
-    rmse_muscle = np.sqrt((error ** 2).mean(0))
+    rmse_muscle = np.sqrt((error**2).mean(0))
     index = {n: j for j, n in enumerate(names)}
     return {
         "frames": len(reference),
         "r2_pooled": float(1 - sse.sum() / max(sst.sum(), 1e-12)),
-        "rmse": float(np.sqrt((error ** 2).mean())),
+        "rmse": float(np.sqrt((error**2).mean())),
         "mae": float(np.abs(error).mean()),
         "r2_mean_per_muscle": float(per_muscle[varying].mean()) if varying.any() else float("nan"),
         "r2_median_per_muscle": float(np.median(per_muscle[varying])) if varying.any() else float("nan"),
         "muscles_in_mean": int(varying.sum()),
-        "key_muscles": {n: {"r2": float(per_muscle[index[n]]), "rmse": float(rmse_muscle[index[n]])}
-                        for n in KEY_MUSCLES if n in index},
+        "key_muscles": {
+            n: {"r2": float(per_muscle[index[n]]), "rmse": float(rmse_muscle[index[n]])}
+            for n in KEY_MUSCLES
+            if n in index
+        },
         "per_muscle_r2": {n: float(per_muscle[j]) for j, n in enumerate(names) if varying[j]},
     }
 
@@ -50,7 +52,7 @@ def com_agreement(predicted: np.ndarray, reference: np.ndarray) -> dict:
     ("COM velocity and acceleration ... mean R^2"); RMSE over all three components."""
     predicted, reference = predicted.astype(np.float64), reference.astype(np.float64)
     error = predicted - reference
-    r2 = 1 - (error ** 2).sum(0) / np.maximum(((reference - reference.mean(0)) ** 2).sum(0), 1e-12)
+    r2 = 1 - (error**2).sum(0) / np.maximum(((reference - reference.mean(0)) ** 2).sum(0), 1e-12)
     out = {f"{name}_r2": float(v) for name, v in zip(COM_OUTPUTS, r2)}
     for key, part in (("vel", slice(0, 3)), ("acc", slice(3, 6))):
         out[f"com_{key}_r2"] = float(r2[part].mean())
@@ -75,8 +77,12 @@ def evaluate(model: MuscleSurrogate, clips: list[tuple], min_std: float = 0.02, 
             within.append(agreement(predicted[-1], reference[-1], model.names, min_std)["r2_pooled"])
     model.train(was_training)
     scores = agreement(np.concatenate(predicted), np.concatenate(reference), model.names, min_std)
-    scores.update({"r2_within_clip_mean": float(np.mean(within)) if within else float("nan"),
-                   "r2_within_clip_median": float(np.median(within)) if within else float("nan"),
-                   "clips_within": len(within)})
+    scores.update(
+        {
+            "r2_within_clip_mean": float(np.mean(within)) if within else float("nan"),
+            "r2_within_clip_median": float(np.median(within)) if within else float("nan"),
+            "clips_within": len(within),
+        }
+    )
     scores.update(com_agreement(np.concatenate(com_predicted), np.concatenate(com_reference)))
     return scores

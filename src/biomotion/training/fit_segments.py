@@ -30,6 +30,11 @@ def fit_lines(ansur_csv: str | Path) -> dict:
         length = np.array([segment.length({k: float(r[k]) for k in MEASURES}) for r in rows])
         slope, intercept = np.polyfit(stature, length, 1)
         residual = length - (intercept + slope * stature)
-        lines[segment.name] = {"top": segment.top, "bottom": segment.bottom, "intercept_mm": round(float(intercept), 4),
-                               "slope": round(float(slope), 6), "residual_sd_mm": round(float(residual.std()), 3)}
+        lines[segment.name] = {
+            "top": segment.top,
+            "bottom": segment.bottom,
+            "intercept_mm": round(float(intercept), 4),
+            "slope": round(float(slope), 6),
+            "residual_sd_mm": round(float(residual.std()), 3),
+        }
     return {"source": ANSUR_MEN, "subjects": len(rows), "segments": lines}

@@ -46,8 +46,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from biomotion.analysis.activation_labels import MODEL_FILE, Labeler, LabelSettings
 from biomotion.errors import BiomotionError, DataFormatError
-from biomotion.analysis.activation_labels import MODEL_FILE, LabelSettings, Labeler
 from biomotion.io.atomic import atomic_write
 from biomotion.muscles.surrogate import COM_COLUMNS
 
@@ -60,23 +60,31 @@ BOUNDS_NAME = "bounds_muscle_activations.json"
 class SurrogateLabels:
     """Activation labels aligned with a cache's frames (``values`` rows)."""
 
-    activations: np.ndarray           # [N_frames_total, M] float32
-    converged: np.ndarray             # [N_frames_total] bool: the frame's torque balance met the tolerance
+    activations: np.ndarray  # [N_frames_total, M] float32
+    converged: np.ndarray  # [N_frames_total] bool: the frame's torque balance met the tolerance
     muscle_names: tuple[str, ...]
-    info: dict                        # settings, balanced coordinates, curves, cache fingerprint, timings
-    com: np.ndarray | None = None     # [N_frames_total, 9] COM position, velocity, acceleration (COM_COLUMNS)
+    info: dict  # settings, balanced coordinates, curves, cache fingerprint, timings
+    com: np.ndarray | None = None  # [N_frames_total, 9] COM position, velocity, acceleration (COM_COLUMNS)
 
     def save(self, path: str | Path, metadata: dict[str, str] | None = None) -> None:
         """safetensors (atomic) with muscle names and ``info`` in the metadata."""
         from safetensors.numpy import save
 
-        arrays = {"activations": np.ascontiguousarray(self.activations, dtype=np.float32),
-                  "converged": self.converged.astype(np.uint8)}
+        arrays = {
+            "activations": np.ascontiguousarray(self.activations, dtype=np.float32),
+            "converged": self.converged.astype(np.uint8),
+        }
         if self.com is not None:
             arrays["com"] = np.ascontiguousarray(self.com, dtype=np.float32)
-        blob = save(arrays,
-                    metadata={"format": FORMAT, "muscles": json.dumps(list(self.muscle_names)),
-                              "info": json.dumps(self.info), **(metadata or {})})
+        blob = save(
+            arrays,
+            metadata={
+                "format": FORMAT,
+                "muscles": json.dumps(list(self.muscle_names)),
+                "info": json.dumps(self.info),
+                **(metadata or {}),
+            },
+        )
         with atomic_write(path, "wb") as handle:
             handle.write(blob)
 
@@ -88,11 +96,17 @@ class SurrogateLabels:
         with safe_open(str(path), framework="np") as handle:
             meta = handle.metadata() or {}
         if meta.get("format") != FORMAT:
-            raise DataFormatError(Path(path), f"not a surrogate-labels file (format {meta.get('format')!r})",
-                                  field="format")
+            raise DataFormatError(
+                Path(path), f"not a surrogate-labels file (format {meta.get('format')!r})", field="format"
+            )
         arrays = load_file(str(path))
-        return cls(arrays["activations"], arrays["converged"].astype(bool), tuple(json.loads(meta["muscles"])),
-                   json.loads(meta["info"]), arrays.get("com"))
+        return cls(
+            arrays["activations"],
+            arrays["converged"].astype(bool),
+            tuple(json.loads(meta["muscles"])),
+            json.loads(meta["info"]),
+            arrays.get("com"),
+        )
 
 
 def cache_fingerprint(cache) -> str:
@@ -103,8 +117,14 @@ def cache_fingerprint(cache) -> str:
 #: Columns of `SurrogateLabels.com`.
 
 
-def compute_labels(cache, data_root: str | Path, settings: LabelSettings = LabelSettings(), *,
-                   progress: bool = True, parts: str | Path | None = None) -> SurrogateLabels:
+def compute_labels(
+    cache,
+    data_root: str | Path,
+    settings: LabelSettings = LabelSettings(),
+    *,
+    progress: bool = True,
+    parts: str | Path | None = None,
+) -> SurrogateLabels:
     """Labels of every clip of ``cache`` (a `biomotion.data.registry.DatasetCache`, all splits).
 
     With ``parts`` (a folder), each clip's result is written there as it is done (``<index>.npz``, atomically,
@@ -118,8 +138,10 @@ def compute_labels(cache, data_root: str | Path, settings: LabelSettings = Label
     covered = np.zeros(n_total, dtype=bool)
     reserve_sq, started = 0.0, time.perf_counter()
     so_seconds, resumed = 0.0, 0
-    tag = json.dumps({"cache_sha256": cache_fingerprint(cache), "settings": asdict(settings),
-                      "muscles": list(labeler.muscle_names)}, sort_keys=True)
+    tag = json.dumps(
+        {"cache_sha256": cache_fingerprint(cache), "settings": asdict(settings), "muscles": list(labeler.muscle_names)},
+        sort_keys=True,
+    )
     folder = Path(parts) if parts is not None else None
     if folder is not None:
         folder.mkdir(parents=True, exist_ok=True)
@@ -132,9 +154,12 @@ def compute_labels(cache, data_root: str | Path, settings: LabelSettings = Label
             tic = time.perf_counter()
             result, clip_com = labeler.label(cache.motion(i))
             so_seconds += time.perf_counter() - tic
-            stored = {"activations": result.activations.numpy().astype(np.float32), "com": clip_com,
-                      "converged": result.converged.numpy(),
-                      "reserve_sq": np.array(float(result.reserve_torques.pow(2).sum()))}
+            stored = {
+                "activations": result.activations.numpy().astype(np.float32),
+                "com": clip_com,
+                "converged": result.converged.numpy(),
+                "reserve_sq": np.array(float(result.reserve_torques.pow(2).sum())),
+            }
             if part is not None:
                 with atomic_write(part, "wb") as handle:
                     np.savez(handle, tag=np.array(tag), **stored)
@@ -182,15 +207,19 @@ def _read_part(path: Path, tag: str) -> dict | None:
         return None
 
 
-def labels_for_cache(cache, data_root: str | Path, path: str | Path | None = None, *,
-                     progress: bool = True) -> SurrogateLabels:
+def labels_for_cache(
+    cache, data_root: str | Path, path: str | Path | None = None, *, progress: bool = True
+) -> SurrogateLabels:
     """Labels of ``cache`` from ``path`` (default ``<cache>/surrogate_labels.safetensors``) when that file
     exists and was made from this very cache; otherwise computed and written there. The muscle-activation
     bounds (`activation_bounds`) are written beside it either way."""
     path = Path(path) if path else Path(cache.folder) / DEFAULT_NAME
     labels = SurrogateLabels.load(path) if path.exists() else None
-    if labels is None or labels.info.get("cache_sha256") != cache_fingerprint(cache) or len(
-            labels.activations) != len(cache.values):
+    if (
+        labels is None
+        or labels.info.get("cache_sha256") != cache_fingerprint(cache)
+        or len(labels.activations) != len(cache.values)
+    ):
         parts = path.with_name(path.name + ".parts")
         labels = compute_labels(cache, data_root, progress=progress, parts=parts)
         labels.save(path)
@@ -207,7 +236,8 @@ def activation_bounds(cache, labels: SurrogateLabels):
     rows = np.zeros(len(cache.values), dtype=bool)
     for i in cache.indices(split="train"):
         record = cache.records[i]
-        rows[record["offset"]: record["offset"] + record["n_frames"]] = True
+        rows[record["offset"] : record["offset"] + record["n_frames"]] = True
     keep = rows & labels.converged
-    return PercentileBounds.from_samples(labels.activations[keep], labels.muscle_names,
-                                         quantity="muscle_activations", unit="1")
+    return PercentileBounds.from_samples(
+        labels.activations[keep], labels.muscle_names, quantity="muscle_activations", unit="1"
+    )

@@ -51,9 +51,9 @@ from biomotion.models.conditioning import (
     mean_features,
     metadata_features,
 )
-from biomotion.training.cards import environment, write_card
 from biomotion.models.prior import Condition, PriorConfig, ProfileActionPrior
 from biomotion.models.vqvae import DOWNSAMPLE, MotionVQVAE
+from biomotion.training.cards import environment, write_card
 
 
 @dataclass
@@ -71,8 +71,14 @@ class TokenizedClip:
 
 
 @torch.no_grad()
-def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary: ActionVocabulary,
-                   progress: bool = True, mirror: bool = False) -> list[TokenizedClip]:
+def tokenize_cache(
+    cache: DatasetCache,
+    tokenizer: MotionVQVAE,
+    body,
+    vocabulary: ActionVocabulary,
+    progress: bool = True,
+    mirror: bool = False,
+) -> list[TokenizedClip]:
     """Tokenize every clip at least one token long (4 frames); COM from ``body`` (the canonical model). With
     ``mirror``, each training-split clip also gives its left-right mirror image (`biomotion.body.mirror`), a clip
     of the same person and action."""
@@ -85,8 +91,9 @@ def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary
         n = record["n_frames"] // DOWNSAMPLE * DOWNSAMPLE
         if n < DOWNSAMPLE:
             continue
-        q = torch.from_numpy(np.ascontiguousarray(cache.values[record["offset"]: record["offset"] + n],
-                                                  dtype=np.float32))
+        q = torch.from_numpy(
+            np.ascontiguousarray(cache.values[record["offset"] : record["offset"] + n], dtype=np.float32)
+        )
         mask = torch.from_numpy(cache.masks[i]).bool()
         labels = record["labels"]
         request = ActionRequest(labels["action"], labels.get("style"), labels.get("speed"), labels.get("text") or "")
@@ -98,18 +105,27 @@ def tokenize_cache(cache: DatasetCache, tokenizer: MotionVQVAE, body, vocabulary
             latents = tokenizer.encode_continuous(q_v[None], mask_v[None])[0]
             full = torch.where(mask_v, q_v, defaults)
             com = center_of_mass(body, full.to(body.dtype)).float()
-            clips.append(TokenizedClip(i, f"{record['source']}/{record['subject']}", record["split"],
-                                       tokenizer.quantiser.nearest(latents), latents,
-                                       metadata_features(q_v, mask_v, com, cache.rate),
-                                       biodata_features(cache.profile(i)), action_features(request, vocabulary)))
+            clips.append(
+                TokenizedClip(
+                    i,
+                    f"{record['source']}/{record['subject']}",
+                    record["split"],
+                    tokenizer.quantiser.nearest(latents),
+                    latents,
+                    metadata_features(q_v, mask_v, com, cache.rate),
+                    biodata_features(cache.profile(i)),
+                    action_features(request, vocabulary),
+                )
+            )
     return clips
 
 
 class Batches:
     """Random training batches: target crops and profile inputs built from other clips of the same subject."""
 
-    def __init__(self, clips: list[TokenizedClip], crop: int, references: int, max_latents: int,
-                 generator: torch.Generator) -> None:
+    def __init__(
+        self, clips: list[TokenizedClip], crop: int, references: int, max_latents: int, generator: torch.Generator
+    ) -> None:
         self.clips, self.crop, self.references, self.max_latents = clips, crop, references, max_latents
         self.generator = generator
         self.by_subject: dict[str, list[int]] = {}
@@ -128,11 +144,18 @@ class Batches:
         return [self.clips[others[int(j)]] for j in order]
 
     def condition(self, ks: list[int], drop_references: float = 0.0, drop_biodata: float = 0.0) -> Condition:
-        return stack_conditions([profile_inputs(self.reference_set(k), self.clips[k], self.max_latents,
-                                                keep_references=float(torch.rand(1, generator=self.generator))
-                                                >= drop_references,
-                                                keep_biodata=float(torch.rand(1, generator=self.generator))
-                                                >= drop_biodata) for k in ks])
+        return stack_conditions(
+            [
+                profile_inputs(
+                    self.reference_set(k),
+                    self.clips[k],
+                    self.max_latents,
+                    keep_references=float(torch.rand(1, generator=self.generator)) >= drop_references,
+                    keep_biodata=float(torch.rand(1, generator=self.generator)) >= drop_biodata,
+                )
+                for k in ks
+            ]
+        )
 
     def targets(self, ks: list[int]) -> torch.Tensor:
         """Crops [B, crop] of the clips' codes; positions past a short clip's end hold -100 (ignored)."""
@@ -140,7 +163,7 @@ class Batches:
         for row, k in enumerate(ks):
             codes = self.clips[k].codes
             start = self._randint(max(len(codes) - self.crop, 0) + 1)
-            piece = codes[start: start + self.crop]
+            piece = codes[start : start + self.crop]
             out[row, : len(piece)] = piece
         return out
 
@@ -148,18 +171,29 @@ class Batches:
 def dev_subject(subject: str, fraction: float) -> bool:
     """Whether a training subject is set aside to choose the stopping iteration (a stable hash, like the splits)."""
     digest = hashlib.sha256(f"dev/{subject}".encode()).digest()
-    return int.from_bytes(digest[:8], "big") / 2 ** 64 < fraction
+    return int.from_bytes(digest[:8], "big") / 2**64 < fraction
 
 
 def statistics_indices(cache: DatasetCache, dev_fraction: float) -> list[int]:
     """The clips the per-action statistics come from: the training clips the prior learns from (train split, at
     least one token long, subject not set aside by `dev_subject`)."""
-    return [i for i, r in enumerate(cache.records) if r["split"] == "train" and r["n_frames"] >= DOWNSAMPLE
-            and not dev_subject(f"{r['source']}/{r['subject']}", dev_fraction)]
+    return [
+        i
+        for i, r in enumerate(cache.records)
+        if r["split"] == "train"
+        and r["n_frames"] >= DOWNSAMPLE
+        and not dev_subject(f"{r['source']}/{r['subject']}", dev_fraction)
+    ]
 
 
-def profile_inputs(references: list[TokenizedClip], target: TokenizedClip, max_latents: int, *,
-                   keep_references: bool = True, keep_biodata: bool = True) -> Condition:
+def profile_inputs(
+    references: list[TokenizedClip],
+    target: TokenizedClip,
+    max_latents: int,
+    *,
+    keep_references: bool = True,
+    keep_biodata: bool = True,
+) -> Condition:
     """One sample's (unbatched) condition: references' latents + mean metadata, the target's biodata and action."""
     code_dim = target.latents.shape[-1]
     if keep_references and references:
@@ -181,8 +215,13 @@ def stack_conditions(items: list[Condition]) -> Condition:
     for row, c in enumerate(items):
         latents[row, : len(c.latents)] = c.latents
         valid[row, : len(c.latents)] = c.latent_valid
-    return Condition(latents, valid, torch.stack([c.biodata for c in items]),
-                     torch.stack([c.metadata for c in items]), torch.stack([c.action for c in items]))
+    return Condition(
+        latents,
+        valid,
+        torch.stack([c.biodata for c in items]),
+        torch.stack([c.metadata for c in items]),
+        torch.stack([c.action for c in items]),
+    )
 
 
 def cross_entropy(prior: ProfileActionPrior, codes: torch.Tensor, cond: Condition) -> torch.Tensor:
@@ -212,8 +251,9 @@ def triplet(prior: ProfileActionPrior, batches: Batches, ks: list[int], margin: 
 
 
 @torch.no_grad()
-def evaluate(prior: ProfileActionPrior, clips: list[TokenizedClip], crop: int, references: int, max_latents: int,
-             seed: int = 1) -> dict[str, float]:
+def evaluate(
+    prior: ProfileActionPrior, clips: list[TokenizedClip], crop: int, references: int, max_latents: int, seed: int = 1
+) -> dict[str, float]:
     """Mean next-code cross-entropy and top-1 accuracy over every clip (first ``crop`` codes), fixed references."""
     was = prior.training
     prior.eval()
@@ -231,9 +271,20 @@ def evaluate(prior: ProfileActionPrior, clips: list[TokenizedClip], crop: int, r
     return {"cross_entropy": float(ce), "accuracy": float(accuracy), "clips": len(clips)}
 
 
-def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_root: str | Path, out: str | Path, *,
-          population: bool = False, minutes: float | None = None, iterations: int | None = None, seed: int = 0,
-          progress: bool = True, command: str = "") -> dict:
+def train(
+    config: dict,
+    cache_dir: str | Path,
+    tokenizer_path: str | Path,
+    data_root: str | Path,
+    out: str | Path,
+    *,
+    population: bool = False,
+    minutes: float | None = None,
+    iterations: int | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    command: str = "",
+) -> dict:
     """Train the prior from ``config`` (YAML dict); save `GeneratorBundle` weights + card next to ``out``."""
     from biomotion.data.clips import body_model
 
@@ -252,9 +303,15 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     dev_fraction = float(train_cfg.get("dev_fraction", 0.0))
     dev_clips = [c for c in clips if c.split == "train" and dev_subject(c.subject, dev_fraction)]
     train_clips = [c for c in clips if c.split == "train" and not dev_subject(c.subject, dev_fraction)]
-    config_obj = PriorConfig.from_dict({**model_cfg, "codebook_size": tokenizer.config.codebook_size,
-                                        "code_dim": tokenizer.config.code_dim,
-                                        "action_size": action_size(vocabulary), "use_profile": not population})
+    config_obj = PriorConfig.from_dict(
+        {
+            **model_cfg,
+            "codebook_size": tokenizer.config.codebook_size,
+            "code_dim": tokenizer.config.code_dim,
+            "action_size": action_size(vocabulary),
+            "use_profile": not population,
+        }
+    )
     prior = ProfileActionPrior(config_obj)
     optimiser = torch.optim.AdamW(prior.parameters(), lr=train_cfg["lr"], weight_decay=train_cfg["weight_decay"])
     generator = torch.Generator().manual_seed(seed)
@@ -266,8 +323,7 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     history = []
     best = (math.inf, 0, None)  # dev cross-entropy, step, weights
     step = 0
-    bar = tqdm(range(total), desc="population prior" if population else "generator", unit="it",
-               disable=not progress)
+    bar = tqdm(range(total), desc="population prior" if population else "generator", unit="it", disable=not progress)
     for step in bar:
         if time.monotonic() > deadline:
             break
@@ -287,8 +343,13 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
         if step % 20 == 0:
             bar.set_postfix(ce=f"{ce.item():.3f}", triplet=f"{tri.item():.3f}")
         if (step + 1) % train_cfg["eval_every"] == 0:
-            history.append({"step": step + 1, "train_ce": ce.item(),
-                            **{f"val_{k}": v for k, v in evaluate(prior, val_clips, crop, refs, max_latents).items()}})
+            history.append(
+                {
+                    "step": step + 1,
+                    "train_ce": ce.item(),
+                    **{f"val_{k}": v for k, v in evaluate(prior, val_clips, crop, refs, max_latents).items()},
+                }
+            )
             if dev_clips:
                 dev = evaluate(prior, dev_clips, crop, refs, max_latents)["cross_entropy"]
                 history[-1]["dev_cross_entropy"] = dev
@@ -303,27 +364,44 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
     after_train = evaluate(prior, train_clips, crop, refs, max_latents)
     bounds = action_bounds(cache, body, statistics_indices(cache, dev_fraction))
     seen = tuple(sorted({c.subject for c in train_clips + dev_clips}))
-    bundle = GeneratorBundle(prior, vocabulary, bounds, tokenizer_sha256=hashlib.sha256(
-        Path(tokenizer_path).read_bytes()).hexdigest(), train_subjects=seen)
+    bundle = GeneratorBundle(
+        prior,
+        vocabulary,
+        bounds,
+        tokenizer_sha256=hashlib.sha256(Path(tokenizer_path).read_bytes()).hexdigest(),
+        train_subjects=seen,
+    )
     out = Path(out)
     bundle.save(out)
     card = {
-        "model": ("biomotion population prior (action only, T2M-GPT-kind baseline)" if population else
-                  "biomotion profile-action prior + subject profiler (PG-BIG Sec. 3.2, A.6)"),
+        "model": (
+            "biomotion population prior (action only, T2M-GPT-kind baseline)"
+            if population
+            else "biomotion profile-action prior + subject profiler (PG-BIG Sec. 3.2, A.6)"
+        ),
         "weights": out.name,
         "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
         "tokenizer": Path(tokenizer_path).name,
         "tokenizer_sha256": bundle.tokenizer_sha256,
         "command": command or "biomotion.training.train_generator.train (Python API)",
-        "config": config, "seed": seed, "iterations": step,
+        "config": config,
+        "seed": seed,
+        "iterations": step,
         "kept_iteration": best[1] if best[2] is not None else step,
-        "dev_clips": len(dev_clips), "dev_cross_entropy": None if best[2] is None else best[0],
+        "dev_clips": len(dev_clips),
+        "dev_cross_entropy": None if best[2] is None else best[0],
         "train_seconds": round(time.monotonic() - started, 1),
-        "data": {"train_clips": len(train_clips), "held_out_clips": len(val_clips),
-                 "mirrored": bool(train_cfg.get("mirror", False)),
-                 "subjects_train": len({c.subject for c in train_clips}),
-                 "actions": list(vocabulary.actions), "styles": list(vocabulary.styles)},
-        "metrics_held_out_before": before, "metrics_held_out": after_val, "metrics_train": after_train,
+        "data": {
+            "train_clips": len(train_clips),
+            "held_out_clips": len(val_clips),
+            "mirrored": bool(train_cfg.get("mirror", False)),
+            "subjects_train": len({c.subject for c in train_clips}),
+            "actions": list(vocabulary.actions),
+            "styles": list(vocabulary.styles),
+        },
+        "metrics_held_out_before": before,
+        "metrics_held_out": after_val,
+        "metrics_train": after_train,
         "history": history,
         "environment": environment(),
     }
@@ -333,12 +411,17 @@ def train(config: dict, cache_dir: str | Path, tokenizer_path: str | Path, data_
 
 def _same_bounds(old, new) -> bool:
     fields = ("speed_high", "jerk_high", "com_speed", "com_acceleration", "frames")
-    return all(np.allclose(np.asarray(getattr(old, f), float), np.asarray(getattr(new, f), float), rtol=1e-9,
-                           atol=0.0, equal_nan=True) for f in fields)
+    return all(
+        np.allclose(
+            np.asarray(getattr(old, f), float), np.asarray(getattr(new, f), float), rtol=1e-9, atol=0.0, equal_nan=True
+        )
+        for f in fields
+    )
 
 
-def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Path, out: str | Path, *,
-                       command: str = "") -> dict:
+def refresh_statistics(
+    config: dict, cache_dir: str | Path, data_root: str | Path, out: str | Path, *, command: str = ""
+) -> dict:
     """Recompute the per-action statistics of the trained bundle ``out`` (bounds and population postures) from
     the `statistics_indices` clips of ``cache_dir``, as `train` does, keep its weights, and update its card.
     Raises `ConfigError`, writing nothing, when the bounds the bundle had do not come out the same."""
@@ -349,16 +432,25 @@ def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Pat
     cache = DatasetCache(cache_dir)
     dev_fraction = float(config.get("train", {}).get("dev_fraction", 0.0))
     bounds = action_bounds(cache, body_model(data_root), statistics_indices(cache, dev_fraction))
-    changed = sorted(k for k in set(bounds) | set(bundle.bounds)
-                     if k not in bounds or k not in bundle.bounds or not _same_bounds(bundle.bounds[k], bounds[k]))
+    changed = sorted(
+        k
+        for k in set(bounds) | set(bundle.bounds)
+        if k not in bounds or k not in bundle.bounds or not _same_bounds(bundle.bounds[k], bounds[k])
+    )
     if changed:
-        raise ConfigError(f"{cache_dir} does not give the bounds stored in {out} (actions {changed}): not the cache "
-                          "or the settings this bundle was trained with; nothing written")
+        raise ConfigError(
+            f"{cache_dir} does not give the bounds stored in {out} (actions {changed}): not the cache "
+            "or the settings this bundle was trained with; nothing written"
+        )
     GeneratorBundle(bundle.prior, bundle.vocabulary, bounds, bundle.tokenizer_sha256, bundle.train_subjects).save(out)
     card_file = out.with_suffix(".json")
     card = json.loads(card_file.read_text()) if card_file.exists() else {"weights": out.name}
-    card.update({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
-                 "statistics_command": command or "biomotion.training.train_generator.refresh_statistics (Python API)"})
+    card.update(
+        {
+            "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+            "statistics_command": command or "biomotion.training.train_generator.refresh_statistics (Python API)",
+        }
+    )
     if {"metrics_held_out", "metrics_train", "metrics_held_out_before", "data"} <= set(card):
         write_card(out, card, _markdown(card))
     else:
@@ -367,17 +459,25 @@ def refresh_statistics(config: dict, cache_dir: str | Path, data_root: str | Pat
 
 
 def _markdown(card: dict) -> str:
-    rows = "".join(f"| {k} | {card['metrics_held_out_before'][k]:.4g} | {v:.4g} | {card['metrics_train'][k]:.4g} |\n"
-                   for k, v in card["metrics_held_out"].items() if k != "clips")
-    return (f"# {card['weights']}\n\n{card['model']}.\n\n- SHA-256: `{card['sha256']}`\n"
-            f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
-            f"- command: `{card['command']}`\n"
-            + (f"- per-action statistics (bounds, population postures) recomputed: `{card['statistics_command']}`\n"
-               if card.get("statistics_command") else "")
-            + f"- seed {card['seed']}, {card['iterations']} iterations, "
-            f"{card['train_seconds']} s, weights of iteration {card['kept_iteration']} kept (early stopping on "
-            f"{card['dev_clips']} clips of training subjects set aside)\n- data: {card['data']['train_clips']} train clips "
-            f"({card['data']['subjects_train']} subjects), {card['data']['held_out_clips']} held-out clips "
-            "(val + test splits, unseen subjects)\n\n"
-            "| metric (first crop of every clip) | held-out, before | held-out, after | train, after |\n"
-            "|---|---|---|---|\n" + rows)
+    rows = "".join(
+        f"| {k} | {card['metrics_held_out_before'][k]:.4g} | {v:.4g} | {card['metrics_train'][k]:.4g} |\n"
+        for k, v in card["metrics_held_out"].items()
+        if k != "clips"
+    )
+    return (
+        f"# {card['weights']}\n\n{card['model']}.\n\n- SHA-256: `{card['sha256']}`\n"
+        f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
+        f"- command: `{card['command']}`\n"
+        + (
+            f"- per-action statistics (bounds, population postures) recomputed: `{card['statistics_command']}`\n"
+            if card.get("statistics_command")
+            else ""
+        )
+        + f"- seed {card['seed']}, {card['iterations']} iterations, "
+        f"{card['train_seconds']} s, weights of iteration {card['kept_iteration']} kept (early stopping on "
+        f"{card['dev_clips']} clips of training subjects set aside)\n- data: {card['data']['train_clips']} train clips "
+        f"({card['data']['subjects_train']} subjects), {card['data']['held_out_clips']} held-out clips "
+        "(val + test splits, unseen subjects)\n\n"
+        "| metric (first crop of every clip) | held-out, before | held-out, after | train, after |\n"
+        "|---|---|---|---|\n" + rows
+    )

@@ -42,22 +42,23 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from biomotion.analysis.activation_labels import Labeler
 from biomotion.body.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
+from biomotion.data.clips import body_model
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.data.clips import body_model
 from biomotion.guidance.losses import activation
-from biomotion.training.cards import environment, write_card
 from biomotion.muscles.surrogate import COM_OUTPUTS, MuscleSurrogate, SurrogateConfig
-from biomotion.training.surrogate_labels import DEFAULT_NAME, SurrogateLabels, labels_for_cache
 from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS, evaluate
-from biomotion.analysis.activation_labels import Labeler
+from biomotion.training.cards import environment, write_card
+from biomotion.training.surrogate_labels import DEFAULT_NAME, SurrogateLabels, labels_for_cache
 
 CLIP_FRAMES = 90  # a 3 s clip at 30 Hz (PG-BIG A.8 timing)
 
 
-def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int,
-                 cut_margin: int = 0) -> tuple[torch.Tensor, ...]:
+def make_windows(
+    cache: DatasetCache, labels: SurrogateLabels, split: str, length: int, stride: int, cut_margin: int = 0
+) -> tuple[torch.Tensor, ...]:
     """Training windows of ``split``: q [N, length, 39], masks [N, 39], target activations [N, length, M],
     activation weights [N, length] (1 on converged real frames), COM targets [N, length, 6] (`COM_OUTPUTS`) and
     COM weights [N, length] (1 on real frames). Window starts every ``stride`` frames, the last flush with the
@@ -82,8 +83,10 @@ def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, lengt
             rows = offset + starts[:, None] + np.arange(length)
             real = np.ones(rows.shape, dtype=bool)
             frame = np.arange(length)[None]
-            real &= ~(((starts > 0)[:, None] & (frame < cut_margin))
-                      | ((starts + length < n)[:, None] & (frame >= length - cut_margin)))
+            real &= ~(
+                ((starts > 0)[:, None] & (frame < cut_margin))
+                | ((starts + length < n)[:, None] & (frame >= length - cut_margin))
+            )
         else:
             rows = offset + np.minimum(np.arange(length), n - 1)[None]
             real = (np.arange(length) < n)[None]
@@ -95,9 +98,15 @@ def make_windows(cache: DatasetCache, labels: SurrogateLabels, split: str, lengt
         masks.append(np.repeat(cache.masks[i][None], len(rows), 0))
     if not qs:
         raise BiomotionError(f"no {split} clips in {cache.folder}")
-    as_tensor = (lambda parts, dtype: torch.from_numpy(np.ascontiguousarray(np.concatenate(parts), dtype=dtype)))
-    return (as_tensor(qs, np.float32), as_tensor(masks, bool), as_tensor(targets, np.float32),
-            as_tensor(weights, np.float32), as_tensor(coms, np.float32), as_tensor(reals, np.float32))
+    as_tensor = lambda parts, dtype: torch.from_numpy(np.ascontiguousarray(np.concatenate(parts), dtype=dtype))
+    return (
+        as_tensor(qs, np.float32),
+        as_tensor(masks, bool),
+        as_tensor(targets, np.float32),
+        as_tensor(weights, np.float32),
+        as_tensor(coms, np.float32),
+        as_tensor(reals, np.float32),
+    )
 
 
 def clip_arrays(cache: DatasetCache, labels: SurrogateLabels, split: str) -> list[tuple]:
@@ -106,10 +115,15 @@ def clip_arrays(cache: DatasetCache, labels: SurrogateLabels, split: str) -> lis
     for i in cache.indices(split=split):
         record = cache.records[i]
         rows = slice(record["offset"], record["offset"] + record["n_frames"])
-        out.append((torch.from_numpy(cache.values[rows].astype(np.float32))[None],
-                    torch.from_numpy(cache.masks[i])[None], torch.from_numpy(labels.activations[rows]),
-                    torch.from_numpy(labels.converged[rows]),
-                    torch.from_numpy(labels.com[rows][:, COM_LABEL_COLUMNS].astype(np.float32))))
+        out.append(
+            (
+                torch.from_numpy(cache.values[rows].astype(np.float32))[None],
+                torch.from_numpy(cache.masks[i])[None],
+                torch.from_numpy(labels.activations[rows]),
+                torch.from_numpy(labels.converged[rows]),
+                torch.from_numpy(labels.com[rows][:, COM_LABEL_COLUMNS].astype(np.float32)),
+            )
+        )
     return out
 
 
@@ -126,8 +140,10 @@ def time_clip(model: MuscleSurrogate, labeler: Labeler, cache: DatasetCache, spl
     """Milliseconds for one 3 s clip (the first ``CLIP_FRAMES`` frames of the first long enough ``split``
     clip), one CPU thread: surrogate forward (no grad), surrogate forward + backward to q, the static
     optimization solve alone, and the whole label pipeline (inverse dynamics + static optimization)."""
-    index = next((i for i in cache.indices(split=split) if cache.records[i]["n_frames"] >= CLIP_FRAMES),
-                 next(i for i in range(len(cache)) if cache.records[i]["n_frames"] >= CLIP_FRAMES))
+    index = next(
+        (i for i in cache.indices(split=split) if cache.records[i]["n_frames"] >= CLIP_FRAMES),
+        next(i for i in range(len(cache)) if cache.records[i]["n_frames"] >= CLIP_FRAMES),
+    )
     motion = cache.motion(index).frames(slice(0, CLIP_FRAMES))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -151,22 +167,29 @@ def time_clip(model: MuscleSurrogate, labeler: Labeler, cache: DatasetCache, spl
         pipeline = _median_ms(lambda: labeler(motion), 3)
     finally:
         torch.set_num_threads(threads)
-    return {"clip": cache.records[index]["clip_id"], "frames": CLIP_FRAMES, "threads": 1,
-            "surrogate_forward_ms": round(forward, 2), "surrogate_forward_backward_ms": round(forward_backward, 2),
-            "so_solve_ms": round(solve, 1), "inverse_dynamics_plus_so_ms": round(pipeline, 1),
-            "speedup_vs_so_solve": round(solve / forward, 1),
-            "speedup_vs_pipeline": round(pipeline / forward, 1)}
+    return {
+        "clip": cache.records[index]["clip_id"],
+        "frames": CLIP_FRAMES,
+        "threads": 1,
+        "surrogate_forward_ms": round(forward, 2),
+        "surrogate_forward_backward_ms": round(forward_backward, 2),
+        "so_solve_ms": round(solve, 1),
+        "inverse_dynamics_plus_so_ms": round(pipeline, 1),
+        "speedup_vs_so_solve": round(solve / forward, 1),
+        "speedup_vs_pipeline": round(pipeline / forward, 1),
+    }
 
 
 @torch.no_grad()
-def window_heights(model: MuscleSurrogate, q: torch.Tensor, mask: torch.Tensor, chunk: int = 1024
-                   ) -> torch.Tensor | None:
+def window_heights(
+    model: MuscleSurrogate, q: torch.Tensor, mask: torch.Tensor, chunk: int = 1024
+) -> torch.Tensor | None:
     """Foot heights [N, T, K] of every training window, computed once (`MuscleSurrogate.foot_heights`, in chunks of
     ``chunk`` windows), so the training loop does not repeat the forward kinematics of fixed data; None for a
     surrogate without contact features."""
     if not model.config.contact:
         return None
-    return torch.cat([model.foot_heights(q[i:i + chunk], mask[i:i + chunk]) for i in range(0, len(q), chunk)])
+    return torch.cat([model.foot_heights(q[i : i + chunk], mask[i : i + chunk]) for i in range(0, len(q), chunk)])
 
 
 def learning_rate(progress: float, step: int, lr: float, warmup: int) -> float:
@@ -216,9 +239,19 @@ def training_subjects(cache) -> list[str]:
     return sorted({f"{r['source']}/{r['subject']}" for r in (cache.records[i] for i in cache.indices(split="train"))})
 
 
-def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: str | Path = "../shared/data",
-          labels_path: str | Path | None = None, minutes: float | None = None, iterations: int | None = None,
-          seed: int = 0, progress: bool = True, command: str = "") -> dict:
+def train(
+    config: dict,
+    cache_dir: str | Path,
+    out: str | Path,
+    *,
+    data_root: str | Path = "../shared/data",
+    labels_path: str | Path | None = None,
+    minutes: float | None = None,
+    iterations: int | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    command: str = "",
+) -> dict:
     """Train from ``config`` (the YAML's dict); save weights and card (``.json``, ``.md``) next to ``out``."""
     try:
         model_cfg = SurrogateConfig.from_dict(config.get("model", {}))
@@ -236,12 +269,14 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         raise ConfigError(f"surrogate rate {model_cfg.rate} Hz differs from the cache's {cache.rate} Hz")
     labels = labels_for_cache(cache, data_root, labels_path, progress=progress)
     if window - 2 * cut_margin < stride:
-        raise ConfigError(f"surrogate window {window} less twice the trimmed context {cut_margin} is shorter than the "
-                          f"stride {stride}: some frames would never be trained on")
+        raise ConfigError(
+            f"surrogate window {window} less twice the trimmed context {cut_margin} is shorter than the "
+            f"stride {stride}: some frames would never be trained on"
+        )
     q, mask, target, weight, com, com_weight = make_windows(cache, labels, "train", window, stride, cut_margin)
     if data_cfg.get("mirror", False):  # left-right mirror images with left-right swapped labels
         q_m, mask_m = mirror_coordinates(q.numpy(), mask.numpy())
-        as_tensor = (lambda array: torch.from_numpy(np.ascontiguousarray(array)))
+        as_tensor = lambda array: torch.from_numpy(np.ascontiguousarray(array))
         q = torch.cat([q, as_tensor(q_m)])
         mask = torch.cat([mask, as_tensor(mask_m)])
         target = torch.cat([target, as_tensor(mirror_labels(target.numpy(), labels.muscle_names))])
@@ -253,15 +288,22 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     model = MuscleSurrogate(labels.muscle_names, model_cfg, body_model(data_root) if model_cfg.contact else None)
     heights = window_heights(model, q, mask)
     model.set_normalisation(q, mask, weight, heights)
-    train_rows = np.concatenate([np.arange(r["offset"], r["offset"] + r["n_frames"])
-                                 for r in (cache.records[i] for i in cache.indices(split="train"))])
+    train_rows = np.concatenate(
+        [
+            np.arange(r["offset"], r["offset"] + r["n_frames"])
+            for r in (cache.records[i] for i in cache.indices(split="train"))
+        ]
+    )
     train_rows = train_rows[labels.converged[train_rows]]
     model.set_bounds(torch.from_numpy(labels.activations[train_rows]))
     model.set_com_scale(com[com_weight > 0])
     com_loss_weight = float(train_cfg.get("com_weight", 1.0))
     activation_error = activation_loss(str(train_cfg.get("activation_loss", "l1")))
-    muscle_weight = muscle_loss_weights(torch.from_numpy(labels.activations[train_rows]).to(target.dtype),
-                                        bool(train_cfg.get("per_muscle_scale", False)), min_std)
+    muscle_weight = muscle_loss_weights(
+        torch.from_numpy(labels.activations[train_rows]).to(target.dtype),
+        bool(train_cfg.get("per_muscle_scale", False)),
+        min_std,
+    )
     optimiser = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=float(train_cfg["weight_decay"]))
     averaged = weight_average(model, float(train_cfg.get("ema_decay", 0.0)))
     total = int(iterations or train_cfg["iterations"])
@@ -283,10 +325,12 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         predicted, com_hat = model.predict_members(q[pick], mask[pick], None if heights is None else heights[pick])
         members = predicted.shape[1]
         w, w_com = weight[pick][:, None, :, None], com_weight[pick][:, None, :, None]
-        loss_activation = (activation_error(predicted - target[pick][:, None]) * muscle_weight * w).sum() \
-            / (w.sum() * members * model.n_muscles).clamp_min(1)
-        com_error = F.smooth_l1_loss((com_hat - com[pick][:, None]) / model.com_std, torch.zeros_like(com_hat),
-                                     reduction="none")
+        loss_activation = (activation_error(predicted - target[pick][:, None]) * muscle_weight * w).sum() / (
+            w.sum() * members * model.n_muscles
+        ).clamp_min(1)
+        com_error = F.smooth_l1_loss(
+            (com_hat - com[pick][:, None]) / model.com_std, torch.zeros_like(com_hat), reduction="none"
+        )
         loss_com = (com_error * w_com).sum() / (w_com.sum() * members * len(COM_OUTPUTS)).clamp_min(1)
         loss = loss_activation + com_loss_weight * loss_com
         optimiser.zero_grad(set_to_none=True)
@@ -299,12 +343,20 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
             bar.set_postfix(act=f"{loss_activation.item():.4f}", com=f"{loss_com.item():.4f}")
         if (step + 1) % int(train_cfg["eval_every"]) == 0:
             m = evaluate(model if averaged is None else averaged.module, val_clips, min_std)
-            history.append({"step": step + 1, "seconds": round(time.monotonic() - started, 1),
-                            "train_activation": loss_activation.item(), "train_com": loss_com.item(),
-                            "val_r2_pooled": m["r2_pooled"], "val_rmse": m["rmse"],
-                            "val_com_vel_r2": m["com_vel_r2"]})
-            bar.set_postfix(act=f"{loss_activation.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}",
-                            com_vel_r2=f"{m['com_vel_r2']:.3f}")
+            history.append(
+                {
+                    "step": step + 1,
+                    "seconds": round(time.monotonic() - started, 1),
+                    "train_activation": loss_activation.item(),
+                    "train_com": loss_com.item(),
+                    "val_r2_pooled": m["r2_pooled"],
+                    "val_rmse": m["rmse"],
+                    "val_com_vel_r2": m["com_vel_r2"],
+                }
+            )
+            bar.set_postfix(
+                act=f"{loss_activation.item():.4f}", val_r2=f"{m['r2_pooled']:.3f}", com_vel_r2=f"{m['com_vel_r2']:.3f}"
+            )
     else:
         step = total
     train_seconds = time.monotonic() - started
@@ -315,9 +367,14 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
     on_train = evaluate(model, train_clips, min_std)
     out = Path(out)
     subjects = training_subjects(cache)
-    model.save(out, metadata={"labels_cache_sha256": labels.info.get("cache_sha256", ""),
-                              "muscle_curves": labels.info.get("muscle_curves", ""),
-                              "train_subjects": json.dumps(subjects)})
+    model.save(
+        out,
+        metadata={
+            "labels_cache_sha256": labels.info.get("cache_sha256", ""),
+            "muscle_curves": labels.info.get("muscle_curves", ""),
+            "train_subjects": json.dumps(subjects),
+        },
+    )
     speed = time_clip(model, Labeler.from_data_root(data_root), cache)
     card = {
         "model": "biomotion MuscleSurrogate (PG-BIG Sec. 3.3 / A.8 muscle-activation surrogate)",
@@ -330,17 +387,37 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         "seed": seed,
         "iterations": step,
         "train_seconds": round(train_seconds, 1),
-        "labels": {"file": str(labels_path or Path(cache_dir) / DEFAULT_NAME),
-                   **{k: labels.info.get(k) for k in ("settings", "balanced_coordinates", "muscle_curves",
-                                                      "ground_reaction", "absent_coordinates", "converged_share",
-                                                      "reserve_rms_nm", "seconds", "so_seconds", "cache_sha256")}},
-        "data": {"cache_format": cache.manifest.get("format"), "rate_hz": cache.rate,
-                 "train_windows": len(q), "train_clips": len(train_clips),
-                 "train_frames": int(sum(len(c[2]) for c in train_clips)),
-                 "val_clips": len(val_clips), "val_frames": int(sum(len(c[2]) for c in val_clips)),
-                 "val_frames_converged": int(sum(int(c[3].sum()) for c in val_clips)),
-                 "clips_per_split": cache.manifest["counts"]["per_split"],
-                 "clips_per_source": cache.manifest["counts"]["per_source"], "train_subjects": subjects},
+        "labels": {
+            "file": str(labels_path or Path(cache_dir) / DEFAULT_NAME),
+            **{
+                k: labels.info.get(k)
+                for k in (
+                    "settings",
+                    "balanced_coordinates",
+                    "muscle_curves",
+                    "ground_reaction",
+                    "absent_coordinates",
+                    "converged_share",
+                    "reserve_rms_nm",
+                    "seconds",
+                    "so_seconds",
+                    "cache_sha256",
+                )
+            },
+        },
+        "data": {
+            "cache_format": cache.manifest.get("format"),
+            "rate_hz": cache.rate,
+            "train_windows": len(q),
+            "train_clips": len(train_clips),
+            "train_frames": int(sum(len(c[2]) for c in train_clips)),
+            "val_clips": len(val_clips),
+            "val_frames": int(sum(len(c[2]) for c in val_clips)),
+            "val_frames_converged": int(sum(int(c[3].sum()) for c in val_clips)),
+            "clips_per_split": cache.manifest["counts"]["per_split"],
+            "clips_per_source": cache.manifest["counts"]["per_source"],
+            "train_subjects": subjects,
+        },
         "bounds": {"low_mean": float(model.low.mean()), "high_mean": float(model.high.mean())},
         "metrics_val_before": {k: v for k, v in before.items() if k not in ("per_muscle_r2", "key_muscles")},
         "metrics_val": after,
@@ -354,11 +431,23 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
 
 
 def _markdown(card: dict) -> str:
-    m, t, s, d, lab = (card["metrics_val"], card["metrics_train"], card["speed_3s_clip"], card["data"],
-                       card["labels"])
-    rows = ("r2_pooled", "rmse", "mae", "r2_mean_per_muscle", "r2_median_per_muscle", "muscles_in_mean",
-            "r2_within_clip_mean", "r2_within_clip_median", "clips_within", "com_vel_r2", "com_vel_rmse",
-            "com_acc_r2", "com_acc_rmse", *(f"{name}_r2" for name in COM_OUTPUTS))
+    m, t, s, d, lab = (card["metrics_val"], card["metrics_train"], card["speed_3s_clip"], card["data"], card["labels"])
+    rows = (
+        "r2_pooled",
+        "rmse",
+        "mae",
+        "r2_mean_per_muscle",
+        "r2_median_per_muscle",
+        "muscles_in_mean",
+        "r2_within_clip_mean",
+        "r2_within_clip_median",
+        "clips_within",
+        "com_vel_r2",
+        "com_vel_rmse",
+        "com_acc_r2",
+        "com_acc_rmse",
+        *(f"{name}_r2" for name in COM_OUTPUTS),
+    )
     worst = sorted(m["per_muscle_r2"].items(), key=lambda kv: kv[1])[:5]
     return (
         f"# Muscle-activation surrogate: {card['weights']}\n\n{card['model']}.\n\n"
@@ -367,8 +456,12 @@ def _markdown(card: dict) -> str:
         f"- seed {card['seed']}, {card['iterations']} iterations, {card['train_seconds']} s of training\n"
         f"- data: {d['train_windows']} train windows from {d['train_clips']} clips ({d['train_frames']} frames); "
         f"val {d['val_clips']} clips, {d['val_frames']} frames ({d['val_frames_converged']} with converged labels)\n"
-        + (f"- trained on {len(d['train_subjects'])} subjects (`data.train_subjects` in the JSON card; `biomotion "
-           "validate muscles` scores only the others)\n" if "train_subjects" in d else "")
+        + (
+            f"- trained on {len(d['train_subjects'])} subjects (`data.train_subjects` in the JSON card; `biomotion "
+            "validate muscles` scores only the others)\n"
+            if "train_subjects" in d
+            else ""
+        )
         + f"- labels: static optimization on the generic Rajagopal 2016 model, {lab['ground_reaction']}; "
         f"muscle curves {lab['muscle_curves']}; absent coordinates {lab['absent_coordinates']}; "
         f"{100 * lab['converged_share']:.2f} % of frames converged, reserve RMS {lab['reserve_rms_nm']:.1f} N·m; "
@@ -383,4 +476,5 @@ def _markdown(card: dict) -> str:
         f"Speed on a 3 s clip ({s['frames']} frames of {s['clip']}, one CPU thread): surrogate "
         f"{s['surrogate_forward_ms']} ms forward, {s['surrogate_forward_backward_ms']} ms forward + backward; "
         f"static-optimization solve {s['so_solve_ms']} ms ({s['speedup_vs_so_solve']}x the surrogate), inverse "
-        f"dynamics + static optimization {s['inverse_dynamics_plus_so_ms']} ms ({s['speedup_vs_pipeline']}x).\n")
+        f"dynamics + static optimization {s['inverse_dynamics_plus_so_ms']} ms ({s['speedup_vs_pipeline']}x).\n"
+    )

@@ -27,9 +27,9 @@ from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.training.cards import environment, write_card
 from biomotion.models.foot_contact import FootKinematics
 from biomotion.models.vqvae import N_COORDS, TRANSLATIONS, MotionVQVAE, VQVAEConfig
+from biomotion.training.cards import environment, write_card
 
 
 def make_windows(cache: DatasetCache, split: str | None, length: int, stride: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -51,8 +51,9 @@ def make_windows(cache: DatasetCache, split: str | None, length: int, stride: in
     return torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)), torch.from_numpy(cache.masks[owner])
 
 
-def step_losses(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None,
-                feet: FootKinematics | None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+def step_losses(
+    model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None, feet: FootKinematics | None
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """The model's reconstruction and losses on a batch, plus Table 4's penetration term when ``feet`` is given
     (added to ``loss`` with weight ``w_penetration``)."""
     recon, losses = model(x, mask, contact)
@@ -63,8 +64,14 @@ def step_losses(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact
 
 
 @torch.no_grad()
-def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: torch.Tensor | None = None,
-             feet: FootKinematics | None = None, batch: int = 256) -> dict[str, float]:
+def evaluate(
+    model: MotionVQVAE,
+    x: torch.Tensor,
+    mask: torch.Tensor,
+    contact: torch.Tensor | None = None,
+    feet: FootKinematics | None = None,
+    batch: int = 256,
+) -> dict[str, float]:
     """Masked reconstruction RMSE over windows: rotations in degrees, pelvis translations in cm (the horizontal
     ones integrated from the window's first frame), plus the mean loss terms (contact accuracy and penetration
     among them when trained for) and codebook usage."""
@@ -75,8 +82,8 @@ def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: t
     terms: dict[str, float] = {}
     used = torch.zeros(model.config.codebook_size, dtype=torch.bool)
     for i in range(0, len(x), batch):
-        xb, mb = x[i:i + batch], mask[i:i + batch]
-        recon, losses = step_losses(model, xb, mb, None if contact is None else contact[i:i + batch], feet)
+        xb, mb = x[i : i + batch], mask[i : i + batch]
+        recon, losses = step_losses(model, xb, mb, None if contact is None else contact[i : i + batch], feet)
         w = mb.unsqueeze(1).expand_as(xb).double()
         sq += ((recon.double() - xb.double()).pow(2) * w).sum((0, 1))
         count += w.sum((0, 1))
@@ -89,8 +96,12 @@ def evaluate(model: MotionVQVAE, x: torch.Tensor, mask: torch.Tensor, contact: t
     rot = ~translation
     rmse_deg = math.degrees(math.sqrt(float(sq[rot].sum() / count[rot].sum().clamp_min(1))))
     rmse_cm = 100 * math.sqrt(float(sq[translation].sum() / count[translation].sum().clamp_min(1)))
-    return {"rmse_rotations_deg": rmse_deg, "rmse_translations_cm": rmse_cm,
-            "codes_used": int(used.sum()), **{f"loss_{k}": v for k, v in terms.items()}}
+    return {
+        "rmse_rotations_deg": rmse_deg,
+        "rmse_translations_cm": rmse_cm,
+        "codes_used": int(used.sum()),
+        **{f"loss_{k}": v for k, v in terms.items()},
+    }
 
 
 def learning_rate(step: int, lr: float, warmup: int, lr_step: int, gamma: float) -> float:
@@ -98,9 +109,18 @@ def learning_rate(step: int, lr: float, warmup: int, lr_step: int, gamma: float)
     return lr * min(1.0, (step + 1) / max(warmup, 1)) * gamma ** (step // lr_step)
 
 
-def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: str | Path = "../shared/data",
-          minutes: float | None = None, iterations: int | None = None, seed: int = 0, progress: bool = True,
-          command: str = "") -> dict:
+def train(
+    config: dict,
+    cache_dir: str | Path,
+    out: str | Path,
+    *,
+    data_root: str | Path = "../shared/data",
+    minutes: float | None = None,
+    iterations: int | None = None,
+    seed: int = 0,
+    progress: bool = True,
+    command: str = "",
+) -> dict:
     """Train from ``config`` (the YAML's dict) on the cache; save weights + card next to ``out``; return card.
     ``data_root`` holds the canonical body model (read only for foot contact or penetration); ``command`` is
     recorded in the card (the CLI passes its command line)."""
@@ -139,11 +159,11 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         if time.monotonic() > deadline:
             break
         for group in optimiser.param_groups:
-            group["lr"] = learning_rate(step, train_cfg["lr"], train_cfg["warmup"], train_cfg["lr_step"],
-                                        train_cfg["lr_gamma"])
+            group["lr"] = learning_rate(
+                step, train_cfg["lr"], train_cfg["warmup"], train_cfg["lr_step"], train_cfg["lr_gamma"]
+            )
         pick = torch.randint(len(x_train), (train_cfg["batch_size"],), generator=generator)
-        _, losses = step_losses(model, x_train[pick], m_train[pick], None if c_train is None else c_train[pick],
-                                feet)
+        _, losses = step_losses(model, x_train[pick], m_train[pick], None if c_train is None else c_train[pick], feet)
         optimiser.zero_grad(set_to_none=True)
         losses["loss"].backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), train_cfg["grad_clip"])
@@ -151,8 +171,9 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         if step % 20 == 0:
             bar.set_postfix(loss=f"{losses['loss'].item():.4f}", ppl=f"{losses['perplexity'].item():.0f}")
         if (step + 1) % train_cfg["eval_every"] == 0:
-            history.append({"step": step + 1, "train_loss": losses["loss"].item(),
-                            **evaluate(model, x_val, m_val, c_val, feet)})
+            history.append(
+                {"step": step + 1, "train_loss": losses["loss"].item(), **evaluate(model, x_val, m_val, c_val, feet)}
+            )
     else:
         step = total
     after = evaluate(model, x_val, m_val, c_val, feet)
@@ -167,11 +188,15 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
         "seed": seed,
         "iterations": step,
         "train_seconds": round(time.monotonic() - started, 1),
-        "data": {"cache_format": cache.manifest.get("format"), "rate_hz": cache.rate,
-                 "train_windows": len(x_train), "val_windows": len(x_val),
-                 "contact_share_train": None if c_train is None else round(float(c_train.mean()), 4),
-                 "clips_per_split": cache.manifest["counts"]["per_split"],
-                 "clips_per_source": cache.manifest["counts"]["per_source"]},
+        "data": {
+            "cache_format": cache.manifest.get("format"),
+            "rate_hz": cache.rate,
+            "train_windows": len(x_train),
+            "val_windows": len(x_val),
+            "contact_share_train": None if c_train is None else round(float(c_train.mean()), 4),
+            "clips_per_split": cache.manifest["counts"]["per_split"],
+            "clips_per_source": cache.manifest["counts"]["per_source"],
+        },
         "metrics_val_before": before,
         "metrics_val": after,
         "history": history,
@@ -183,10 +208,12 @@ def train(config: dict, cache_dir: str | Path, out: str | Path, *, data_root: st
 
 def _markdown(card: dict) -> str:
     m = card["metrics_val"]
-    return (f"# Motion tokenizer: {card['weights']}\n\n{card['model']}.\n\n"
-            f"- SHA-256: `{card['sha256']}`\n- command: `{card['command']}`\n- seed {card['seed']}, "
-            f"{card['iterations']} iterations, {card['train_seconds']} s\n"
-            f"- data: {card['data']['train_windows']} train / {card['data']['val_windows']} val windows, "
-            f"clips per split {card['data']['clips_per_split']}\n\n"
-            "| val metric | before training | after |\n|---|---|---|\n"
-            + "".join(f"| {k} | {card['metrics_val_before'][k]:.4g} | {v:.4g} |\n" for k, v in m.items()))
+    return (
+        f"# Motion tokenizer: {card['weights']}\n\n{card['model']}.\n\n"
+        f"- SHA-256: `{card['sha256']}`\n- command: `{card['command']}`\n- seed {card['seed']}, "
+        f"{card['iterations']} iterations, {card['train_seconds']} s\n"
+        f"- data: {card['data']['train_windows']} train / {card['data']['val_windows']} val windows, "
+        f"clips per split {card['data']['clips_per_split']}\n\n"
+        "| val metric | before training | after |\n|---|---|---|\n"
+        + "".join(f"| {k} | {card['metrics_val_before'][k]:.4g} | {v:.4g} |\n" for k, v in m.items())
+    )

@@ -24,8 +24,7 @@ from tqdm import tqdm
 
 from biomotion.body.contact import GROUND_PERCENTILE
 from biomotion.body.model import BodyModel
-from biomotion.ik.skeleton import (FILTER_HZ, filtered_in_range, joint_map_for, joint_positions, retarget_skeleton,
-                                  score)
+from biomotion.ik.skeleton import FILTER_HZ, filtered_in_range, joint_map_for, joint_positions, retarget_skeleton, score
 from biomotion.io.bvh import read_bvh
 from biomotion.metrics.contact import CONTACT_HEIGHT, skate_ratio
 
@@ -51,12 +50,17 @@ def _clip(path: str) -> dict:
     outside = (values[:, clamped] < lower - 1e-9) | (values[:, clamped] > upper + 1e-9)
     forced = filtered_in_range(result.ik_motion, model, FILTER_HZ, always=True)
     forced_errors, forced_feet = score(model, forced, result.tracked, joint_map_for(source.names))
-    return {"clip": Path(path).name.removesuffix(".bvh.gz"), "frames": result.motion.n_frames,
-            "mean_err_m": round(result.mean_error, 5), "max_err_m": round(result.max_error, 5),
-            "range_violations": int(outside.sum()), "skate_source": foot_skate(result.feet_source, source.rate),
-            "skate_result": foot_skate(result.feet_result, source.rate),
-            "skate_filtered": foot_skate(forced_feet, source.rate),
-            "mean_err_filtered_m": round(float(np.nanmean(forced_errors)), 5)}
+    return {
+        "clip": Path(path).name.removesuffix(".bvh.gz"),
+        "frames": result.motion.n_frames,
+        "mean_err_m": round(result.mean_error, 5),
+        "max_err_m": round(result.max_error, 5),
+        "range_violations": int(outside.sum()),
+        "skate_source": foot_skate(result.feet_source, source.rate),
+        "skate_result": foot_skate(result.feet_result, source.rate),
+        "skate_filtered": foot_skate(forced_feet, source.rate),
+        "mean_err_filtered_m": round(float(np.nanmean(forced_errors)), 5),
+    }
 
 
 def foot_skate(points: np.ndarray, rate: float) -> float:
@@ -79,19 +83,29 @@ def validate_bvh(data_root: str | Path, *, progress: bool = True, workers: int |
         return {}
     workers = workers or min(os.cpu_count() or 1, 8)
     with ProcessPoolExecutor(workers, initializer=_load, initargs=(str(root / RAJAGOPAL_MODEL),)) as pool:
-        rows = list(tqdm(pool.map(_clip, [str(c) for c in clips], chunksize=4), total=len(clips),
-                         desc="retargeting BVH", unit="clip", disable=not progress))
+        rows = list(
+            tqdm(
+                pool.map(_clip, [str(c) for c in clips], chunksize=4),
+                total=len(clips),
+                desc="retargeting BVH",
+                unit="clip",
+                disable=not progress,
+            )
+        )
     pairs = np.array([r["frames"] - 1 for r in rows], dtype=float)
 
     def pooled(key: str) -> float:
         return float(np.sum([r[key] for r in rows] * pairs) / np.sum([r["skate_source"] for r in rows] * pairs))
 
     errors = np.array([r["mean_err_m"] for r in rows])
-    return {"bvh_clips": len(rows), "bvh_joint_err_m": float(errors.max()),
-            "bvh_joint_err_mean_m": round(float(errors.mean()), 5),
-            "bvh_clips_over_2cm": [r["clip"] for r in rows if r["mean_err_m"] > ERROR_BAR],
-            "bvh_range_violations": int(sum(r["range_violations"] for r in rows)),
-            "bvh_skate_ratio": round(pooled("skate_result"), 4),
-            "bvh_skate_ratio_filtered": round(pooled("skate_filtered"), 4),
-            "bvh_joint_err_mean_filtered_m": round(float(np.mean([r["mean_err_filtered_m"] for r in rows])), 5),
-            "bvh_per_clip": rows}
+    return {
+        "bvh_clips": len(rows),
+        "bvh_joint_err_m": float(errors.max()),
+        "bvh_joint_err_mean_m": round(float(errors.mean()), 5),
+        "bvh_clips_over_2cm": [r["clip"] for r in rows if r["mean_err_m"] > ERROR_BAR],
+        "bvh_range_violations": int(sum(r["range_violations"] for r in rows)),
+        "bvh_skate_ratio": round(pooled("skate_result"), 4),
+        "bvh_skate_ratio_filtered": round(pooled("skate_filtered"), 4),
+        "bvh_joint_err_mean_filtered_m": round(float(np.mean([r["mean_err_filtered_m"] for r in rows])), 5),
+        "bvh_per_clip": rows,
+    }

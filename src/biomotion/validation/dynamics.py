@@ -44,15 +44,30 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from biomotion.analysis.chain import analyze, model_motion, plate_feet, plate_frames, torque_labels, unwrapped, \
-    vertical_agreement, zmp_to_plate_cop
+from biomotion.analysis.chain import (
+    analyze,
+    model_motion,
+    plate_feet,
+    plate_frames,
+    torque_labels,
+    unwrapped,
+    vertical_agreement,
+    zmp_to_plate_cop,
+)
 from biomotion.body.dynamics import ExternalLoad, inverse_dynamics
 from biomotion.body.kinematics import forward_kinematics, marker_positions
 from biomotion.body.model import BodyModel
 from biomotion.data.sources import OPENCAP_MODEL_FILE
 from biomotion.io.c3d import read_c3d_forces
-from biomotion.io.mot import read_ground_reaction, read_motion, read_storage, torque_columns, \
-    write_external_loads_xml, write_ground_reaction, write_motion
+from biomotion.io.mot import (
+    read_ground_reaction,
+    read_motion,
+    read_storage,
+    torque_columns,
+    write_external_loads_xml,
+    write_ground_reaction,
+    write_motion,
+)
 from biomotion.motion import GroundReaction, Motion
 from biomotion.validation.oracle import Oracle, opensim, random_poses, run_inverse_dynamics_tool
 
@@ -92,8 +107,11 @@ def check_forward_kinematics(data_root: Path, poses_per_model: int = 3, progress
                 error = max(error, float(np.abs(markers[k].numpy() - oracle.markers()).max()))
         per_model[str(path.relative_to(data_root))] = error
         worst = max(worst, error)
-    return {"fk_max_err_m": worst if paths else None,   # None, not 0: no model, nothing measured
-            "fk_models": len(paths), "fk_per_model_max_err_m": per_model}
+    return {
+        "fk_max_err_m": worst if paths else None,  # None, not 0: no model, nothing measured
+        "fk_models": len(paths),
+        "fk_per_model_max_err_m": per_model,
+    }
 
 
 def _opensim_external_force(osim, storage, channel: str, body: str, labels: tuple[str, ...]):
@@ -105,8 +123,9 @@ def _opensim_external_force(osim, storage, channel: str, body: str, labels: tupl
     return force
 
 
-def _id_solver_case(model_path: Path, motion_path: Path, grf_path: Path, assignment: dict[str, str],
-                    frames: slice) -> float:
+def _id_solver_case(
+    model_path: Path, motion_path: Path, grf_path: Path, assignment: dict[str, str], frames: slice
+) -> float:
     """Max |τ_ours − τ_OpenSim| at motion frames that coincide with a GRF sample: identical q, q̇, q̈ (central
     differences of the IK), and the same plate samples applied as OpenSim ExternalForces from the same file."""
     model = BodyModel.from_osim(model_path)
@@ -129,10 +148,17 @@ def _id_solver_case(model_path: Path, motion_path: Path, grf_path: Path, assignm
     loads = []
     for name, body in assignment.items():
         j = forces.names.index(name)
-        loads.append(ExternalLoad(body, torch.tensor(forces.force[rows, j]), torch.tensor(forces.cop[rows, j]),
-                                  torch.tensor(forces.moment[rows, j])))
-    tau = inverse_dynamics(model, torch.tensor(q[index]), torch.tensor(qd[index]), torch.tensor(qdd[index]),
-                           loads).numpy()
+        loads.append(
+            ExternalLoad(
+                body,
+                torch.tensor(forces.force[rows, j]),
+                torch.tensor(forces.cop[rows, j]),
+                torch.tensor(forces.moment[rows, j]),
+            )
+        )
+    tau = inverse_dynamics(
+        model, torch.tensor(q[index]), torch.tensor(qd[index]), torch.tensor(qdd[index]), loads
+    ).numpy()
     worst = 0.0
     for i, k in enumerate(index):
         oracle.set(q[k], qd[k], time=float(forces.times[rows[i]]))
@@ -148,8 +174,14 @@ def _opencap_trials(data_root: Path) -> list[tuple[str, Path, Path, Path]]:
         for grf in sorted((folder / "ID").glob("*_grf.mot")):
             trial = grf.name.removesuffix("_grf.mot")
             if (folder / "IK" / f"{trial}_ik.mot").exists() and not trial.startswith("static"):
-                cases.append((f"opencap/{folder.name}/{trial}", folder / OPENCAP_MODEL_FILE,
-                              folder / "IK" / f"{trial}_ik.mot", grf))
+                cases.append(
+                    (
+                        f"opencap/{folder.name}/{trial}",
+                        folder / OPENCAP_MODEL_FILE,
+                        folder / "IK" / f"{trial}_ik.mot",
+                        grf,
+                    )
+                )
     return cases
 
 
@@ -163,22 +195,36 @@ def _plate_bodies(model_path: Path, motion_path: Path, forces: GroundReaction) -
 def check_inverse_dynamics_solver(data_root: Path, progress: bool = True) -> dict:
     cases = []
     if (data_root / GAIT / "subject01_walk1_ik.mot").exists():
-        cases.append(("gait2392/subject01_walk1", data_root / GAIT / "OutputReference/subject01_simbody.osim",
-                      data_root / GAIT / "subject01_walk1_ik.mot", data_root / GAIT / "subject01_walk1_grf.mot",
-                      {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
+        cases.append(
+            (
+                "gait2392/subject01_walk1",
+                data_root / GAIT / "OutputReference/subject01_simbody.osim",
+                data_root / GAIT / "subject01_walk1_ik.mot",
+                data_root / GAIT / "subject01_walk1_grf.mot",
+                {"ground_force": "calcn_r", "1_ground_force": "calcn_l"},
+            )
+        )
     for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
-        cases.append((name, model_path, motion_path, grf_path,
-                      _plate_bodies(model_path, motion_path, read_ground_reaction(grf_path))))
+        cases.append(
+            (
+                name,
+                model_path,
+                motion_path,
+                grf_path,
+                _plate_bodies(model_path, motion_path, read_ground_reaction(grf_path)),
+            )
+        )
     errors = {}
-    for name, model_path, motion_path, grf_path, assignment in tqdm(cases, desc="ID vs OpenSim solver",
-                                                                    unit="trial", disable=not progress):
+    for name, model_path, motion_path, grf_path, assignment in tqdm(
+        cases, desc="ID vs OpenSim solver", unit="trial", disable=not progress
+    ):
         errors[name] = _id_solver_case(model_path, motion_path, grf_path, assignment, slice(5, -5, 5))
-    return {"id_solver_max_err_nm": max(errors.values()) if errors else None,
-            "id_solver_per_trial_max_err_nm": errors}
+    return {"id_solver_max_err_nm": max(errors.values()) if errors else None, "id_solver_per_trial_max_err_nm": errors}
 
 
-def _end_to_end_case(model_path: Path, motion_path: Path, forces: GroundReaction, assignment: dict[str, str],
-                     tmp: Path) -> dict:
+def _end_to_end_case(
+    model_path: Path, motion_path: Path, forces: GroundReaction, assignment: dict[str, str], tmp: Path
+) -> dict:
     """Our ID pipeline vs OpenSim's InverseDynamicsTool, both from the same coordinates with a 6 Hz filter.
 
     OpenSim is given the coordinates `analyze` works on: the IK's, with 2π wraps of angles removed (`unwrapped`:
@@ -194,8 +240,9 @@ def _end_to_end_case(model_path: Path, motion_path: Path, forces: GroundReaction
     forces = forces.assign([assignment.get(name) for name in forces.names]).select(list(assignment))
     grf_file = write_ground_reaction(tmp / "grf.mot", forces)
     loads_file = write_external_loads_xml(tmp / "loads.xml", forces, str(grf_file))
-    reference = read_storage(run_inverse_dynamics_tool(model_path, coordinates, loads_file, tmp / "opensim",
-                                                       start, end))
+    reference = read_storage(
+        run_inverse_dynamics_tool(model_path, coordinates, loads_file, tmp / "opensim", start, end)
+    )
     ours = analyze(motion, model, forces, cutoff_hz=6.0)
     labels = torque_labels(model)
     out = {}
@@ -213,17 +260,23 @@ def _end_to_end_case(model_path: Path, motion_path: Path, forces: GroundReaction
 def check_inverse_dynamics_end_to_end(data_root: Path, progress: bool = True) -> dict:
     cases = []
     if (data_root / GAIT / "subject01_walk1_ik.mot").exists():
-        cases.append(("gait2392/subject01_walk1", data_root / GAIT / "OutputReference/subject01_simbody.osim",
-                      data_root / GAIT / "subject01_walk1_ik.mot",
-                      read_ground_reaction(data_root / GAIT / "subject01_walk1_grf.mot"),
-                      {"ground_force": "calcn_r", "1_ground_force": "calcn_l"}))
+        cases.append(
+            (
+                "gait2392/subject01_walk1",
+                data_root / GAIT / "OutputReference/subject01_simbody.osim",
+                data_root / GAIT / "subject01_walk1_ik.mot",
+                read_ground_reaction(data_root / GAIT / "subject01_walk1_grf.mot"),
+                {"ground_force": "calcn_r", "1_ground_force": "calcn_l"},
+            )
+        )
     for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
         forces = read_ground_reaction(grf_path)
         cases.append((name, model_path, motion_path, forces, _plate_bodies(model_path, motion_path, forces)))
     per_trial = {}
     with tempfile.TemporaryDirectory() as tmp:
-        for name, model_path, motion_path, forces, assignment in tqdm(cases, desc="ID vs OpenSim ID tool",
-                                                                      unit="trial", disable=not progress):
+        for name, model_path, motion_path, forces, assignment in tqdm(
+            cases, desc="ID vs OpenSim ID tool", unit="trial", disable=not progress
+        ):
             folder = Path(tmp) / name.replace("/", "_")
             folder.mkdir()
             per_trial[name] = _end_to_end_case(model_path, motion_path, forces, assignment, folder)
@@ -254,24 +307,36 @@ def _grf_cases(data_root: Path) -> tuple[list[tuple[str, Path, object, object]],
         runner = c3d.name.removesuffix("runT35.c3d")
         ik = fukuchi / f"ik/T35/{runner}_T35_ik_simple.mot"
         model = fukuchi / runner / f"{runner}_simple.osim"
-        chain = [k for k in ("generic", "scale_setup", "ik_setup", "static")
-                 if not runner_files(fukuchi, runner, "T35")[k].exists()]
+        chain = [
+            k
+            for k in ("generic", "scale_setup", "ik_setup", "static")
+            if not runner_files(fukuchi, runner, "T35")[k].exists()
+        ]
         if not model.exists():
             skipped.append(f"GRF check: fukuchi-running/{runner}: no {model.name}")
         elif ik.exists():
-            cases.append((f"fukuchi/{runner}/T35", model, lambda p=ik: read_motion(p),
-                          lambda c=c3d: read_c3d_forces(c)))
+            cases.append(
+                (f"fukuchi/{runner}/T35", model, lambda p=ik: read_motion(p), lambda c=c3d: read_c3d_forces(c))
+            )
         elif not chain:
-            cases.append((f"fukuchi/{runner}/T35 (C3D, source chain)", model,
-                          lambda r=runner: _fukuchi_chain_motion(fukuchi, r), lambda c=c3d: read_c3d_forces(c)))
+            cases.append(
+                (
+                    f"fukuchi/{runner}/T35 (C3D, source chain)",
+                    model,
+                    lambda r=runner: _fukuchi_chain_motion(fukuchi, r),
+                    lambda c=c3d: read_c3d_forces(c),
+                )
+            )
         else:
-            skipped.append(f"GRF check: fukuchi-running/{runner}: no ik/T35 motion, and the chain lacks "
-                           f"{', '.join(chain)}")
+            skipped.append(
+                f"GRF check: fukuchi-running/{runner}: no ik/T35 motion, and the chain lacks {', '.join(chain)}"
+            )
     for name, model_path, motion_path, grf_path in _opencap_trials(data_root):
         if name.rsplit("/", 1)[1].startswith("STS"):  # seated: the chair carries weight no plate measures
             continue
-        cases.append((name, model_path, lambda p=motion_path: read_motion(p),
-                      lambda g=grf_path: read_ground_reaction(g)))
+        cases.append(
+            (name, model_path, lambda p=motion_path: read_motion(p), lambda g=grf_path: read_ground_reaction(g))
+        )
     return cases, skipped
 
 
@@ -280,8 +345,9 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
     rows, pooled = [], {"ours": [], "base": [], "plates": [], "filtered": []}
     zmp_distances: dict[str, list[np.ndarray]] = {}
     cases, skipped = _grf_cases(data_root)
-    for name, model_path, load_motion, load_forces in tqdm(cases, desc="GRF vs plates", unit="trial",
-                                                           disable=not progress):
+    for name, model_path, load_motion, load_forces in tqdm(
+        cases, desc="GRF vs plates", unit="trial", disable=not progress
+    ):
         model = BodyModel.from_osim(model_path)
         motion = load_motion()
         forces = load_forces().slice(motion.times[0] - 0.1, motion.times[-1] + 0.1)
@@ -292,42 +358,74 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
         weight = result.body_weight
         total = result.measured.force[:, :, 1].sum(1)
         plates = total[keep]
-        filtered = Motion(times=result.motion.times, values=total[:, None], names=("plates_fy",)
-                          ).smoothed(cutoff_hz)[0].values[keep, 0]
+        filtered = (
+            Motion(times=result.motion.times, values=total[:, None], names=("plates_fy",))
+            .smoothed(cutoff_hz)[0]
+            .values[keep, 0]
+        )
         ours = result.inferred.force[keep, :, 1].sum(1)
         base = float(model.total_mass) * (9.80665 + result.com_acceleration[keep, 1])
         a, b = vertical_agreement(ours, plates, weight), vertical_agreement(base, plates, weight)
         a_f, b_f = vertical_agreement(ours, filtered, weight), vertical_agreement(base, filtered, weight)
         zmp = zmp_to_plate_cop(result, keep)
         zmp_distances.setdefault(name.split("/")[0], []).append(zmp)
-        rows.append({"trial": name, "frames": int(keep.sum()), "frames_left_out": int((~keep).sum()),
-                     "r2": a["r2"], "rmse_bw": a["rmse_bw"], "baseline_r2": b["r2"], "baseline_rmse_bw": b["rmse_bw"],
-                     "rmse_bw_plates_filtered": a_f["rmse_bw"], "baseline_rmse_bw_plates_filtered": b_f["rmse_bw"],
-                     "zmp_cop_frames": int(zmp.size), "zmp_cop_rmse_m": _rms(zmp), "analysis_seconds": seconds})
-        for key, value in (("ours", ours / weight), ("base", base / weight), ("plates", plates / weight),
-                           ("filtered", filtered / weight)):
+        rows.append(
+            {
+                "trial": name,
+                "frames": int(keep.sum()),
+                "frames_left_out": int((~keep).sum()),
+                "r2": a["r2"],
+                "rmse_bw": a["rmse_bw"],
+                "baseline_r2": b["r2"],
+                "baseline_rmse_bw": b["rmse_bw"],
+                "rmse_bw_plates_filtered": a_f["rmse_bw"],
+                "baseline_rmse_bw_plates_filtered": b_f["rmse_bw"],
+                "zmp_cop_frames": int(zmp.size),
+                "zmp_cop_rmse_m": _rms(zmp),
+                "analysis_seconds": seconds,
+            }
+        )
+        for key, value in (
+            ("ours", ours / weight),
+            ("base", base / weight),
+            ("plates", plates / weight),
+            ("filtered", filtered / weight),
+        ):
             pooled[key].append(value)
     if not rows:
-        return {"grf_vertical_r2": None, "grf_vertical_rmse_bw": None, "grf_com_baseline_rmse_bw": None,
-                "zmp_cop_rmse_m": None, "grf_trials": [], "skipped": skipped}
+        return {
+            "grf_vertical_r2": None,
+            "grf_vertical_rmse_bw": None,
+            "grf_com_baseline_rmse_bw": None,
+            "zmp_cop_rmse_m": None,
+            "grf_trials": [],
+            "skipped": skipped,
+        }
     plates, filtered = np.concatenate(pooled["plates"]), np.concatenate(pooled["filtered"])
     ours = vertical_agreement(np.concatenate(pooled["ours"]), plates, 1.0)
     base = vertical_agreement(np.concatenate(pooled["base"]), plates, 1.0)
     ours_f = vertical_agreement(np.concatenate(pooled["ours"]), filtered, 1.0)
     base_f = vertical_agreement(np.concatenate(pooled["base"]), filtered, 1.0)
-    return {"grf_vertical_r2": ours["r2"], "grf_vertical_rmse_bw": ours["rmse_bw"],
-            "grf_com_baseline_r2": base["r2"], "grf_com_baseline_rmse_bw": base["rmse_bw"],
-            "grf_vertical_r2_plates_filtered": ours_f["r2"], "grf_vertical_rmse_bw_plates_filtered": ours_f["rmse_bw"],
-            "grf_com_baseline_r2_plates_filtered": base_f["r2"],
-            "grf_com_baseline_rmse_bw_plates_filtered": base_f["rmse_bw"],
-            "grf_cutoff_hz": cutoff_hz, "grf_frames": int(len(plates)),
-            "zmp_cop_rmse_m": _rms(np.concatenate([d for ds in zmp_distances.values() for d in ds])),
-            "zmp_cop_rmse_m_per_source": {source: _rms(np.concatenate(ds)) for source, ds in zmp_distances.items()},
-            "grf_trials": rows, "skipped": skipped}
+    return {
+        "grf_vertical_r2": ours["r2"],
+        "grf_vertical_rmse_bw": ours["rmse_bw"],
+        "grf_com_baseline_r2": base["r2"],
+        "grf_com_baseline_rmse_bw": base["rmse_bw"],
+        "grf_vertical_r2_plates_filtered": ours_f["r2"],
+        "grf_vertical_rmse_bw_plates_filtered": ours_f["rmse_bw"],
+        "grf_com_baseline_r2_plates_filtered": base_f["r2"],
+        "grf_com_baseline_rmse_bw_plates_filtered": base_f["rmse_bw"],
+        "grf_cutoff_hz": cutoff_hz,
+        "grf_frames": int(len(plates)),
+        "zmp_cop_rmse_m": _rms(np.concatenate([d for ds in zmp_distances.values() for d in ds])),
+        "zmp_cop_rmse_m_per_source": {source: _rms(np.concatenate(ds)) for source, ds in zmp_distances.items()},
+        "grf_trials": rows,
+        "skipped": skipped,
+    }
 
 
 def _rms(x: np.ndarray) -> float | None:
-    return float(np.sqrt(np.mean(x ** 2))) if x.size else None
+    return float(np.sqrt(np.mean(x**2))) if x.size else None
 
 
 def validate_kinematics(data_root: Path, progress: bool = True) -> dict:
@@ -336,9 +434,11 @@ def validate_kinematics(data_root: Path, progress: bool = True) -> dict:
 
 def validate_dynamics(data_root: Path, progress: bool = True) -> dict:
     report: dict = {"skipped": []}
-    for check in (check_inverse_dynamics_solver(data_root, progress),
-                  check_inverse_dynamics_end_to_end(data_root, progress),
-                  check_ground_reaction(data_root, progress=progress)):
+    for check in (
+        check_inverse_dynamics_solver(data_root, progress),
+        check_inverse_dynamics_end_to_end(data_root, progress),
+        check_ground_reaction(data_root, progress=progress),
+    ):
         report["skipped"] += check.pop("skipped", [])
         report.update(check)
     return report

@@ -76,7 +76,6 @@ from __future__ import annotations
 
 import tempfile
 import time
-import xml.etree.ElementTree as ET
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,6 +83,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.errors import DataFormatError
+from biomotion.io.xml import parse_tree
 from biomotion.validation.ik import RAJAGOPAL_SCALE_STEPS, scale_rajagopal_walk
 
 RAJAGOPAL = "opensim-models/Pipelines/Rajagopal"
@@ -113,6 +113,7 @@ EMG_MUSCLES: dict[str, tuple[str, ...]] = {
 
 # --- the .anc reader ------------------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class AnalogRecording:
     """An analog recording (.anc). ``counts`` [N, C] are the raw ADC values as written; ``ranges`` the per-channel
@@ -120,13 +121,13 @@ class AnalogRecording:
     here, since every EMG envelope is normalised to its own peak)."""
 
     path: Path
-    times: np.ndarray            # [N] s
-    names: tuple[str, ...]       # [C]
-    counts: np.ndarray           # [N, C]
-    rate: float                  # Hz
-    ranges: np.ndarray           # [C]
+    times: np.ndarray  # [N] s
+    names: tuple[str, ...]  # [C]
+    counts: np.ndarray  # [N, C]
+    rate: float  # Hz
+    ranges: np.ndarray  # [C]
     bit_depth: int
-    duration: float              # s, as the header states
+    duration: float  # s, as the header states
     header: dict[str, str]
 
     @property
@@ -140,8 +141,7 @@ class AnalogRecording:
     def channel(self, name: str) -> np.ndarray:
         """[N] the channel's values; a `DataFormatError` naming the channels there are when it is absent."""
         if name not in self.names:
-            raise DataFormatError(self.path, f"no channel {name!r}; channels: {', '.join(self.names)}",
-                                  field=name)
+            raise DataFormatError(self.path, f"no channel {name!r}; channels: {', '.join(self.names)}", field=name)
         return self.counts[:, self.names.index(name)]
 
 
@@ -198,27 +198,35 @@ def read_anc(path: str | Path) -> AnalogRecording:
             name_row = index
             break
         if len(fields) % 2:
-            raise DataFormatError(path, f"header line is not 'key:<TAB>value' pairs: {line.strip()!r}",
-                                  line=index + 1)
+            raise DataFormatError(path, f"header line is not 'key:<TAB>value' pairs: {line.strip()!r}", line=index + 1)
         for key, value in zip(fields[0::2], fields[1::2]):
             if not key.endswith(":"):
                 raise DataFormatError(path, f"header key {key!r} does not end with ':'", line=index + 1)
             header[key[:-1]] = value
     if not header.get("File_Type", "").startswith("Analog R/C ASCII"):
-        raise DataFormatError(path, f"not an 'Analog R/C ASCII' file (File_Type {header.get('File_Type')!r})",
-                              line=1, field="File_Type")
+        raise DataFormatError(
+            path, f"not an 'Analog R/C ASCII' file (File_Type {header.get('File_Type')!r})", line=1, field="File_Type"
+        )
     if name_row is None:
         raise DataFormatError(path, "no 'Name' row (channel names) after the header", line=len(lines))
     for key in ("#Channels", "PreciseRate", "Duration(Sec.)", "BitDepth"):
         if key not in header:
             raise DataFormatError(path, f"header lacks {key!r}", line=name_row, field=key)
-    numbers = _numbers(path, name_row, [header["#Channels"], header["PreciseRate"], header["Duration(Sec.)"],
-                                        header["BitDepth"]], "header")
+    numbers = _numbers(
+        path,
+        name_row,
+        [header["#Channels"], header["PreciseRate"], header["Duration(Sec.)"], header["BitDepth"]],
+        "header",
+    )
     n_channels, rate, duration, bit_depth = int(numbers[0]), float(numbers[1]), float(numbers[2]), int(numbers[3])
     if n_channels != numbers[0] or n_channels < 1 or rate <= 0 or duration < 0 or bit_depth < 1:
-        raise DataFormatError(path, f"header values out of range: #Channels {header['#Channels']}, PreciseRate "
-                                    f"{header['PreciseRate']}, Duration {header['Duration(Sec.)']}, BitDepth "
-                                    f"{header['BitDepth']}", line=name_row)
+        raise DataFormatError(
+            path,
+            f"header values out of range: #Channels {header['#Channels']}, PreciseRate "
+            f"{header['PreciseRate']}, Duration {header['Duration(Sec.)']}, BitDepth "
+            f"{header['BitDepth']}",
+            line=name_row,
+        )
 
     rows = {}
     for offset, label in enumerate(("Name", "Rate", "Range")):
@@ -227,8 +235,11 @@ def read_anc(path: str | Path) -> AnalogRecording:
         if not fields or fields[0] != label:
             raise DataFormatError(path, f"expected the {label!r} row here", line=index + 1)
         if len(fields) - 1 != n_channels:
-            raise DataFormatError(path, f"{label!r} row has {len(fields) - 1} fields for {n_channels} channels "
-                                        f"(#Channels)", line=index + 1)
+            raise DataFormatError(
+                path,
+                f"{label!r} row has {len(fields) - 1} fields for {n_channels} channels (#Channels)",
+                line=index + 1,
+            )
         rows[label] = (index + 1, fields[1:])
     names = tuple(rows["Name"][1])
     duplicates = sorted({n for n in names if names.count(n) > 1})
@@ -237,8 +248,11 @@ def read_anc(path: str | Path) -> AnalogRecording:
     rates = _numbers(path, rows["Rate"][0], rows["Rate"][1], "Rate row")
     mismatched = [n for n, r in zip(names, rates) if abs(r - rate) > 1e-6 * rate]
     if mismatched:
-        raise DataFormatError(path, f"channels {mismatched} are not sampled at PreciseRate {rate:g} Hz "
-                                    "(mixed rates are not supported)", line=rows["Rate"][0])
+        raise DataFormatError(
+            path,
+            f"channels {mismatched} are not sampled at PreciseRate {rate:g} Hz (mixed rates are not supported)",
+            line=rows["Rate"][0],
+        )
     ranges = _numbers(path, rows["Range"][0], rows["Range"][1], "Range row")
     if np.any(ranges <= 0):
         raise DataFormatError(path, "Range row has non-positive values", line=rows["Range"][0])
@@ -251,8 +265,9 @@ def read_anc(path: str | Path) -> AnalogRecording:
     for k, line in enumerate(body):
         fields = _fields(line)
         if len(fields) != n_channels + 1:
-            raise DataFormatError(path, f"data row has {len(fields)} fields, expected time + {n_channels} "
-                                        "channels", line=first + k + 1)
+            raise DataFormatError(
+                path, f"data row has {len(fields)} fields, expected time + {n_channels} channels", line=first + k + 1
+            )
         data[k] = _numbers(path, first + k + 1, fields, "data row")
     if len(data) < 2:
         raise DataFormatError(path, f"{len(data)} data rows: need at least 2", line=first + 1)
@@ -262,27 +277,32 @@ def read_anc(path: str | Path) -> AnalogRecording:
     bad = np.flatnonzero(np.abs(step - 1.0 / rate) > tolerance)
     if bad.size:
         k = int(bad[0]) + 1
-        raise DataFormatError(path, f"time {times[k]:g} s does not follow {times[k - 1]:g} s by 1/{rate:g} s",
-                              line=first + k + 1)
+        raise DataFormatError(
+            path, f"time {times[k]:g} s does not follow {times[k - 1]:g} s by 1/{rate:g} s", line=first + k + 1
+        )
     expected = round(duration * rate) + 1
     if len(data) != expected or abs(times[-1] - times[0] - duration) > 0.5 / rate:
-        raise DataFormatError(path, f"{len(data)} samples spanning {times[-1] - times[0]:g} s, but the header "
-                                    f"says Duration {duration:g} s at {rate:g} Hz ({expected} samples)",
-                              line=first + len(data))
+        raise DataFormatError(
+            path,
+            f"{len(data)} samples spanning {times[-1] - times[0]:g} s, but the header "
+            f"says Duration {duration:g} s at {rate:g} Hz ({expected} samples)",
+            line=first + len(data),
+        )
     return AnalogRecording(path, times, names, data[:, 1:], rate, ranges, bit_depth, duration, header)
 
 
 # --- envelopes and on/off -------------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class EMGSettings:
     """EMG processing and on/off rule (see the module docstring)."""
 
     band_hz: tuple[float, float] = (20.0, 450.0)
-    band_order: int = 2            # per edge: a 4th-order band-pass, run forward and backward
+    band_order: int = 2  # per edge: a 4th-order band-pass, run forward and backward
     envelope_hz: float = 6.0
-    envelope_order: int = 2        # run forward and backward: 4th-order zero-lag
-    threshold: float = 0.20        # on: >= min + threshold (max - min) over the compared frames
+    envelope_order: int = 2  # run forward and backward: 4th-order zero-lag
+    threshold: float = 0.20  # on: >= min + threshold (max - min) over the compared frames
 
 
 def emg_envelope(raw: np.ndarray, rate: float, settings: EMGSettings = EMGSettings()) -> np.ndarray:
@@ -298,8 +318,7 @@ def emg_envelope(raw: np.ndarray, rate: float, settings: EMGSettings = EMGSettin
         raise ValueError(f"envelope cut-off {settings.envelope_hz} Hz must lie in (0, {rate / 2}) Hz")
     band = scipy.signal.butter(settings.band_order, [low, high], btype="bandpass", fs=rate, output="sos")
     x = scipy.signal.sosfiltfilt(band, x - x.mean(axis=0), axis=0)
-    lowpass = scipy.signal.butter(settings.envelope_order, settings.envelope_hz, btype="low", fs=rate,
-                                  output="sos")
+    lowpass = scipy.signal.butter(settings.envelope_order, settings.envelope_hz, btype="low", fs=rate, output="sos")
     pad = min(round(rate), x.shape[0] - 1)
     envelope = scipy.signal.sosfiltfilt(lowpass, np.abs(x), axis=0, padtype="even", padlen=pad)
     return np.clip(envelope, 0.0, None)
@@ -325,15 +344,17 @@ def chance_agreement(a: np.ndarray, b: np.ndarray) -> float:
     return p * q + (1 - p) * (1 - q)
 
 
-def channel_activations(activations: np.ndarray, muscle_names: Sequence[str],
-                        mapping: Mapping[str, Sequence[str]] = EMG_MUSCLES) -> dict[str, np.ndarray]:
+def channel_activations(
+    activations: np.ndarray, muscle_names: Sequence[str], mapping: Mapping[str, Sequence[str]] = EMG_MUSCLES
+) -> dict[str, np.ndarray]:
     """Per EMG channel the mean activation [T] of its model muscles (see `EMG_MUSCLES`)."""
     names = list(muscle_names)
     missing = sorted({m for muscles in mapping.values() for m in muscles if m not in names})
     if missing:
         raise DataFormatError(None, f"predicted activations lack muscles {missing}", field="muscles")
-    return {channel: activations[:, [names.index(m) for m in muscles]].mean(axis=1)
-            for channel, muscles in mapping.items()}
+    return {
+        channel: activations[:, [names.index(m) for m in muscles]].mean(axis=1) for channel, muscles in mapping.items()
+    }
 
 
 def emg_lead(envelope: np.ndarray, activation: np.ndarray, rate: float, max_lag_s: float = 0.2) -> float:
@@ -342,8 +363,7 @@ def emg_lead(envelope: np.ndarray, activation: np.ndarray, rate: float, max_lag_
     electromechanical delay the static optimization does not model; it is not applied to the agreement."""
     best, best_r, reach = 0, -np.inf, round(max_lag_s * rate)
     for lag in range(-reach, reach + 1):
-        a, b = (envelope[:len(envelope) - lag], activation[lag:]) if lag >= 0 else (envelope[-lag:],
-                                                                                  activation[:lag])
+        a, b = (envelope[: len(envelope) - lag], activation[lag:]) if lag >= 0 else (envelope[-lag:], activation[:lag])
         if np.std(a) > 0 and np.std(b) > 0:
             r = float(np.corrcoef(a, b)[0, 1])
             if r > best_r:
@@ -351,8 +371,9 @@ def emg_lead(envelope: np.ndarray, activation: np.ndarray, rate: float, max_lag_
     return best / rate
 
 
-def compare_on_off(envelopes: Mapping[str, np.ndarray], predicted: Mapping[str, np.ndarray],
-                   fraction: float, rate: float | None = None) -> dict:
+def compare_on_off(
+    envelopes: Mapping[str, np.ndarray], predicted: Mapping[str, np.ndarray], fraction: float, rate: float | None = None
+) -> dict:
     """Per channel and pooled on/off agreement of EMG ``envelopes`` and ``predicted`` activations (same frames,
     sampled at ``rate`` Hz: given, the detail also holds `emg_lead`)."""
     per, detail = {}, {}
@@ -363,9 +384,13 @@ def compare_on_off(envelopes: Mapping[str, np.ndarray], predicted: Mapping[str, 
         chance = chance_agreement(emg_on, predicted_on)
         per[channel] = round(share, 4)
         r = np.corrcoef(envelope, predicted[channel])[0, 1] if np.std(predicted[channel]) > 0 else float("nan")
-        detail[channel] = {"agreement": round(share, 4), "emg_on_share": round(float(emg_on.mean()), 4),
-                           "predicted_on_share": round(float(predicted_on.mean()), 4),
-                           "chance_agreement": round(chance, 4), "envelope_r": round(float(r), 4)}
+        detail[channel] = {
+            "agreement": round(share, 4),
+            "emg_on_share": round(float(emg_on.mean()), 4),
+            "predicted_on_share": round(float(predicted_on.mean()), 4),
+            "chance_agreement": round(chance, 4),
+            "envelope_r": round(float(r), 4),
+        }
         if rate:
             detail[channel]["emg_lead_s"] = round(emg_lead(envelope, predicted[channel], rate), 3)
         total += share * len(emg_on)
@@ -376,22 +401,27 @@ def compare_on_off(envelopes: Mapping[str, np.ndarray], predicted: Mapping[str, 
 
 # --- the predicted activations ---------------------------------------------------------------------------------------
 
+
 def external_load_bodies(path: Path, channels: Sequence[str]) -> tuple[str, ...]:
     """The body each GRF channel (``ground_force_r`` ...) is applied to, from an OpenSim ExternalLoads XML whose
     forces are expressed in ground; a `DataFormatError` when a channel has no ExternalForce."""
-    root = ET.parse(path).getroot()
+    root = parse_tree(path).getroot()
     bodies = {}
     for force in root.iter("ExternalForce"):
         identifier = (force.findtext("force_identifier") or "").strip()
         expressed = (force.findtext("force_expressed_in_body") or "ground").strip()
         if expressed != "ground":
-            raise DataFormatError(path, f"ExternalForce {force.get('name')!r} is expressed in {expressed!r}; "
-                                        "only ground is supported", field="force_expressed_in_body")
+            raise DataFormatError(
+                path,
+                f"ExternalForce {force.get('name')!r} is expressed in {expressed!r}; only ground is supported",
+                field="force_expressed_in_body",
+            )
         bodies[identifier.removesuffix("_v")] = (force.findtext("applied_to_body") or "").strip()
     missing = [c for c in channels if not bodies.get(c)]
     if missing:
-        raise DataFormatError(path, f"no ExternalForce (with a body) for GRF channels {missing}",
-                              field="force_identifier")
+        raise DataFormatError(
+            path, f"no ExternalForce (with a body) for GRF channels {missing}", field="force_identifier"
+        )
     return tuple(bodies[c] for c in channels)
 
 
@@ -399,10 +429,10 @@ def external_load_bodies(path: Path, channels: Sequence[str]) -> tuple[str, ...]
 class Predictions:
     """Activations of the 80 Rajagopal muscles on the IK frames."""
 
-    times: np.ndarray                   # [T] s, the IK (marker) frames
+    times: np.ndarray  # [T] s, the IK (marker) frames
     muscle_names: tuple[str, ...]
-    static_optimization: np.ndarray     # [T, M]
-    surrogate: np.ndarray | None        # [T, M] or None when the checkpoint is absent
+    static_optimization: np.ndarray  # [T, M]
+    surrogate: np.ndarray | None  # [T, M] or None when the checkpoint is absent
     info: dict
 
 
@@ -411,13 +441,13 @@ def predict_walk_activations(data_root: Path, surrogate: Path | None = SURROGATE
     surrogate's activations on the same coordinates (see the module docstring). Needs ``opensim`` (ScaleTool)."""
     import torch
 
+    from biomotion.analysis.activation_labels import Labeler
     from biomotion.analysis.chain import analyze, model_motion, unwrapped
     from biomotion.body.model import BodyModel
     from biomotion.ik.markers import solve_ik
-    from biomotion.io.setup import read_ik_setup
     from biomotion.io.mot import read_ground_reaction
+    from biomotion.io.setup import read_ik_setup
     from biomotion.io.trc import read_trc
-    from biomotion.analysis.activation_labels import Labeler
 
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
@@ -432,34 +462,40 @@ def predict_walk_activations(data_root: Path, surrogate: Path | None = SURROGATE
         model = BodyModel.from_osim(scale_rajagopal_walk(data_root, Path(folder)))
     lap("scale_opensim")
     setup = read_ik_setup(data_root / IK_SETUP)
-    ik = solve_ik(model, read_trc(data_root / MARKER_FILE), weights=setup.marker_weights,
-                  coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range)
+    ik = solve_ik(
+        model,
+        read_trc(data_root / MARKER_FILE),
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=setup.time_range,
+    )
     lap("ik")
     forces = read_ground_reaction(data_root / GRF_FILE)
     forces = forces.assign(external_load_bodies(data_root / GRF_LOADS, forces.names))
     labeler = Labeler.from_data_root(data_root)
     result = analyze(ik.motion, model, forces, cutoff_hz=labeler.settings.cutoff_hz)
     coordinates = unwrapped(model_motion(ik.motion, model), model)
-    _, qd, _ = coordinates.smoothed(labeler.settings.cutoff_hz)   # analyze's own preparation, for qdot
+    _, qd, _ = coordinates.smoothed(labeler.settings.cutoff_hz)  # analyze's own preparation, for qdot
     lap("inverse_dynamics")
     order = [list(model.coordinate_names).index(n) for n in labeler.paths.coordinate_names]
     q = torch.tensor(result.motion.values[:, order], dtype=torch.float64)
     qd = torch.tensor(np.ascontiguousarray(qd[:, order]), dtype=torch.float64)
-    torques = torch.tensor(result.torques[:, order], dtype=torch.float64)[:, labeler.paths.select(
-        labeler.coordinates)]
+    torques = torch.tensor(result.torques[:, order], dtype=torch.float64)[:, labeler.paths.select(labeler.coordinates)]
     so = labeler.solve(q, qd, torques)
     lap("static_optimization")
     right = [j for j, n in enumerate(labeler.coordinates) if n.endswith("_r")]
     reserve = so.reserve_torques.numpy()[:, right]
     info = {
         "model": "OpenSim ScaleTool: Scale/scale_setup_walk_scaleOnly.xml then Scale/scale_setup_walk.xml "
-                 f"(mass {float(model.total_mass):.2f} kg)",
-        "ik_frames": int(ik.motion.n_frames), "ik_marker_rmse_m": round(ik.rmse, 5),
+        f"(mass {float(model.total_mass):.2f} kg)",
+        "ik_frames": int(ik.motion.n_frames),
+        "ik_marker_rmse_m": round(ik.rmse, 5),
         "ground_reaction": f"measured ({GRF_FILE}, bodies from {GRF_LOADS})",
         "muscle_paths": "shipped Rajagopal 2016 path functions (generic model)",
-        "muscle_curves": labeler.curves, "balanced_coordinates": list(labeler.coordinates),
+        "muscle_curves": labeler.curves,
+        "balanced_coordinates": list(labeler.coordinates),
         "so_converged_share": round(float(so.converged.double().mean()), 4),
-        "so_reserve_rms_right_nm": round(float(np.sqrt(np.mean(reserve ** 2))), 3),
+        "so_reserve_rms_right_nm": round(float(np.sqrt(np.mean(reserve**2))), 3),
         "so_reserve_max_right_nm": round(float(np.abs(reserve).max()), 3),
     }
     predicted_surrogate = None
@@ -488,20 +524,34 @@ def _surrogate_activations(checkpoint: Path, motion, labeler, data_root: Path) -
     clip = motion.select(CANONICAL_COORDINATES).resample(network.config.rate)
     clip = place_clip(clip, labeler.model, height=height if height > 0 else None, treadmill_speed=None)
     with torch.no_grad():
-        out = network.predict_symmetric(torch.as_tensor(clip.values, dtype=network.mean.dtype)[None],
-                                        torch.as_tensor(clip.mask)[None])[0][0].double().numpy()
+        out = (
+            network.predict_symmetric(
+                torch.as_tensor(clip.values, dtype=network.mean.dtype)[None], torch.as_tensor(clip.mask)[None]
+            )[0][0]
+            .double()
+            .numpy()
+        )
     columns = [network.names.index(n) for n in labeler.muscle_names]
     return np.stack([np.interp(motion.times, clip.times, out[:, c]) for c in columns], axis=1)
 
 
 # --- the check -------------------------------------------------------------------------------------------------------
 
-def emg_envelopes(recording: AnalogRecording, times: np.ndarray, settings: EMGSettings = EMGSettings(),
-                  channels: Sequence[str] = tuple(EMG_MUSCLES)) -> dict[str, np.ndarray]:
+
+def emg_envelopes(
+    recording: AnalogRecording,
+    times: np.ndarray,
+    settings: EMGSettings = EMGSettings(),
+    channels: Sequence[str] = tuple(EMG_MUSCLES),
+) -> dict[str, np.ndarray]:
     """Per channel the envelope at ``times`` (inside the recording), normalised to its peak there."""
     if times[0] < recording.times[0] - 1e-9 or times[-1] > recording.times[-1] + 1e-9:
-        raise DataFormatError(recording.path, f"frames {times[0]:g}-{times[-1]:g} s fall outside the recording "
-                                              f"({recording.times[0]:g}-{recording.times[-1]:g} s)", field="time")
+        raise DataFormatError(
+            recording.path,
+            f"frames {times[0]:g}-{times[-1]:g} s fall outside the recording "
+            f"({recording.times[0]:g}-{recording.times[-1]:g} s)",
+            field="time",
+        )
     raw = np.stack([recording.channel(c) for c in channels], axis=1)
     envelope = emg_envelope(raw, recording.rate, settings)
     out = {}
@@ -526,31 +576,50 @@ def plate_alignment(recording: AnalogRecording, grf_path: Path, max_lag_s: float
     lags = range(-int(max_lag_s * recording.rate), int(max_lag_s * recording.rate) + 1)
 
     def correlation(lag: int) -> float:
-        a, b = (x[lag:], vertical[:len(vertical) - lag]) if lag >= 0 else (x[:lag], vertical[-lag:])
+        a, b = (x[lag:], vertical[: len(vertical) - lag]) if lag >= 0 else (x[:lag], vertical[-lag:])
         keep = np.isfinite(b)
         return float(np.corrcoef(a[keep], b[keep])[0, 1])
 
     values = {lag: correlation(lag) for lag in lags}
     best = max(values, key=lambda lag: abs(values[lag]))
-    return {"checked": True, "plate_channels": plates, "lag_s": best / recording.rate,
-            "r_at_lag": round(values[best], 5), "r_at_zero": round(values[0], 5)}
+    return {
+        "checked": True,
+        "plate_channels": plates,
+        "lag_s": best / recording.rate,
+        "r_at_lag": round(values[best], 5),
+        "r_at_zero": round(values[0], 5),
+    }
 
 
-def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surrogate: Path | None = SURROGATE,
-              sensitivity: Sequence[float] = (0.10, 0.15, 0.25, 0.30)) -> dict:
+def emg_check(
+    data_root: Path,
+    *,
+    settings: EMGSettings = EMGSettings(),
+    surrogate: Path | None = SURROGATE,
+    sensitivity: Sequence[float] = (0.10, 0.15, 0.25, 0.30),
+) -> dict:
     """The EMG on/off check of the Rajagopal walk (module docstring). Returns ``emg_onoff_agreement`` (pooled,
     static optimization), ``emg_per_muscle``, ``emg_source``, ``emg_onoff_agreement_surrogate`` and
     ``emg_per_muscle_surrogate``, with details; when a needed file (or OpenSim) is absent, only ``skipped``
     (a list of reasons) and no figure."""
     data_root = Path(data_root)
     started = time.perf_counter()
-    needed = [EMG_FILE, MARKER_FILE, GRF_FILE, GRF_LOADS, IK_SETUP, GENERIC_MODEL,
-              *(f"{RAJAGOPAL}/Scale/{s}" for s in RAJAGOPAL_SCALE_STEPS)]
+    needed = [
+        EMG_FILE,
+        MARKER_FILE,
+        GRF_FILE,
+        GRF_LOADS,
+        IK_SETUP,
+        GENERIC_MODEL,
+        *(f"{RAJAGOPAL}/Scale/{s}" for s in RAJAGOPAL_SCALE_STEPS),
+    ]
     absent = [n for n in needed if not (data_root / n).exists()]
     if absent:
         return {"skipped": [f"EMG check: {', '.join(absent)} not under {data_root}"]}
     try:
-        import opensim  # noqa: F401  (ScaleTool makes the subject model)
+        from biomotion.settings import opensim_oracle
+
+        opensim_oracle()  # ScaleTool makes the subject model: fail early without opensim
     except ImportError:
         return {"skipped": ["EMG check: opensim is not installed (its ScaleTool makes the subject model)"]}
 
@@ -564,14 +633,16 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
     if predictions.surrogate is not None:
         sources["surrogate"] = predictions.surrogate[inside]
     rate = (len(times) - 1) / (times[-1] - times[0])
-    comparisons = {name: compare_on_off(envelopes, channel_activations(a, predictions.muscle_names),
-                                        settings.threshold, rate) for name, a in sources.items()}
+    comparisons = {
+        name: compare_on_off(envelopes, channel_activations(a, predictions.muscle_names), settings.threshold, rate)
+        for name, a in sources.items()
+    }
     so = comparisons["static_optimization"]
     out: dict = {
         "emg_onoff_agreement": round(so["pooled"], 4),
         "emg_per_muscle": so["per_muscle"],
         "emg_source": "static optimization (squared activations, reserves) of inverse dynamics with measured GRF "
-                      "after IK of motion_capture_walk.trc on the OpenSim-scaled Rajagopal 2016 model",
+        "after IK of motion_capture_walk.trc on the OpenSim-scaled Rajagopal 2016 model",
         "emg_bar": BAR,
         "emg_passes": bool(so["pooled"] >= BAR),
         "emg_chance_agreement": round(so["chance"], 4),
@@ -579,29 +650,46 @@ def emg_check(data_root: Path, *, settings: EMGSettings = EMGSettings(), surroga
     }
     if "surrogate" in comparisons:
         sur = comparisons["surrogate"]
-        out.update(emg_onoff_agreement_surrogate=round(sur["pooled"], 4),
-                   emg_per_muscle_surrogate=sur["per_muscle"],
-                   emg_chance_agreement_surrogate=round(sur["chance"], 4),
-                   emg_source_surrogate=f"MuscleSurrogate checkpoints/{surrogate.name} on the same IK coordinates (30 Hz)")
+        out.update(
+            emg_onoff_agreement_surrogate=round(sur["pooled"], 4),
+            emg_per_muscle_surrogate=sur["per_muscle"],
+            emg_chance_agreement_surrogate=round(sur["chance"], 4),
+            emg_source_surrogate=f"MuscleSurrogate checkpoints/{surrogate.name} on the same IK coordinates (30 Hz)",
+        )
     else:
         out["skipped"].append(f"surrogate variant: checkpoint {surrogate} absent")
     out["emg_detail"] = {name: c["detail"] for name, c in comparisons.items()}
     out["emg_threshold_sensitivity"] = {
-        name: {f"{f:.2f}": round(compare_on_off(envelopes, channel_activations(a, predictions.muscle_names),
-                                                f)["pooled"], 4) for f in sorted({*sensitivity, settings.threshold})}
-        for name, a in sources.items()}
+        name: {
+            f"{f:.2f}": round(
+                compare_on_off(envelopes, channel_activations(a, predictions.muscle_names), f)["pooled"], 4
+            )
+            for f in sorted({*sensitivity, settings.threshold})
+        }
+        for name, a in sources.items()
+    }
     out["emg_muscle_map"] = {c: list(m) for c, m in EMG_MUSCLES.items()}
     out["emg_frames"] = len(times)
     out["emg_window_s"] = [round(float(times[0]), 4), round(float(times[-1]), 4)]
-    out["emg_recording"] = {"file": EMG_FILE, "channels": recording.n_channels, "rate_hz": recording.rate,
-                            "samples": recording.n_samples, "duration_s": recording.duration}
+    out["emg_recording"] = {
+        "file": EMG_FILE,
+        "channels": recording.n_channels,
+        "rate_hz": recording.rate,
+        "samples": recording.n_samples,
+        "duration_s": recording.duration,
+    }
     out["emg_alignment"] = plate_alignment(recording, data_root / GRF_FILE)
-    out["emg_method"] = {"band_hz": list(settings.band_hz), "band_order_per_edge": settings.band_order,
-                         "envelope_hz": settings.envelope_hz, "envelope_order_per_pass": settings.envelope_order,
-                         "zero_lag": True, "normalisation": "per muscle, peak over the compared frames",
-                         "on_rule": f"value >= min + {settings.threshold:g} (max - min) over the compared frames, "
-                                    "same rule for EMG and predicted activation",
-                         "electromechanical_delay_s": 0.0}
+    out["emg_method"] = {
+        "band_hz": list(settings.band_hz),
+        "band_order_per_edge": settings.band_order,
+        "envelope_hz": settings.envelope_hz,
+        "envelope_order_per_pass": settings.envelope_order,
+        "zero_lag": True,
+        "normalisation": "per muscle, peak over the compared frames",
+        "on_rule": f"value >= min + {settings.threshold:g} (max - min) over the compared frames, "
+        "same rule for EMG and predicted activation",
+        "electromechanical_delay_s": 0.0,
+    }
     out["emg_predictions"] = predictions.info
     out["emg_seconds"] = round(time.perf_counter() - started, 2)
     return out

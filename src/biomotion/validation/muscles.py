@@ -58,33 +58,41 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from biomotion.analysis.activation_labels import LabelSettings
 from biomotion.errors import DataFormatError
-from biomotion.validation.emg import SURROGATE, emg_check
+from biomotion.io.xml import parse_tree
 from biomotion.muscles.geometry import MusclePaths, balanced_coordinates, shipped_paths
 from biomotion.muscles.properties import max_active_force, read_muscles
-from biomotion.analysis.activation_labels import LabelSettings
 from biomotion.muscles.static_optimization import (
     StaticOptimizationResult,
     optimize_activations,
 )
+from biomotion.validation.emg import SURROGATE, emg_check
 
 GAIT = "opensim-models/Pipelines/Gait2392_Simbody"
 GAIT_MODEL = f"{GAIT}/OutputReference/subject01_simbody.osim"
 RAJAGOPAL_MODEL = "opensim-models/Models/Rajagopal/Rajagopal2016.osim"
 RAJAGOPAL_PIPELINE = "opensim-models/Pipelines/Rajagopal"
-RESIDUALS = {"pelvis_tilt": 80.0, "pelvis_list": 80.0, "pelvis_rotation": 80.0,
-             "pelvis_tx": 100.0, "pelvis_ty": 200.0, "pelvis_tz": 100.0}   # see `gait_static_optimization`
+RESIDUALS = {
+    "pelvis_tilt": 80.0,
+    "pelvis_list": 80.0,
+    "pelvis_rotation": 80.0,
+    "pelvis_tx": 100.0,
+    "pelvis_ty": 200.0,
+    "pelvis_tz": 100.0,
+}  # see `gait_static_optimization`
 
 
 def _read_sto(path: Path) -> tuple[list[str], np.ndarray]:
     lines = path.read_text().splitlines()
     start = next(i for i, line in enumerate(lines) if line.strip() == "endheader")
     columns = lines[start + 1].split("\t")
-    return columns, np.array([[float(v) for v in line.split()] for line in lines[start + 2:] if line.strip()])
+    return columns, np.array([[float(v) for v in line.split()] for line in lines[start + 2 :] if line.strip()])
 
 
-def moment_arm_errors(paths: MusclePaths, model_path: str | Path, poses: int = 200, seed: int = 1,
-                      muscles: list[str] | None = None) -> dict[tuple[str, str], float]:
+def moment_arm_errors(
+    paths: MusclePaths, model_path: str | Path, poses: int = 200, seed: int = 1, muscles: list[str] | None = None
+) -> dict[tuple[str, str], float]:
     """RMSE (m) of ``paths``' moment arms against OpenSim's at ``poses`` random poses in the sampled box, for every
     (muscle, coordinate) pair whose OpenSim moment arm is non-zero (> 1e-4 m) at some pose."""
     from biomotion.muscles.opensim_paths import OpenSimPaths
@@ -96,7 +104,7 @@ def moment_arm_errors(paths: MusclePaths, model_path: str | Path, poses: int = 2
     spanned = paths.spanned()
     candidates = [i for i in range(paths.n_q) if i not in oracle.dependent and not torch.isnan(paths.ranges[i, 0])]
     pairs = [(oracle.muscle_names.index(m), c) for m in names for c in candidates]
-    reference = oracle.moment_arms(q, pairs)                                             # [N, P]
+    reference = oracle.moment_arms(q, pairs)  # [N, P]
     ours = paths.moment_arms(torch.from_numpy(q)).numpy()
     errors = {}
     for p, (m, c) in enumerate(pairs):
@@ -105,32 +113,41 @@ def moment_arm_errors(paths: MusclePaths, model_path: str | Path, poses: int = 2
         row = paths.muscle_names.index(oracle.muscle_names[m])
         estimate = ours[:, row, c] if spanned[row, c] else np.zeros(len(q))
         errors[(oracle.muscle_names[m], oracle.coordinate_names[c])] = float(
-            np.sqrt(((estimate - reference[:, p]) ** 2).mean()))
+            np.sqrt(((estimate - reference[:, p]) ** 2).mean())
+        )
     return errors
 
 
 @dataclass(frozen=True)
 class OpenSimStaticOptimization:
-    times: np.ndarray            # [T]
+    times: np.ndarray  # [T]
     muscle_names: tuple[str, ...]
-    activations: np.ndarray      # [T, M]
+    activations: np.ndarray  # [T, M]
     coordinate_names: tuple[str, ...]
-    q: np.ndarray                # [T, n_q] rad / m, the states OpenSim's SO used
-    qdot: np.ndarray             # [T, n_q]
-    torques: np.ndarray          # [T, n_q] OpenSim's InverseDynamicsTool on the same coordinates
-    seconds: float               # wall time of OpenSim's SO run (AnalyzeTool.run)
-    actuator_controls: dict[str, np.ndarray] | None = None   # [T] per non-muscle actuator of the optimization
+    q: np.ndarray  # [T, n_q] rad / m, the states OpenSim's SO used
+    qdot: np.ndarray  # [T, n_q]
+    torques: np.ndarray  # [T, n_q] OpenSim's InverseDynamicsTool on the same coordinates
+    seconds: float  # wall time of OpenSim's SO run (AnalyzeTool.run)
+    actuator_controls: dict[str, np.ndarray] | None = None  # [T] per non-muscle actuator of the optimization
 
 
-def opensim_static_optimization(model: Path, coordinates: Path, external_loads: Path, force_set: Path,
-                                start: float, end: float, workdir: str | Path | None = None
-                                ) -> OpenSimStaticOptimization:
+def opensim_static_optimization(
+    model: Path,
+    coordinates: Path,
+    external_loads: Path,
+    force_set: Path,
+    start: float,
+    end: float,
+    workdir: str | Path | None = None,
+) -> OpenSimStaticOptimization:
     """Run OpenSim's StaticOptimization (squared activations, muscle physiology, step interval 1, the model's own
     force set plus ``force_set``) and its InverseDynamicsTool (muscles excluded) on ``coordinates`` filtered at
     6 Hz with ``external_loads`` over [start, end] s, with a Kinematics analysis for the q and qdot the
     optimization saw; read back what they produced. Paths must be absolute (OpenSim resolves setup-file paths
     relative to the setup file)."""
-    import opensim
+    from biomotion.settings import opensim_oracle
+
+    opensim = opensim_oracle()
 
     opensim.Logger.setLevelString("error")
     muscle_names = set(read_muscles(model).names)
@@ -194,26 +211,41 @@ def opensim_static_optimization(model: Path, coordinates: Path, external_loads: 
     n = min(len(activations), len(q), len(torques))
     for name, table in (("Kinematics", q), ("inverse dynamics", torques)):
         if not np.allclose(table[:n, 0], activations[:n, 0], atol=1e-5):
-            raise DataFormatError(None, f"OpenSim's {name} frames do not line up with its static optimization",
-                                  field="time")
-    return OpenSimStaticOptimization(activations[:n, 0], muscles, activations[:n, picks], coordinates_out,
-                                     q[:n, 1:], u[:n, [u_columns.index(c) for c in coordinates_out]],
-                                     torques[:n, [id_index[c] for c in coordinates_out]], seconds,
-                                     {c: activations[:n, columns.index(c)] for c in columns[1:]
-                                      if c not in muscle_names})
+            raise DataFormatError(
+                None, f"OpenSim's {name} frames do not line up with its static optimization", field="time"
+            )
+    return OpenSimStaticOptimization(
+        activations[:n, 0],
+        muscles,
+        activations[:n, picks],
+        coordinates_out,
+        q[:n, 1:],
+        u[:n, [u_columns.index(c) for c in coordinates_out]],
+        torques[:n, [id_index[c] for c in coordinates_out]],
+        seconds,
+        {c: activations[:n, columns.index(c)] for c in columns[1:] if c not in muscle_names},
+    )
 
 
-def opensim_gait_static_optimization(data_root: str | Path, start: float, end: float,
-                                     workdir: str | Path | None = None) -> OpenSimStaticOptimization:
+def opensim_gait_static_optimization(
+    data_root: str | Path, start: float, end: float, workdir: str | Path | None = None
+) -> OpenSimStaticOptimization:
     """`opensim_static_optimization` on the gait2392 subject01 walk (setup as in the module docstring)."""
     root = Path(data_root).resolve() / GAIT
-    return opensim_static_optimization(Path(data_root).resolve() / GAIT_MODEL, root / "subject01_walk1_ik.mot",
-                                       root / "subject01_walk1_grf.xml",
-                                       root / "gait2392_SO_Residual_Actuators.xml", start, end, workdir)
+    return opensim_static_optimization(
+        Path(data_root).resolve() / GAIT_MODEL,
+        root / "subject01_walk1_ik.mot",
+        root / "subject01_walk1_grf.xml",
+        root / "gait2392_SO_Residual_Actuators.xml",
+        start,
+        end,
+        workdir,
+    )
 
 
-def gait_static_optimization(data_root: str | Path, reference: OpenSimStaticOptimization,
-                             paths: MusclePaths | None = None) -> tuple[StaticOptimizationResult, float]:
+def gait_static_optimization(
+    data_root: str | Path, reference: OpenSimStaticOptimization, paths: MusclePaths | None = None
+) -> tuple[StaticOptimizationResult, float]:
     """Our SO on the inputs of ``reference`` (gait2392 subject01) and its wall time (s). The pelvis residuals of
     ``gait2392_SO_Residual_Actuators.xml`` (FX/FY/FZ 100/200/100 N, MX/MY/MZ 80 N·m, controls in [-1, 1]) act
     only on the six pelvis coordinates, which no muscle spans, so they are modelled as reserves there: the muscle
@@ -236,34 +268,38 @@ RAJAGOPAL_OTHER_ACTUATOR = 1000.0
 @dataclass(frozen=True)
 class RajagopalWalkInputs:
     """The files both solvers read for the Rajagopal walk (absolute paths in a working folder)."""
-    model: Path                  # the generic Rajagopal 2016 model (the shipped path functions are its paths),
-                                 # with the walk's marker set
-    coordinates: Path            # our IK of the walk on that model (.mot, degrees)
-    external_loads: Path         # grf_walk.mot on calcn_r / calcn_l (ExternalLoads XML)
-    grf: Path                    # grf_walk.mot
-    force_set: Path              # the reserves above
-    balanced: tuple[str, ...]    # coordinates with muscles (hips, knees, ankles)
+
+    model: Path  # the generic Rajagopal 2016 model (the shipped path functions are its paths),
+    # with the walk's marker set
+    coordinates: Path  # our IK of the walk on that model (.mot, degrees)
+    external_loads: Path  # grf_walk.mot on calcn_r / calcn_l (ExternalLoads XML)
+    grf: Path  # grf_walk.mot
+    force_set: Path  # the reserves above
+    balanced: tuple[str, ...]  # coordinates with muscles (hips, knees, ankles)
     time_range: tuple[float, float]
-    marker_rmse_m: float         # of the IK on the generic model
+    marker_rmse_m: float  # of the IK on the generic model
 
 
 def generic_with_walk_markers(data_root: Path, destination: Path) -> Path:
     """Rajagopal2016.osim with its marker set replaced by the walk pipeline's ``Scale/markerset_walk_preScale.xml``
     (OpenSim 3 markers, ``<body>``, rewritten as 4.0 markers on ``/bodyset/<body>``), the markers the walk's
     TRC and IK setup name."""
-    tree = ET.parse(data_root / RAJAGOPAL_MODEL)
+    tree = parse_tree(data_root / RAJAGOPAL_MODEL)
     model = tree.getroot().find("Model")
     holder = model.find("MarkerSet")
     objects = holder.find("objects")
     for marker in list(objects):
         objects.remove(marker)
-    source = ET.parse(data_root / RAJAGOPAL_PIPELINE / "Scale/markerset_walk_preScale.xml").getroot()
+    source = parse_tree(data_root / RAJAGOPAL_PIPELINE / "Scale/markerset_walk_preScale.xml").getroot()
     for marker in source.iter("Marker"):
         body = (marker.findtext("body") or "").strip()
         location = marker.findtext("location")
         if not body or location is None:
-            raise DataFormatError(data_root / RAJAGOPAL_PIPELINE / "Scale/markerset_walk_preScale.xml",
-                                  f"marker {marker.get('name')!r} has no body or location", field="Marker")
+            raise DataFormatError(
+                data_root / RAJAGOPAL_PIPELINE / "Scale/markerset_walk_preScale.xml",
+                f"marker {marker.get('name')!r} has no body or location",
+                field="Marker",
+            )
         element = ET.SubElement(objects, "Marker", name=marker.get("name"))
         ET.SubElement(element, "socket_parent_frame").text = f"/bodyset/{body}"
         ET.SubElement(element, "location").text = location.strip()
@@ -281,8 +317,8 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
     balance are those of a consistent, if smaller (1.70 m for the subject's 1.83 m), body."""
     from biomotion.body.model import BodyModel
     from biomotion.ik.markers import solve_ik
-    from biomotion.io.setup import read_ik_setup
     from biomotion.io.mot import read_ground_reaction, write_external_loads_xml, write_motion
+    from biomotion.io.setup import read_ik_setup
     from biomotion.io.trc import read_trc
     from biomotion.validation import emg
 
@@ -290,8 +326,13 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
     generic = generic_with_walk_markers(data_root, folder / "Rajagopal2016_walk_markers.osim")
     model = BodyModel.from_osim(generic)
     setup = read_ik_setup(data_root / emg.IK_SETUP)
-    ik = solve_ik(model, read_trc(data_root / emg.MARKER_FILE), weights=setup.marker_weights,
-                  coordinate_tasks=setup.coordinate_tasks, time_range=setup.time_range)
+    ik = solve_ik(
+        model,
+        read_trc(data_root / emg.MARKER_FILE),
+        weights=setup.marker_weights,
+        coordinate_tasks=setup.coordinate_tasks,
+        time_range=setup.time_range,
+    )
     # radians: from a degrees file, OpenSim 4.6's AnalyzeTool converts knee_angle_*_beta's values but leaves its
     # speeds in deg/s (57.3x; the coupled patella coordinate is neither rotational nor translational), and the
     # patella's inertial forces then load the femur: its optimization balanced hip torques some 40 N·m off
@@ -300,8 +341,16 @@ def rajagopal_walk_inputs(data_root: str | Path, folder: Path) -> RajagopalWalkI
     forces = forces.assign(emg.external_load_bodies(data_root / emg.GRF_LOADS, forces.names))
     loads = write_external_loads_xml(folder / "grf_walk.xml", forces, str(data_root / emg.GRF_FILE))
     force_set, balanced = write_rajagopal_reserves(model, folder / "reserves.xml")
-    return RajagopalWalkInputs(generic, coordinates, loads, data_root / emg.GRF_FILE, force_set, balanced,
-                               (float(ik.motion.times[0]), float(ik.motion.times[-1])), float(ik.rmse))
+    return RajagopalWalkInputs(
+        generic,
+        coordinates,
+        loads,
+        data_root / emg.GRF_FILE,
+        force_set,
+        balanced,
+        (float(ik.motion.times[0]), float(ik.motion.times[-1])),
+        float(ik.rmse),
+    )
 
 
 def write_rajagopal_reserves(model, path: Path) -> tuple[Path, tuple[str, ...]]:
@@ -313,27 +362,42 @@ def write_rajagopal_reserves(model, path: Path) -> tuple[Path, tuple[str, ...]]:
     actuators = []
     for j in free:
         name = model.coordinate_names[j]
-        force, bound = ((RAJAGOPAL_RESERVE, RAJAGOPAL_RESERVE_BOUND) if name in balanced
-                        else (RAJAGOPAL_OTHER_ACTUATOR, RAJAGOPAL_RESERVE_BOUND))
-        actuators.append(f'<CoordinateActuator name="reserve_{name}"><coordinate>{name}</coordinate>'
-                         f"<optimal_force>{force}</optimal_force><min_control>{-bound}</min_control>"
-                         f"<max_control>{bound}</max_control></CoordinateActuator>")
-    path.write_text('<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">'
-                    '<ForceSet name="reserves"><objects>' + "".join(actuators) +
-                    "</objects><groups /></ForceSet></OpenSimDocument>\n")
+        force, bound = (
+            (RAJAGOPAL_RESERVE, RAJAGOPAL_RESERVE_BOUND)
+            if name in balanced
+            else (RAJAGOPAL_OTHER_ACTUATOR, RAJAGOPAL_RESERVE_BOUND)
+        )
+        actuators.append(
+            f'<CoordinateActuator name="reserve_{name}"><coordinate>{name}</coordinate>'
+            f"<optimal_force>{force}</optimal_force><min_control>{-bound}</min_control>"
+            f"<max_control>{bound}</max_control></CoordinateActuator>"
+        )
+    path.write_text(
+        '<?xml version="1.0" encoding="UTF-8" ?>\n<OpenSimDocument Version="40000">'
+        '<ForceSet name="reserves"><objects>'
+        + "".join(actuators)
+        + "</objects><groups /></ForceSet></OpenSimDocument>\n"
+    )
     return path, balanced
 
 
-def rajagopal_static_optimization(inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimization,
-                                  paths: MusclePaths | None = None) -> tuple[StaticOptimizationResult, float]:
+def rajagopal_static_optimization(
+    inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimization, paths: MusclePaths | None = None
+) -> tuple[StaticOptimizationResult, float]:
     """Our SO on the inputs of ``reference`` (the Rajagopal walk, `rajagopal_walk_inputs`) and its wall time (s):
     the shipped Rajagopal path functions, the model's Millard 2012 curves, the same reserves on the balanced
     coordinates, and the torques `solver_torques` gives for the states OpenSim's optimization saw."""
     paths = paths or shipped_paths("rajagopal2016")
     muscles = read_muscles(inputs.model)
     torques, _ = solver_torques(inputs, reference)
-    return _solve_on_reference(paths, muscles, replace(reference, torques=torques), inputs.balanced,
-                               {name: RAJAGOPAL_RESERVE for name in inputs.balanced}, RAJAGOPAL_RESERVE_BOUND)
+    return _solve_on_reference(
+        paths,
+        muscles,
+        replace(reference, torques=torques),
+        inputs.balanced,
+        {name: RAJAGOPAL_RESERVE for name in inputs.balanced},
+        RAJAGOPAL_RESERVE_BOUND,
+    )
 
 
 def solver_torques(inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimization) -> tuple[np.ndarray, float]:
@@ -355,34 +419,42 @@ def solver_torques(inputs: RajagopalWalkInputs, reference: OpenSimStaticOptimiza
     filtered, qd, qdd = model_motion(read_motion(inputs.coordinates), model).smoothed(6.0)
     frames = [int(np.argmin(np.abs(filtered.times - t))) for t in reference.times]
     if np.abs(filtered.times[frames] - reference.times).max() > 1e-6:
-        raise DataFormatError(inputs.coordinates, "OpenSim's optimization frames are not frames of the coordinates",
-                              field="time")
+        raise DataFormatError(
+            inputs.coordinates, "OpenSim's optimization frames are not frames of the coordinates", field="time"
+        )
     forces = read_ground_reaction(inputs.grf)
-    forces = loads_on_frames(forces.assign(emg.external_load_bodies(inputs.external_loads, forces.names)),
-                             reference.times)
+    forces = loads_on_frames(
+        forces.assign(emg.external_load_bodies(inputs.external_loads, forces.names)), reference.times
+    )
     as_tensor = lambda a: torch.tensor(np.ascontiguousarray(a[frames]), dtype=torch.float64)  # noqa: E731
-    tau = inverse_dynamics(model, as_tensor(filtered.values), as_tensor(qd), as_tensor(qdd),
-                           _loads(forces, torch.float64)).numpy()
+    tau = inverse_dynamics(
+        model, as_tensor(filtered.values), as_tensor(qd), as_tensor(qdd), _loads(forces, torch.float64)
+    ).numpy()
     back = [list(model.coordinate_names).index(n) for n in reference.coordinate_names]
     rows = [reference.coordinate_names.index(n) for n in inputs.balanced]
     state_error = float(np.abs(filtered.values[frames][:, back][:, rows] - reference.q[:, rows]).max())
     return tau[:, back], state_error
 
 
-def _solve_on_reference(paths: MusclePaths, muscles, reference: OpenSimStaticOptimization,
-                        balanced: tuple[str, ...], reserves: dict[str, float], reserve_bound: float = 1.0
-                        ) -> tuple[StaticOptimizationResult, float]:
+def _solve_on_reference(
+    paths: MusclePaths,
+    muscles,
+    reference: OpenSimStaticOptimization,
+    balanced: tuple[str, ...],
+    reserves: dict[str, float],
+    reserve_bound: float = 1.0,
+) -> tuple[StaticOptimizationResult, float]:
     """Our SO given OpenSim's q, qdot and inverse-dynamics torques (coordinates in ``reference`` order)."""
     q, qdot = _states_in_path_order(paths, reference)
     torques = torch.from_numpy(reference.torques[:, [reference.coordinate_names.index(c) for c in balanced]])
     tic = time.perf_counter()
-    result = optimize_activations(paths, muscles, q, qdot, torques, balanced, reserves,
-                                  reserve_bound=reserve_bound)
+    result = optimize_activations(paths, muscles, q, qdot, torques, balanced, reserves, reserve_bound=reserve_bound)
     return result, time.perf_counter() - tic
 
 
-def _states_in_path_order(paths: MusclePaths, reference: OpenSimStaticOptimization
-                          ) -> tuple[torch.Tensor, torch.Tensor]:
+def _states_in_path_order(
+    paths: MusclePaths, reference: OpenSimStaticOptimization
+) -> tuple[torch.Tensor, torch.Tensor]:
     """OpenSim's q, qdot [T, n_q] in ``paths`` coordinate order (coordinates it does not report at 0)."""
     known = [c for c in reference.coordinate_names if c in paths.coordinate_names]
     columns = paths.select(known)
@@ -394,17 +466,24 @@ def _states_in_path_order(paths: MusclePaths, reference: OpenSimStaticOptimizati
     return q, qdot
 
 
-def static_optimization_agreement(result: StaticOptimizationResult, reference: OpenSimStaticOptimization,
-                                  seconds: float) -> dict:
+def static_optimization_agreement(
+    result: StaticOptimizationResult, reference: OpenSimStaticOptimization, seconds: float
+) -> dict:
     """R² per muscle (mean, worst), activation RMSE, convergence and the side-by-side speed ratio."""
     ours = result.activations.numpy()[:, [result.muscle_names.index(m) for m in reference.muscle_names]]
     r2 = r_squared(ours, reference.activations)
-    return {"r2_mean": float(r2.mean()), "r2_min": float(r2.min()),
-            "r2_worst_muscle": reference.muscle_names[int(r2.argmin())], "frames": len(reference.times),
-            "converged_frames": int(result.converged.sum()),
-            "activation_rmse": float(np.sqrt(((ours - reference.activations) ** 2).mean())),
-            "seconds_opensim": reference.seconds, "seconds_biomotion": seconds,
-            "speedup": reference.seconds / seconds, "reserve_usage": result.reserve_usage()}
+    return {
+        "r2_mean": float(r2.mean()),
+        "r2_min": float(r2.min()),
+        "r2_worst_muscle": reference.muscle_names[int(r2.argmin())],
+        "frames": len(reference.times),
+        "converged_frames": int(result.converged.sum()),
+        "activation_rmse": float(np.sqrt(((ours - reference.activations) ** 2).mean())),
+        "seconds_opensim": reference.seconds,
+        "seconds_biomotion": seconds,
+        "speedup": reference.seconds / seconds,
+        "reserve_usage": result.reserve_usage(),
+    }
 
 
 def r_squared(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -413,23 +492,28 @@ def r_squared(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return 1 - ((estimate - reference) ** 2).sum(0) / np.maximum(total, 1e-12)
 
 
-def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path, canonical_path: Path,
-                          repeats: int = 20) -> dict:
+def surrogate_clip_timing(
+    checkpoint: Path, coordinates: Path, model_path: Path, canonical_path: Path, repeats: int = 20
+) -> dict:
     """Best wall time (ms) of the shipped surrogate on the clip in ``coordinates`` (after model load; resampled
     to its rate, placed like its training clips on the model at ``model_path``; ``canonical_path``: the canonical
     body a surrogate with contact features runs its forward kinematics on, inside the timed call):
     ``ms`` of the activations it reports (`MuscleSurrogate.predict_symmetric`), ``ms_one_pass`` of one pass (what
     guidance runs); and the clip's length (s)."""
-    from biomotion.body.model import BodyModel
     from biomotion.body.canonical import CANONICAL_COORDINATES
+    from biomotion.body.model import BodyModel
     from biomotion.data.placement import place_clip
     from biomotion.io.mot import read_motion
     from biomotion.muscles.surrogate import MuscleSurrogate
 
     network = MuscleSurrogate.load(checkpoint, body=BodyModel.from_osim(canonical_path))
     motion = read_motion(coordinates)
-    clip = place_clip(motion.select(CANONICAL_COORDINATES).resample(network.config.rate),
-                      BodyModel.from_osim(model_path), height=None, treadmill_speed=None)
+    clip = place_clip(
+        motion.select(CANONICAL_COORDINATES).resample(network.config.rate),
+        BodyModel.from_osim(model_path),
+        height=None,
+        treadmill_speed=None,
+    )
     q = torch.as_tensor(clip.values, dtype=network.mean.dtype)[None]
     mask = torch.as_tensor(clip.mask)[None]
     best = {}
@@ -441,8 +525,12 @@ def surrogate_clip_timing(checkpoint: Path, coordinates: Path, model_path: Path,
                 tic = time.perf_counter()
                 run(q, mask)
                 best[name] = min(best[name], time.perf_counter() - tic)
-    return {"ms": 1e3 * best["ms"], "ms_one_pass": 1e3 * best["ms_one_pass"],
-            "clip_seconds": float(motion.times[-1] - motion.times[0]), "frames": clip.n_frames}
+    return {
+        "ms": 1e3 * best["ms"],
+        "ms_one_pass": 1e3 * best["ms_one_pass"],
+        "clip_seconds": float(motion.times[-1] - motion.times[0]),
+        "frames": clip.n_frames,
+    }
 
 
 def _moment_arm_figures(data_root: Path, poses: int) -> dict:
@@ -452,9 +540,13 @@ def _moment_arm_figures(data_root: Path, poses: int) -> dict:
             continue
         errors = moment_arm_errors(shipped_paths(name), data_root / model, poses)
         worst = max(errors, key=errors.get)
-        geometry[name] = {"pairs": len(errors), "worst_rmse_m": errors[worst], "worst_pair": list(worst),
-                          "mean_rmse_m": float(np.mean(list(errors.values()))),
-                          "pairs_over_2mm": sorted(f"{m}/{c}" for (m, c), e in errors.items() if e > 2e-3)}
+        geometry[name] = {
+            "pairs": len(errors),
+            "worst_rmse_m": errors[worst],
+            "worst_pair": list(worst),
+            "mean_rmse_m": float(np.mean(list(errors.values()))),
+            "pairs_over_2mm": sorted(f"{m}/{c}" for (m, c), e in errors.items() if e > 2e-3),
+        }
     if not geometry:
         return {}
     return {"moment_arm_rmse_m": max(g["worst_rmse_m"] for g in geometry.values()), "moment_arms": geometry}
@@ -462,15 +554,21 @@ def _moment_arm_figures(data_root: Path, poses: int) -> dict:
 
 def _gait_figures(data_root: Path, start: float, end: float) -> dict:
     reference = opensim_gait_static_optimization(data_root, start, end)
-    gait_static_optimization(data_root, reference)               # warm-up: first-call costs of torch
+    gait_static_optimization(data_root, reference)  # warm-up: first-call costs of torch
     result, seconds = gait_static_optimization(data_root, reference)
     agreement = static_optimization_agreement(result, reference, seconds)
-    return {"so_r2_gait2392": agreement["r2_mean"], "so_r2_min": agreement["r2_min"],
-            "so_r2_worst_muscle": agreement["r2_worst_muscle"], "so_frames": agreement["frames"],
-            "so_converged_frames": agreement["converged_frames"],
-            "so_activation_rmse": agreement["activation_rmse"], "so_seconds_opensim": reference.seconds,
-            "so_seconds_biomotion": seconds, "so_speedup": agreement["speedup"],
-            "reserve_usage": agreement["reserve_usage"]}
+    return {
+        "so_r2_gait2392": agreement["r2_mean"],
+        "so_r2_min": agreement["r2_min"],
+        "so_r2_worst_muscle": agreement["r2_worst_muscle"],
+        "so_frames": agreement["frames"],
+        "so_converged_frames": agreement["converged_frames"],
+        "so_activation_rmse": agreement["activation_rmse"],
+        "so_seconds_opensim": reference.seconds,
+        "so_seconds_biomotion": seconds,
+        "so_speedup": agreement["speedup"],
+        "reserve_usage": agreement["reserve_usage"],
+    }
 
 
 #: A muscle counts as active in OpenSim's solution when its activation spans more than this over the trial;
@@ -481,12 +579,16 @@ ACTIVE_RANGE = 0.05
 def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
     with tempfile.TemporaryDirectory(prefix="biomotion-so-") as folder:
         inputs = rajagopal_walk_inputs(data_root, Path(folder))
-        reference = opensim_static_optimization(inputs.model, inputs.coordinates, inputs.external_loads,
-                                                inputs.force_set, *inputs.time_range)
-        rajagopal_static_optimization(inputs, reference)          # warm-up
+        reference = opensim_static_optimization(
+            inputs.model, inputs.coordinates, inputs.external_loads, inputs.force_set, *inputs.time_range
+        )
+        rajagopal_static_optimization(inputs, reference)  # warm-up
         result, seconds = rajagopal_static_optimization(inputs, reference)
-        timing = (surrogate_clip_timing(surrogate, inputs.coordinates, inputs.model, data_root / RAJAGOPAL_MODEL)
-                  if surrogate is not None and Path(surrogate).exists() else None)
+        timing = (
+            surrogate_clip_timing(surrogate, inputs.coordinates, inputs.model, data_root / RAJAGOPAL_MODEL)
+            if surrogate is not None and Path(surrogate).exists()
+            else None
+        )
         torques, state_error = solver_torques(inputs, reference)
         muscles = read_muscles(inputs.model)
     agreement = static_optimization_agreement(result, reference, seconds)
@@ -502,34 +604,48 @@ def _rajagopal_figures(data_root: Path, surrogate: Path | None) -> dict:
     forces = max_active_force(muscles, lengths, -(arms @ qdot[..., None])[..., 0])
     theirs = torch.from_numpy(reference.activations[:, [reference.muscle_names.index(m) for m in paths.muscle_names]])
     produced = torch.einsum("tmc,tm->tc", arms[..., paths.select(inputs.balanced)], forces * theirs).numpy()
-    ours_produced = torch.einsum("tmc,tm->tc", arms[..., paths.select(inputs.balanced)],
-                                 forces * result.activations).numpy()
+    ours_produced = torch.einsum(
+        "tmc,tm->tc", arms[..., paths.select(inputs.balanced)], forces * result.activations
+    ).numpy()
     figures = {
-        "so_rajagopal_r2_active": float(r2[active].mean()), "so_rajagopal_active_muscles": int(active.sum()),
-        "so_rajagopal_r2_all": float(r2.mean()), "so_rajagopal_activation_rmse": agreement["activation_rmse"],
-        "so_rajagopal_frames": agreement["frames"], "so_rajagopal_converged_frames": agreement["converged_frames"],
-        "so_rajagopal_seconds_opensim": reference.seconds, "so_rajagopal_seconds_biomotion": seconds,
-        "so_rajagopal_speedup": agreement["speedup"], "so_rajagopal_ik_marker_rmse_m": inputs.marker_rmse_m,
+        "so_rajagopal_r2_active": float(r2[active].mean()),
+        "so_rajagopal_active_muscles": int(active.sum()),
+        "so_rajagopal_r2_all": float(r2.mean()),
+        "so_rajagopal_activation_rmse": agreement["activation_rmse"],
+        "so_rajagopal_frames": agreement["frames"],
+        "so_rajagopal_converged_frames": agreement["converged_frames"],
+        "so_rajagopal_seconds_opensim": reference.seconds,
+        "so_rajagopal_seconds_biomotion": seconds,
+        "so_rajagopal_speedup": agreement["speedup"],
+        "so_rajagopal_ik_marker_rmse_m": inputs.marker_rmse_m,
         "so_rajagopal_state_max_diff": state_error,
         # RMS over frames and balanced coordinates of (muscle torque - the inverse-dynamics torque at the
         # optimization's states), both solutions through our muscle model; the rest is left to the reserves
-        "so_rajagopal_muscle_torque_gap_rms_nm_opensim": float(np.sqrt(((produced - torques[:, balanced]) ** 2).mean())),
-        "so_rajagopal_muscle_torque_gap_rms_nm_ours": float(np.sqrt(((ours_produced - torques[:, balanced]) ** 2
-                                                                     ).mean())),
+        "so_rajagopal_muscle_torque_gap_rms_nm_opensim": float(
+            np.sqrt(((produced - torques[:, balanced]) ** 2).mean())
+        ),
+        "so_rajagopal_muscle_torque_gap_rms_nm_ours": float(
+            np.sqrt(((ours_produced - torques[:, balanced]) ** 2).mean())
+        ),
         "so_rajagopal_reserve_usage": agreement["reserve_usage"],
         "so_rajagopal_r2_per_muscle": {m: float(v) for m, v in zip(reference.muscle_names, r2)},
     }
     figures.update(_emg_same_inputs(data_root, reference, ours, reference.muscle_names))
     if timing is not None:
-        figures.update({"surrogate_ms_per_clip": timing["ms"],
-                        "surrogate_ms_per_clip_one_pass": timing["ms_one_pass"],
-                        "surrogate_clip_seconds": timing["clip_seconds"],
-                        "surrogate_speedup_vs_opensim": 1e3 * reference.seconds / timing["ms"]})
+        figures.update(
+            {
+                "surrogate_ms_per_clip": timing["ms"],
+                "surrogate_ms_per_clip_one_pass": timing["ms_one_pass"],
+                "surrogate_clip_seconds": timing["clip_seconds"],
+                "surrogate_speedup_vs_opensim": 1e3 * reference.seconds / timing["ms"],
+            }
+        )
     return figures
 
 
-def _emg_same_inputs(data_root: Path, reference: OpenSimStaticOptimization, ours: np.ndarray,
-                     names: Sequence[str]) -> dict:
+def _emg_same_inputs(
+    data_root: Path, reference: OpenSimStaticOptimization, ours: np.ndarray, names: Sequence[str]
+) -> dict:
     """EMG on/off agreement (`biomotion.validation.emg`, its a-priori settings) of OpenSim's StaticOptimization and of
     ours on the Rajagopal walk's shared inputs: the oracle's own score under the issue's method. Empty without the
     EMG recording."""
@@ -543,17 +659,20 @@ def _emg_same_inputs(data_root: Path, reference: OpenSimStaticOptimization, ours
     inside = (times >= recording.times[0] - 1e-9) & (times <= recording.times[-1] + 1e-9)
     envelopes = emg.emg_envelopes(recording, times[inside], settings)
     rate = (inside.sum() - 1) / (times[inside][-1] - times[inside][0])
-    scores = {key: emg.compare_on_off(envelopes, emg.channel_activations(a[inside], muscle_names),
-                                      settings.threshold, rate)
-              for key, a, muscle_names in (("opensim", reference.activations, reference.muscle_names),
-                                           ("ours", ours, names))}
-    return {"emg_onoff_agreement_opensim_so": round(scores["opensim"]["pooled"], 4),
-            "emg_per_muscle_opensim_so": scores["opensim"]["per_muscle"],
-            "emg_onoff_agreement_same_inputs_ours": round(scores["ours"]["pooled"], 4)}
+    scores = {
+        key: emg.compare_on_off(envelopes, emg.channel_activations(a[inside], muscle_names), settings.threshold, rate)
+        for key, a, muscle_names in (("opensim", reference.activations, reference.muscle_names), ("ours", ours, names))
+    }
+    return {
+        "emg_onoff_agreement_opensim_so": round(scores["opensim"]["pooled"], 4),
+        "emg_per_muscle_opensim_so": scores["opensim"]["per_muscle"],
+        "emg_onoff_agreement_same_inputs_ours": round(scores["ours"]["pooled"], 4),
+    }
 
 
-def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5, end: float = 2.5,
-                     surrogate: Path | None = SURROGATE) -> dict:
+def validate_muscles(
+    data_root: str | Path, poses: int = 200, start: float = 0.5, end: float = 2.5, surrogate: Path | None = SURROGATE
+) -> dict:
     """The muscles issue's figures (see module docstring) computed fresh against OpenSim on whatever of their
     sources ``data_root`` holds; ``skipped`` names the parts left out and why."""
     data_root = Path(data_root)
@@ -562,16 +681,27 @@ def validate_muscles(data_root: str | Path, poses: int = 200, start: float = 0.5
     report.update(_moment_arm_figures(data_root, poses))
     if "moment_arm_rmse_m" not in report:
         report["skipped"].append(f"moment arms: neither {RAJAGOPAL_MODEL} nor {GAIT_MODEL} under {data_root}")
-    gait = [GAIT_MODEL, f"{GAIT}/subject01_walk1_ik.mot", f"{GAIT}/subject01_walk1_grf.xml",
-            f"{GAIT}/gait2392_SO_Residual_Actuators.xml"]
+    gait = [
+        GAIT_MODEL,
+        f"{GAIT}/subject01_walk1_ik.mot",
+        f"{GAIT}/subject01_walk1_grf.xml",
+        f"{GAIT}/gait2392_SO_Residual_Actuators.xml",
+    ]
     absent = [n for n in gait if not (data_root / n).exists()]
     if absent:
         report["skipped"].append(f"gait2392 static optimization: {', '.join(absent)} not under {data_root}")
     else:
         report.update(_gait_figures(data_root, start, end))
     from biomotion.validation import emg
-    walk = [RAJAGOPAL_MODEL, emg.MARKER_FILE, emg.GRF_FILE, emg.GRF_LOADS, emg.IK_SETUP,
-            f"{RAJAGOPAL_PIPELINE}/Scale/markerset_walk_preScale.xml"]
+
+    walk = [
+        RAJAGOPAL_MODEL,
+        emg.MARKER_FILE,
+        emg.GRF_FILE,
+        emg.GRF_LOADS,
+        emg.IK_SETUP,
+        f"{RAJAGOPAL_PIPELINE}/Scale/markerset_walk_preScale.xml",
+    ]
     absent = [n for n in walk if not (data_root / n).exists()]
     if absent:
         report["skipped"].append(f"Rajagopal walk static optimization: {', '.join(absent)} not under {data_root}")
@@ -594,10 +724,10 @@ SURROGATE_SOURCES = ("fukuchi", "opencap", "hamner", "schreiber")
 def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str]) -> dict:
     """The shipped surrogate against fresh static-optimization labels of the held-out clips under ``data_root``
     (see the module docstring); appends to ``skipped`` what it could not do."""
-    from biomotion.data.sources import SOURCES
-    from biomotion.data.clips import build_temporary_cache
-    from biomotion.muscles.surrogate import MuscleSurrogate
     from biomotion.analysis.activation_labels import Labeler
+    from biomotion.data.clips import build_temporary_cache
+    from biomotion.data.sources import SOURCES
+    from biomotion.muscles.surrogate import MuscleSurrogate
     from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS, evaluate
 
     empty = {"surrogate_r2": None, "surrogate_rmse": None, "surrogate_com_vel_r2": None}
@@ -615,8 +745,11 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
     handle, cache = build_temporary_cache(data_root, sources=present)
     with handle:
         trained = MuscleSurrogate.training_subjects(surrogate)
-        held_out = [i for i, r in enumerate(cache.records) if (r["split"] != "train" if trained is None
-                                                                 else f"{r['source']}/{r['subject']}" not in trained)]
+        held_out = [
+            i
+            for i, r in enumerate(cache.records)
+            if (r["split"] != "train" if trained is None else f"{r['source']}/{r['subject']}" not in trained)
+        ]
         if not held_out:
             skipped.append("surrogate agreement: the surrogate was trained on every subject under the data root")
             return empty
@@ -626,18 +759,35 @@ def surrogate_figures(data_root: Path, surrogate: Path | None, skipped: list[str
         for i in held_out:
             motion = cache.motion(i)
             labels, com = labeler.label(motion)
-            clips.append((torch.tensor(motion.values, dtype=torch.float32)[None], torch.tensor(motion.mask)[None],
-                          labels.activations, labels.converged, com[:, COM_LABEL_COLUMNS]))
+            clips.append(
+                (
+                    torch.tensor(motion.values, dtype=torch.float32)[None],
+                    torch.tensor(motion.mask)[None],
+                    labels.activations,
+                    labels.converged,
+                    com[:, COM_LABEL_COLUMNS],
+                )
+            )
         scores = evaluate(model, clips, symmetric=True)
         one_pass = evaluate(model, clips)
         subjects = sorted({f"{cache.records[i]['source']}/{cache.records[i]['subject']}" for i in held_out})
-    return {**empty, "surrogate_r2": scores["r2_mean_per_muscle"], "surrogate_rmse": scores["rmse"],
-            "surrogate_r2_pooled": scores["r2_pooled"], "surrogate_muscles_in_mean": scores["muscles_in_mean"],
-            "surrogate_r2_one_pass": one_pass["r2_mean_per_muscle"], "surrogate_rmse_one_pass": one_pass["rmse"],
-            "surrogate_r2_per_muscle": {name: round(value, 4) for name, value in sorted(
-                scores["per_muscle_r2"].items(), key=lambda item: item[1])},   # worst first: where to work next
-            "surrogate_com_vel_r2": scores["com_vel_r2"],
-            "surrogate_com_vel_rmse": scores["com_vel_rmse"], "surrogate_com_acc_r2": scores["com_acc_r2"],
-            "surrogate_com_acc_rmse": scores["com_acc_rmse"], "surrogate_held_out_clips": len(held_out),
-            "surrogate_held_out_subjects": subjects, "surrogate_held_out_frames": scores["frames"],
-            "surrogate_seconds": round(time.perf_counter() - started, 1)}
+    return {
+        **empty,
+        "surrogate_r2": scores["r2_mean_per_muscle"],
+        "surrogate_rmse": scores["rmse"],
+        "surrogate_r2_pooled": scores["r2_pooled"],
+        "surrogate_muscles_in_mean": scores["muscles_in_mean"],
+        "surrogate_r2_one_pass": one_pass["r2_mean_per_muscle"],
+        "surrogate_rmse_one_pass": one_pass["rmse"],
+        "surrogate_r2_per_muscle": {
+            name: round(value, 4) for name, value in sorted(scores["per_muscle_r2"].items(), key=lambda item: item[1])
+        },  # worst first: where to work next
+        "surrogate_com_vel_r2": scores["com_vel_r2"],
+        "surrogate_com_vel_rmse": scores["com_vel_rmse"],
+        "surrogate_com_acc_r2": scores["com_acc_r2"],
+        "surrogate_com_acc_rmse": scores["com_acc_rmse"],
+        "surrogate_held_out_clips": len(held_out),
+        "surrogate_held_out_subjects": subjects,
+        "surrogate_held_out_frames": scores["frames"],
+        "surrogate_seconds": round(time.perf_counter() - started, 1),
+    }

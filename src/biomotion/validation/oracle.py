@@ -16,7 +16,9 @@ from biomotion.errors import ConfigError
 def opensim():
     """The ``opensim`` module, or a ConfigError saying how to install it."""
     try:
-        import opensim as osim
+        from biomotion.settings import opensim_oracle
+
+        osim = opensim_oracle()
     except ImportError:  # pragma: no cover - depends on the environment
         raise ConfigError("validation needs the opensim package: pip install 'biomotion[validate]'") from None
     osim.Logger.setLevelString("error")
@@ -71,8 +73,9 @@ class Oracle:
 
     def joint_centers(self) -> np.ndarray:
         joints = self.model.getJointSet()
-        return np.array([vec3(joints.get(i).getChildFrame().getPositionInGround(self.state))
-                         for i in range(joints.getSize())])
+        return np.array(
+            [vec3(joints.get(i).getChildFrame().getPositionInGround(self.state)) for i in range(joints.getSize())]
+        )
 
     def inverse_dynamics(self, qdd) -> np.ndarray:
         udot = self.osim.Vector(self.state.getNU(), 0.0)
@@ -84,8 +87,7 @@ class Oracle:
     def mass_matrix(self) -> np.ndarray:
         matrix = self.osim.Matrix()
         self.model.getMatterSubsystem().calcM(self.state, matrix)
-        return np.array([[matrix.get(self.u_index[i], self.u_index[j]) for j in range(self.n)]
-                         for i in range(self.n)])
+        return np.array([[matrix.get(self.u_index[i], self.u_index[j]) for j in range(self.n)] for i in range(self.n)])
 
 
 def vec3(v) -> list[float]:
@@ -99,8 +101,15 @@ def random_poses(model, rng: np.random.Generator, count: int) -> np.ndarray:
     return rng.uniform(low, high, size=(count, model.n_q))
 
 
-def run_inverse_dynamics_tool(model_path: Path, coordinates: Path, external_loads: Path | None, out_dir: Path,
-                              start: float, end: float, cutoff_hz: float = 6.0) -> Path:
+def run_inverse_dynamics_tool(
+    model_path: Path,
+    coordinates: Path,
+    external_loads: Path | None,
+    out_dir: Path,
+    start: float,
+    end: float,
+    cutoff_hz: float = 6.0,
+) -> Path:
     """Run OpenSim's InverseDynamicsTool fresh; returns the generalized-forces ``.sto`` it wrote."""
     osim = opensim()
     model = osim.Model(str(model_path))

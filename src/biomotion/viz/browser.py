@@ -23,9 +23,22 @@ from typing import Any
 
 CHROMIUM_CANDIDATES = ("/usr/bin/chromium", "chromium", "chromium-browser", "google-chrome")
 
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
-         "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update",
-         "--disable-sync", "--disable-extensions", "--disable-default-apps", "--mute-audio", "--hide-scrollbars")
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--disable-default-apps",
+    "--mute-audio",
+    "--hide-scrollbars",
+)
 
 
 def find_chromium() -> str | None:
@@ -39,8 +52,10 @@ def find_chromium() -> str | None:
 def _pipe_to_fds_3_and_4(read_end: int, write_end: int) -> None:
     """In the child, before exec: put the pipe ends on descriptors 3 and 4 (moved above 4 first, so neither
     overwrites the other); the originals are close-on-exec."""
-    read_end, write_end = fcntl.fcntl(read_end, fcntl.F_DUPFD_CLOEXEC, 5), fcntl.fcntl(write_end,
-                                                                                       fcntl.F_DUPFD_CLOEXEC, 5)
+    read_end, write_end = (
+        fcntl.fcntl(read_end, fcntl.F_DUPFD_CLOEXEC, 5),
+        fcntl.fcntl(write_end, fcntl.F_DUPFD_CLOEXEC, 5),
+    )
     os.dup2(read_end, 3)
     os.dup2(write_end, 4)
 
@@ -56,8 +71,9 @@ class Page:
     asked for. Use as a context manager so the browser and its profile directory are removed.
     """
 
-    def __init__(self, width: int = 1200, height: int = 800, chromium: str | None = None,
-                 timeout: float = 60.0) -> None:
+    def __init__(
+        self, width: int = 1200, height: int = 800, chromium: str | None = None, timeout: float = 60.0
+    ) -> None:
         executable = chromium or find_chromium()
         if executable is None:
             raise BrowserError("no Chromium executable found (install Debian's `chromium`)")
@@ -68,10 +84,20 @@ class Page:
         to_browser_read, self._to_browser = os.pipe()
         self._from_browser, from_browser_write = os.pipe()
         self._process = subprocess.Popen(
-            [executable, *FLAGS, f"--user-data-dir={self._profile}", f"--window-size={width},{height}",
-             "--remote-debugging-pipe", "about:blank"],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, close_fds=False,
-            preexec_fn=lambda: _pipe_to_fds_3_and_4(to_browser_read, from_browser_write))
+            [
+                executable,
+                *FLAGS,
+                f"--user-data-dir={self._profile}",
+                f"--window-size={width},{height}",
+                "--remote-debugging-pipe",
+                "about:blank",
+            ],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            close_fds=False,
+            preexec_fn=lambda: _pipe_to_fds_3_and_4(to_browser_read, from_browser_write),
+        )
         os.close(to_browser_read)
         os.close(from_browser_write)
         self._buffer = b""
@@ -82,13 +108,15 @@ class Page:
             self._session = self._command("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
             for domain in ("Page", "Runtime", "Log", "Network"):
                 self.send(f"{domain}.enable")
-            self.send("Emulation.setDeviceMetricsOverride",
-                      {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False})
+            self.send(
+                "Emulation.setDeviceMetricsOverride",
+                {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False},
+            )
         except BaseException:
             self.close()
             raise
 
-    def __enter__(self) -> "Page":
+    def __enter__(self) -> Page:
         return self
 
     def __exit__(self, *_: Any) -> None:
@@ -147,8 +175,9 @@ class Page:
     def _record(self, event: dict) -> None:
         method, params = event.get("method"), event.get("params", {})
         if method == "Runtime.consoleAPICalled" and params.get("type") in ("error", "assert"):
-            self.errors.append("console: " + " ".join(str(a.get("value", a.get("description", "")))
-                                                      for a in params.get("args", [])))
+            self.errors.append(
+                "console: " + " ".join(str(a.get("value", a.get("description", ""))) for a in params.get("args", []))
+            )
         elif method == "Runtime.exceptionThrown":
             details = params.get("exceptionDetails", {})
             self.errors.append("exception: " + details.get("exception", {}).get("description", details.get("text", "")))
@@ -173,12 +202,12 @@ class Page:
 
     def evaluate(self, expression: str) -> Any:
         """Value of a JavaScript expression (promises are awaited); a thrown error raises `BrowserError`."""
-        result = self.send("Runtime.evaluate", {"expression": expression, "awaitPromise": True,
-                                                "returnByValue": True})
+        result = self.send("Runtime.evaluate", {"expression": expression, "awaitPromise": True, "returnByValue": True})
         if "exceptionDetails" in result:
             details = result["exceptionDetails"]
-            raise BrowserError(f"{expression[:60]}: "
-                               f"{details.get('exception', {}).get('description', details.get('text'))}")
+            raise BrowserError(
+                f"{expression[:60]}: {details.get('exception', {}).get('description', details.get('text'))}"
+            )
         return result.get("result", {}).get("value")
 
     def screenshot(self) -> bytes:

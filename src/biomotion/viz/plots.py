@@ -14,8 +14,8 @@ averaged, and a reference is drawn as its mean +/- 1 standard deviation.
 from __future__ import annotations
 
 import io
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -24,8 +24,16 @@ from biomotion.io.atomic import atomic_write
 from biomotion.motion import GroundReaction, Motion
 
 CYCLE_POINTS = 101
-DEFAULT_ANGLES = ("hip_flexion_r", "hip_adduction_r", "knee_angle_r", "ankle_angle_r",
-                  "hip_flexion_l", "hip_adduction_l", "knee_angle_l", "ankle_angle_l")
+DEFAULT_ANGLES = (
+    "hip_flexion_r",
+    "hip_adduction_r",
+    "knee_angle_r",
+    "ankle_angle_r",
+    "hip_flexion_l",
+    "hip_adduction_l",
+    "knee_angle_l",
+    "ankle_angle_l",
+)
 AXIS_NAMES = ("anterior-posterior (x)", "vertical (y)", "medio-lateral (z)")
 
 Cycles = Sequence[tuple[float, float]]
@@ -64,8 +72,9 @@ def contact_cycles(forces: GroundReaction, channel: str | int, threshold: float 
     return list(zip(strikes[:-1].tolist(), strikes[1:].tolist()))
 
 
-def normalize_cycles(times: np.ndarray, values: np.ndarray, cycles: Cycles | None = None,
-                     points: int = CYCLE_POINTS) -> np.ndarray:
+def normalize_cycles(
+    times: np.ndarray, values: np.ndarray, cycles: Cycles | None = None, points: int = CYCLE_POINTS
+) -> np.ndarray:
     """[C, points, ...] ``values`` [T, ...] linearly resampled onto 0-100 % of each (start, stop) cycle; without
     ``cycles`` the whole span is one cycle."""
     times = np.asarray(times, dtype=float)
@@ -96,10 +105,18 @@ def _in_display_units(motion: Motion, names: Sequence[str], values: np.ndarray) 
     return np.where(rotational, np.degrees(values), values), ["deg" if r else "m" for r in rotational]
 
 
-def plot_joint_angles(motion: Motion, path: str | Path, *, coordinates: Sequence[str] | None = None,
-                      cycles: Cycles | None = None, reference: Motion | Sequence[Motion] | None = None,
-                      reference_cycles: Sequence[Cycles | None] | None = None, title: str | None = None,
-                      label: str = "motion", reference_label: str = "reference") -> tuple[Path, Path]:
+def plot_joint_angles(
+    motion: Motion,
+    path: str | Path,
+    *,
+    coordinates: Sequence[str] | None = None,
+    cycles: Cycles | None = None,
+    reference: Motion | Sequence[Motion] | None = None,
+    reference_cycles: Sequence[Cycles | None] | None = None,
+    title: str | None = None,
+    label: str = "motion",
+    reference_label: str = "reference",
+) -> tuple[Path, Path]:
     """Joint angles (degrees; lengths in m) per coordinate, one panel each.
 
     With ``cycles`` or a ``reference`` the x axis is 0-100 % of the cycle: each cycle of ``motion`` is drawn thin
@@ -120,16 +137,27 @@ def plot_joint_angles(motion: Motion, path: str | Path, *, coordinates: Sequence
     values, units = _in_display_units(motion, names, motion.select(names).values)
     band = None
     if references:
-        stacked = np.concatenate([normalize_cycles(r.times, _in_display_units(r, names, r.select(
-            _angle_columns(r, names)).values)[0], c) for r, c in zip(references, ref_cycles)])
+        stacked = np.concatenate(
+            [
+                normalize_cycles(r.times, _in_display_units(r, names, r.select(_angle_columns(r, names)).values)[0], c)
+                for r, c in zip(references, ref_cycles)
+            ]
+        )
         band = (stacked.mean(axis=0), stacked.std(axis=0), stacked.shape[0])
     percent = np.linspace(0, 100, CYCLE_POINTS)
     curves = normalize_cycles(motion.times, values, cycles) if normalized else None
     for k, (ax, name, unit) in enumerate(zip(axes, names, units)):
         if band is not None:
             mean, sd, count = band
-            ax.fill_between(percent, mean[:, k] - sd[:, k], mean[:, k] + sd[:, k], color="0.75", alpha=0.6,
-                            linewidth=0, label=f"{reference_label} mean ± 1 SD (n={count})")
+            ax.fill_between(
+                percent,
+                mean[:, k] - sd[:, k],
+                mean[:, k] + sd[:, k],
+                color="0.75",
+                alpha=0.6,
+                linewidth=0,
+                label=f"{reference_label} mean ± 1 SD (n={count})",
+            )
             ax.plot(percent, mean[:, k], color="0.45", linewidth=1, linestyle="--")
         if curves is not None:
             for c in range(curves.shape[0]):
@@ -143,16 +171,23 @@ def plot_joint_angles(motion: Motion, path: str | Path, *, coordinates: Sequence
         ax.set_title(name, fontsize=10)
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
-    for ax in axes[len(names):]:
+    for ax in axes[len(names) :]:
         ax.set_visible(False)
     axes[0].legend(fontsize=7, loc="best")
     figure.suptitle(title or "joint angles")
     return save_figure(figure, path)
 
 
-def plot_ground_reaction(measured: GroundReaction, path: str | Path, *, inferred: GroundReaction | None = None,
-                         pairs: Sequence[tuple[str, str]] | None = None, body_weight: float | None = None,
-                         title: str | None = None, label: str = "measured") -> tuple[Path, Path]:
+def plot_ground_reaction(
+    measured: GroundReaction,
+    path: str | Path,
+    *,
+    inferred: GroundReaction | None = None,
+    pairs: Sequence[tuple[str, str]] | None = None,
+    body_weight: float | None = None,
+    title: str | None = None,
+    label: str = "measured",
+) -> tuple[Path, Path]:
     """Ground reaction force components over time, one column per channel (plate or foot), one row per axis.
 
     ``inferred`` (e.g. forces inferred from kinematics) is drawn dashed over ``measured``; ``pairs`` lists
@@ -175,8 +210,14 @@ def plot_ground_reaction(measured: GroundReaction, path: str | Path, *, inferred
             ax = axes[a, c]
             ax.plot(measured.times, force[:, a], color="black", linewidth=1.3, label=f"{label} {channel}")
             if other is not None:
-                ax.plot(inferred.times, other[:, a], color="tab:red", linewidth=1.3, linestyle="--",
-                        label=f"inferred {pairs[c][1]}")
+                ax.plot(
+                    inferred.times,
+                    other[:, a],
+                    color="tab:red",
+                    linewidth=1.3,
+                    linestyle="--",
+                    label=f"inferred {pairs[c][1]}",
+                )
             ax.grid(alpha=0.3)
             if c == 0:
                 ax.set_ylabel(f"{AXIS_NAMES[a]}\n" + ("(BW)" if body_weight else "(N)"), fontsize=9)
@@ -187,10 +228,17 @@ def plot_ground_reaction(measured: GroundReaction, path: str | Path, *, inferred
     return save_figure(figure, path)
 
 
-def plot_activations(times: np.ndarray, names: Sequence[str], values: np.ndarray, path: str | Path, *,
-                     emg: tuple[np.ndarray, Sequence[str], np.ndarray] | None = None,
-                     pairs: Mapping[str, str] | None = None, title: str | None = None,
-                     xlabel: str = "time (s)") -> tuple[Path, Path]:
+def plot_activations(
+    times: np.ndarray,
+    names: Sequence[str],
+    values: np.ndarray,
+    path: str | Path,
+    *,
+    emg: tuple[np.ndarray, Sequence[str], np.ndarray] | None = None,
+    pairs: Mapping[str, str] | None = None,
+    title: str | None = None,
+    xlabel: str = "time (s)",
+) -> tuple[Path, Path]:
     """Activation heatmap (muscles x time, 0-1) and, with ``emg`` = (times, channel names, envelopes), one panel
     per muscle in ``pairs`` (muscle -> EMG channel) overlaying the activation and the envelope scaled to its peak
     (EMG amplitude depends on the electrodes and the skin, so only its shape compares with an activation)."""
@@ -206,8 +254,16 @@ def plot_activations(times: np.ndarray, names: Sequence[str], values: np.ndarray
     figure = _figure(max(8.0, 2.6 * columns), 0.16 * len(names) + 2.0 + 2.0 * rows)
     grid = figure.add_gridspec(1 + rows, columns, height_ratios=[max(2.0, 0.16 * len(names))] + [1.6] * rows)
     heat = figure.add_subplot(grid[0, :])
-    image = heat.imshow(values.T, aspect="auto", origin="upper", cmap="YlOrRd", vmin=0, vmax=1, interpolation="nearest",
-                        extent=(times[0], times[-1], len(names) - 0.5, -0.5))
+    image = heat.imshow(
+        values.T,
+        aspect="auto",
+        origin="upper",
+        cmap="YlOrRd",
+        vmin=0,
+        vmax=1,
+        interpolation="nearest",
+        extent=(times[0], times[-1], len(names) - 0.5, -0.5),
+    )
     heat.set_yticks(range(len(names)), names, fontsize=max(4, min(9, 300 // max(len(names), 1))))
     heat.set_xlabel(xlabel)
     figure.colorbar(image, ax=heat, label="activation", fraction=0.03, pad=0.01)
@@ -228,8 +284,15 @@ def plot_activations(times: np.ndarray, names: Sequence[str], values: np.ndarray
     return save_figure(figure, path)
 
 
-def plot_balance(com: np.ndarray, zmp: np.ndarray, path: str | Path, *, support: np.ndarray | None = None,
-                 polygons: int = 8, title: str | None = None) -> tuple[Path, Path]:
+def plot_balance(
+    com: np.ndarray,
+    zmp: np.ndarray,
+    path: str | Path,
+    *,
+    support: np.ndarray | None = None,
+    polygons: int = 8,
+    title: str | None = None,
+) -> tuple[Path, Path]:
     """Top view (x forward, z to the side; OpenSim ground frame) of the COM ground projection and the ZMP path
     over support polygons [T, P, 3] (NaN rows after a frame's last vertex), ``polygons`` of them drawn evenly
     through the trial; the polygons' vertices are joined in order and closed."""
@@ -243,8 +306,15 @@ def plot_balance(com: np.ndarray, zmp: np.ndarray, path: str | Path, *, support:
         frames = np.unique(np.linspace(0, len(support) - 1, polygons).round().astype(int))
         shapes = [support[f][np.isfinite(support[f]).all(axis=1)][:, [0, 2]] for f in frames]
         shapes = [s for s in shapes if len(s) >= 3]
-        ax.add_collection(PolyCollection(shapes, facecolors=(0.95, 0.6, 0.2, 0.12), edgecolors=(0.85, 0.45, 0.05, 0.9),
-                                         linewidths=1.0, label="support polygon"))
+        ax.add_collection(
+            PolyCollection(
+                shapes,
+                facecolors=(0.95, 0.6, 0.2, 0.12),
+                edgecolors=(0.85, 0.45, 0.05, 0.9),
+                linewidths=1.0,
+                label="support polygon",
+            )
+        )
     ax.plot(com[:, 0], com[:, 2], color="tab:red", linewidth=1.8, label="COM (ground projection)")
     ax.plot(zmp[:, 0], zmp[:, 2], color="tab:purple", linewidth=0.9, marker=".", markersize=2.5, label="ZMP")
     for series, color in ((com, "tab:red"), (zmp, "tab:purple")):
@@ -262,8 +332,13 @@ def plot_balance(com: np.ndarray, zmp: np.ndarray, path: str | Path, *, support:
     return save_figure(figure, path)
 
 
-def plot_metric_distributions(metrics: Mapping[str, Mapping[str, Sequence[float]] | Sequence[float]],
-                              path: str | Path, *, title: str | None = None, bins: int = 20) -> tuple[Path, Path]:
+def plot_metric_distributions(
+    metrics: Mapping[str, Mapping[str, Sequence[float]] | Sequence[float]],
+    path: str | Path,
+    *,
+    title: str | None = None,
+    bins: int = 20,
+) -> tuple[Path, Path]:
     """One panel per metric: histograms of each group (e.g. generated vs reference) on shared bins, with each
     group's median marked. ``metrics`` maps metric name -> {group: values} (or directly to values)."""
     names = list(metrics)
@@ -282,8 +357,14 @@ def plot_metric_distributions(metrics: Mapping[str, Mapping[str, Sequence[float]
             raise ConfigError(f"metric {name!r} has no finite value")
         edges = np.histogram_bin_edges(pooled, bins=bins)
         for (group, values), color in zip(arrays.items(), colors * len(arrays)):
-            ax.hist(values, bins=edges, histtype="stepfilled", alpha=0.35, color=color,
-                    label=f"{group} (n={values.size})" if group else f"n={values.size}")
+            ax.hist(
+                values,
+                bins=edges,
+                histtype="stepfilled",
+                alpha=0.35,
+                color=color,
+                label=f"{group} (n={values.size})" if group else f"n={values.size}",
+            )
             ax.hist(values, bins=edges, histtype="step", color=color, linewidth=1.2)
             if values.size:
                 ax.axvline(np.median(values), color=color, linestyle="--", linewidth=1.2)
@@ -291,7 +372,7 @@ def plot_metric_distributions(metrics: Mapping[str, Mapping[str, Sequence[float]
         ax.set_ylabel("count")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    for ax in axes[len(names):]:
+    for ax in axes[len(names) :]:
         ax.set_visible(False)
     figure.suptitle(title or "metric distributions (dashed: median)")
     return save_figure(figure, path)

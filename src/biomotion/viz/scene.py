@@ -15,9 +15,10 @@ clock is linearly interpolated onto the scene's; frames outside the source's tim
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -55,14 +56,15 @@ class Mesh:
         if triangles.size and (triangles.min() < 0 or triangles.max() >= len(vertices)):
             raise DataFormatError(None, f"mesh triangle index out of range [0, {len(vertices)})")
 
-    def scaled(self, factors: Sequence[float]) -> "Mesh":
+    def scaled(self, factors: Sequence[float]) -> Mesh:
         """The mesh stretched by ``factors`` (x, y, z) in its frame (OpenSim's ``scale_factors``)."""
         return Mesh(self.vertices * np.asarray(factors, dtype=float), self.triangles)
 
-    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> "Mesh":
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> Mesh:
         """The mesh moved into a parent frame: ``R @ v + p`` (e.g. from an offset frame into its body)."""
-        return Mesh(self.vertices @ np.asarray(rotation, dtype=float).T + np.asarray(translation, dtype=float),
-                    self.triangles)
+        return Mesh(
+            self.vertices @ np.asarray(rotation, dtype=float).T + np.asarray(translation, dtype=float), self.triangles
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,12 +91,15 @@ class Capsule:
         u /= np.linalg.norm(u)
         v = np.cross(w, u)
         # latitude from the start pole (-pi/2) to the end pole (+pi/2); the equator is doubled to make the cylinder
-        latitude = np.concatenate([np.linspace(-np.pi / 2, 0, rings + 1)[1:],
-                                   np.linspace(0, np.pi / 2, rings + 1)[:-1]])
+        latitude = np.concatenate(
+            [np.linspace(-np.pi / 2, 0, rings + 1)[1:], np.linspace(0, np.pi / 2, rings + 1)[:-1]]
+        )
         along = np.where(np.arange(latitude.size) < rings, 0.0, length)
         angle = 2 * np.pi * np.arange(sides) / sides
-        ring_points = (np.cos(latitude)[:, None, None] * (np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v)
-                       + np.sin(latitude)[:, None, None] * w) * self.radius + along[:, None, None] * w
+        ring_points = (
+            np.cos(latitude)[:, None, None] * (np.cos(angle)[:, None] * u + np.sin(angle)[:, None] * v)
+            + np.sin(latitude)[:, None, None] * w
+        ) * self.radius + along[:, None, None] * w
         body = ring_points.reshape(-1, 3) + self.start
         poles = np.stack([self.start - self.radius * w, self.end + self.radius * w])
         vertices = np.concatenate([body, poles])
@@ -104,9 +109,12 @@ class Capsule:
         c, d = a + sides, b + sides
         quads = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
         first, last = np.arange(sides), (n_rings - 1) * sides + np.arange(sides)
-        caps = np.concatenate([np.stack([np.full(sides, south), (first + 1) % sides, first], -1),
-                               np.stack([np.full(sides, north), last, (n_rings - 1) * sides + (first + 1) % sides],
-                                        -1)])
+        caps = np.concatenate(
+            [
+                np.stack([np.full(sides, south), (first + 1) % sides, first], -1),
+                np.stack([np.full(sides, north), last, (n_rings - 1) * sides + (first + 1) % sides], -1),
+            ]
+        )
         return Mesh(vertices, np.concatenate([quads, caps]))
 
 
@@ -128,8 +136,12 @@ class Body:
         object.__setattr__(self, "capsules", tuple(self.capsules))
         frames = self.positions.shape[0] if self.positions.ndim == 2 else -1
         if self.positions.shape != (frames, 3) or self.rotations.shape != (frames, 3, 3):
-            raise DataFormatError(None, f"body {self.name!r}: rotations {self.rotations.shape} and positions "
-                                        f"{self.positions.shape} must be [T, 3, 3] and [T, 3]", field=self.name)
+            raise DataFormatError(
+                None,
+                f"body {self.name!r}: rotations {self.rotations.shape} and positions "
+                f"{self.positions.shape} must be [T, 3, 3] and [T, 3]",
+                field=self.name,
+            )
 
     def surface(self) -> Mesh:
         """All meshes and tessellated capsules of the body as one mesh (body frame)."""
@@ -137,8 +149,10 @@ class Body:
         if not parts:
             return Mesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
         offsets = np.cumsum([0] + [len(p.vertices) for p in parts[:-1]])
-        return Mesh(np.concatenate([p.vertices for p in parts]),
-                    np.concatenate([p.triangles + o for p, o in zip(parts, offsets)]))
+        return Mesh(
+            np.concatenate([p.vertices for p in parts]),
+            np.concatenate([p.triangles + o for p, o in zip(parts, offsets)]),
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -157,8 +171,9 @@ class PointSet:
         object.__setattr__(self, "links", links)
         object.__setattr__(self, "labels", tuple(self.labels))
         if positions.ndim != 3 or positions.shape[2] != 3:
-            raise DataFormatError(None, f"points {self.name!r} must be [T, K, 3], got {positions.shape}",
-                                  field=self.name)
+            raise DataFormatError(
+                None, f"points {self.name!r} must be [T, K, 3], got {positions.shape}", field=self.name
+            )
         if self.labels and len(self.labels) != positions.shape[1]:
             raise DataFormatError(None, f"{len(self.labels)} labels for {positions.shape[1]} points", field=self.name)
         if links.size and (links.min() < 0 or links.max() >= positions.shape[1]):
@@ -179,8 +194,12 @@ class ArrowSet:
         object.__setattr__(self, "vectors", np.asarray(self.vectors, dtype=float))
         object.__setattr__(self, "labels", tuple(self.labels))
         if self.origins.ndim != 3 or self.origins.shape[2] != 3 or self.vectors.shape != self.origins.shape:
-            raise DataFormatError(None, f"arrows {self.name!r}: origins {self.origins.shape} and vectors "
-                                        f"{self.vectors.shape} must both be [T, A, 3]", field=self.name)
+            raise DataFormatError(
+                None,
+                f"arrows {self.name!r}: origins {self.origins.shape} and vectors "
+                f"{self.vectors.shape} must both be [T, A, 3]",
+                field=self.name,
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,8 +252,9 @@ class Scene:
             if array is not None:
                 array = np.asarray(array, dtype=float)
                 object.__setattr__(self, name, array)
-                shape_ok = array.shape == (times.size, 3) if name != "support" else (
-                    array.ndim == 3 and array.shape[2] == 3)
+                shape_ok = (
+                    array.shape == (times.size, 3) if name != "support" else (array.ndim == 3 and array.shape[2] == 3)
+                )
                 if not shape_ok:
                     raise DataFormatError(None, f"scene {self.name!r}: {name} has shape {array.shape}", field=name)
                 timed.append((name, array))
@@ -242,35 +262,52 @@ class Scene:
             timed.append(("activations", self.activations.values))
         for what, array in timed:
             if array.shape[0] != times.size:
-                raise DataFormatError(None, f"scene {self.name!r}: {what} has {array.shape[0]} frames, the clock "
-                                            f"has {times.size}")
+                raise DataFormatError(
+                    None, f"scene {self.name!r}: {what} has {array.shape[0]} frames, the clock has {times.size}"
+                )
 
     @property
     def n_frames(self) -> int:
         return int(self.times.size)
 
-    def with_points(self, markers: Markers, *, links: np.ndarray | Sequence[tuple[int, int]] = (),
-                    name: str = "markers") -> "Scene":
+    def with_points(
+        self, markers: Markers, *, links: np.ndarray | Sequence[tuple[int, int]] = (), name: str = "markers"
+    ) -> Scene:
         """Add marker trajectories (resampled onto the scene clock)."""
         positions = on_clock(markers.times, markers.positions, self.times)
         return replace(self, points=self.points + (PointSet(name, positions, markers.names, np.asarray(links)),))
 
-    def with_ground_reaction(self, forces: GroundReaction, *, scale: float = FORCE_SCALE,
-                             threshold: float = FORCE_THRESHOLD, name: str = "GRF") -> "Scene":
+    def with_ground_reaction(
+        self,
+        forces: GroundReaction,
+        *,
+        scale: float = FORCE_SCALE,
+        threshold: float = FORCE_THRESHOLD,
+        name: str = "GRF",
+    ) -> Scene:
         """Add one arrow per force channel, from its centre of pressure, ``scale`` metres per newton.
 
         A channel is hidden in frames where its force is below ``threshold`` N or its CoP is undefined (NaN).
         """
         force = on_clock(forces.times, forces.force, self.times)
         cop = on_clock(forces.times, forces.cop, self.times)
-        hidden = (np.linalg.norm(force, axis=-1) < threshold) | ~np.isfinite(cop).all(axis=-1) | \
-            ~np.isfinite(force).all(axis=-1)
+        hidden = (
+            (np.linalg.norm(force, axis=-1) < threshold)
+            | ~np.isfinite(cop).all(axis=-1)
+            | ~np.isfinite(force).all(axis=-1)
+        )
         cop[hidden] = np.nan
         arrows = ArrowSet(name, cop, np.where(hidden[..., None], np.nan, force * scale), forces.names)
         return replace(self, arrows=self.arrows + (arrows,))
 
-    def with_balance(self, times: np.ndarray, *, com: np.ndarray | None = None, zmp: np.ndarray | None = None,
-                     support: np.ndarray | None = None) -> "Scene":
+    def with_balance(
+        self,
+        times: np.ndarray,
+        *,
+        com: np.ndarray | None = None,
+        zmp: np.ndarray | None = None,
+        support: np.ndarray | None = None,
+    ) -> Scene:
         """Add the centre of mass [N, 3], zero-moment point [N, 3] and support polygons [N, P, 3] given at
         ``times`` [N] (support polygons are taken from the nearest earlier sample, not interpolated)."""
         changes = {}
@@ -287,7 +324,7 @@ class Scene:
             changes["support"] = picked
         return replace(self, **changes)
 
-    def with_activations(self, times: np.ndarray, names: Sequence[str], values: np.ndarray) -> "Scene":
+    def with_activations(self, times: np.ndarray, names: Sequence[str], values: np.ndarray) -> Scene:
         """Add muscle activations [N, M] given at ``times`` [N]."""
         return replace(self, activations=Activations(tuple(names), on_clock(times, values, self.times)))
 
@@ -328,8 +365,9 @@ def parent_links(parents: Sequence[int]) -> np.ndarray:
     return np.array([(p, j) for j, p in enumerate(parents) if p >= 0], dtype=np.int64).reshape(-1, 2)
 
 
-def markers_scene(markers: Markers, *, links: np.ndarray | Sequence[tuple[int, int]] = (),
-                  name: str = "markers") -> Scene:
+def markers_scene(
+    markers: Markers, *, links: np.ndarray | Sequence[tuple[int, int]] = (), name: str = "markers"
+) -> Scene:
     """A scene on the markers' clock showing them as points (C3D, TRC, joint positions of any skeleton)."""
     return Scene(markers.times, name=name).with_points(markers, links=links, name=name)
 
@@ -356,9 +394,10 @@ def bvh_scene(clip: BVHMotion, *, name: str = "bvh", radius_ratio: float = 0.08)
     for j, joint in enumerate(skeleton.names):
         children = [c for c, p in enumerate(skeleton.parents) if p == j and bone[c]]
         if children:
-            capsules = tuple(Capsule(np.zeros(3), translations[0, c], float(np.clip(radius_ratio * lengths[c],
-                                                                                      0.015, 0.04)))
-                             for c in children)
+            capsules = tuple(
+                Capsule(np.zeros(3), translations[0, c], float(np.clip(radius_ratio * lengths[c], 0.015, 0.04)))
+                for c in children
+            )
             bodies.append(Body(joint, rotations[:, j], positions[:, j], capsules=capsules))
     drawn = {skeleton.index(b.name) for b in bodies} | set(np.flatnonzero(bone).tolist())
     joints = sorted(j for j in drawn if not skeleton.end_sites[j])
@@ -374,8 +413,7 @@ def geometry_folders(model_path: str | Path) -> list[Path]:
     return [folder, folder / "Geometry", folder.parent / "Geometry", folder.parent.parent / "Geometry"]
 
 
-def model_scene(model: BodyModel, motion: Motion, *, folders: Sequence[str | Path] = (),
-                name: str = "motion") -> Scene:
+def model_scene(model: BodyModel, motion: Motion, *, folders: Sequence[str | Path] = (), name: str = "motion") -> Scene:
     """A scene of ``motion`` (coordinates) moving ``model``: body poses by forward kinematics, each body's meshes
     (``.vtp`` files found in ``folders``, scaled by their ``scale_factors``; other mesh formats are not read), and
     capsules from the body's joint to its children's joints for bodies with no mesh found; the model's markers as
@@ -389,8 +427,7 @@ def model_scene(model: BodyModel, motion: Motion, *, folders: Sequence[str | Pat
     from biomotion.io.vtp import read_vtp
 
     selected = motion.select(model.coordinate_names)
-    q = torch.where(torch.as_tensor(selected.mask), torch.as_tensor(selected.values, dtype=model.dtype),
-                    model.defaults)
+    q = torch.where(torch.as_tensor(selected.mask), torch.as_tensor(selected.values, dtype=model.dtype), model.defaults)
     q = apply_couplers(model, q)
     poses = forward_kinematics(model, q)
     rotations, positions = poses.rotations.detach().numpy(), poses.positions.detach().numpy()
@@ -401,8 +438,11 @@ def model_scene(model: BodyModel, motion: Motion, *, folders: Sequence[str | Pat
             found = next((Path(f) / mesh.mesh_file for f in folders if (Path(f) / mesh.mesh_file).is_file()), None)
             if found is not None:
                 _, rotation, translation = model.frame_in_body(mesh.frame)
-                meshes.append(Mesh(*read_vtp(found)).scaled(mesh.scale_factors).transformed(
-                    rotation.detach().numpy(), translation.detach().numpy()))
+                meshes.append(
+                    Mesh(*read_vtp(found))
+                    .scaled(mesh.scale_factors)
+                    .transformed(rotation.detach().numpy(), translation.detach().numpy())
+                )
         capsules = () if meshes else _skeleton_capsules(model, b)
         bodies.append(Body(spec.name, rotations[:, b], positions[:, b], tuple(meshes), capsules))
     points = ()
@@ -418,6 +458,9 @@ def _skeleton_capsules(model: BodyModel, body: int, radius_ratio: float = 0.1) -
     own = next((j for j in model.joints if j.child == body), None)
     start = np.zeros(3) if own is None else own.child_translation.detach().numpy()
     ends = [j.parent_translation.detach().numpy() for j in model.joints if j.parent == body]
-    capsules = tuple(Capsule(start, end, float(np.clip(radius_ratio * np.linalg.norm(end - start), 0.015, 0.05)))
-                     for end in ends if np.linalg.norm(end - start) > 1e-3)
+    capsules = tuple(
+        Capsule(start, end, float(np.clip(radius_ratio * np.linalg.norm(end - start), 0.015, 0.05)))
+        for end in ends
+        if np.linalg.norm(end - start) > 1e-3
+    )
     return capsules or (Capsule(start, start, 0.025),)

@@ -21,9 +21,9 @@ import base64
 import html
 import json
 import re
+from collections.abc import Sequence
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -48,8 +48,15 @@ def plotly_js() -> str:
     return get_plotlyjs()
 
 
-def write_viewer(scene: Scene, path: str | Path, *, compare: Scene | None = None, title: str | None = None,
-                 compare_mode: str = "overlay", follow: bool | None = None) -> Path:
+def write_viewer(
+    scene: Scene,
+    path: str | Path,
+    *,
+    compare: Scene | None = None,
+    title: str | None = None,
+    compare_mode: str = "overlay",
+    follow: bool | None = None,
+) -> Path:
     """Write the viewer of ``scene`` (and ``compare``, drawn over it or beside it) to ``path``; returns the path.
 
     Args:
@@ -65,8 +72,14 @@ def write_viewer(scene: Scene, path: str | Path, *, compare: Scene | None = None
     return path
 
 
-def viewer_html(scene: Scene, *, compare: Scene | None = None, title: str | None = None,
-                compare_mode: str = "overlay", follow: bool | None = None) -> str:
+def viewer_html(
+    scene: Scene,
+    *,
+    compare: Scene | None = None,
+    title: str | None = None,
+    compare_mode: str = "overlay",
+    follow: bool | None = None,
+) -> str:
     """The viewer page as a string (see `write_viewer`)."""
     if compare_mode not in COMPARE_MODES:
         raise ConfigError(f"compare mode must be one of {', '.join(COMPARE_MODES)}, got {compare_mode!r}")
@@ -77,18 +90,29 @@ def viewer_html(scene: Scene, *, compare: Scene | None = None, title: str | None
     ground_lo = np.floor((lo - FOLLOW_MARGIN) / GRID_STEP) * GRID_STEP
     ground_hi = np.ceil((hi + FOLLOW_MARGIN) / GRID_STEP) * GRID_STEP
     data = {
-        "mode": compare_mode, "follow": follow, "follow_half": half,
+        "mode": compare_mode,
+        "follow": follow,
+        "follow_half": half,
         "times": _encode(scene.times, np.float32),
-        "bounds": {"lo": [float(ground_lo[0]), float(lo[1]), float(ground_lo[2])],
-                   "hi": [float(ground_hi[0]), float(hi[1]), float(ground_hi[2])]},
-        "ground": {"x": [float(ground_lo[0]), float(ground_hi[0])], "z": [float(ground_lo[2]), float(ground_hi[2])],
-                   "step": GRID_STEP},
+        "bounds": {
+            "lo": [float(ground_lo[0]), float(lo[1]), float(ground_lo[2])],
+            "hi": [float(ground_hi[0]), float(hi[1]), float(ground_hi[2])],
+        },
+        "ground": {
+            "x": [float(ground_lo[0]), float(ground_hi[0])],
+            "z": [float(ground_lo[2]), float(ground_hi[2])],
+            "step": GRID_STEP,
+        },
         "main": _scene_data(scene),
         "compare": None if compare is None else _scene_data(compare, frame_map=compare.frame_of(scene.times)),
     }
     blob = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
-    parts = {"TITLE": html.escape(title or scene.name), "PLOTLY": plotly_js(), "DATA": blob,
-             "VIEWER": _resource("viewer.js")}
+    parts = {
+        "TITLE": html.escape(title or scene.name),
+        "PLOTLY": plotly_js(),
+        "DATA": blob,
+        "VIEWER": _resource("viewer.js"),
+    }
     return re.sub(r"\{\{(TITLE|PLOTLY|DATA|VIEWER)\}\}", lambda m: parts[m[1]], _resource("viewer_template.html"))
 
 
@@ -98,8 +122,11 @@ def _resource(name: str) -> str:
 
 def _encode(array: np.ndarray, dtype: type) -> dict:
     array = np.ascontiguousarray(array, dtype=np.dtype(dtype).newbyteorder("<"))
-    return {"dtype": np.dtype(dtype).name, "shape": list(array.shape),
-            "b64": base64.b64encode(array.tobytes()).decode("ascii")}
+    return {
+        "dtype": np.dtype(dtype).name,
+        "shape": list(array.shape),
+        "b64": base64.b64encode(array.tobytes()).decode("ascii"),
+    }
 
 
 def _planar(array: np.ndarray) -> dict:
@@ -108,18 +135,34 @@ def _planar(array: np.ndarray) -> dict:
 
 
 def _scene_data(scene: Scene, frame_map: np.ndarray | None = None) -> dict:
-    data: dict = {"name": scene.name, "n": scene.n_frames, "centre": _encode(_centre(scene), np.float32),
-                  "frame_map": None if frame_map is None else _encode(frame_map, np.int32), "bodies": None}
+    data: dict = {
+        "name": scene.name,
+        "n": scene.n_frames,
+        "centre": _encode(_centre(scene), np.float32),
+        "frame_map": None if frame_map is None else _encode(frame_map, np.int32),
+        "bodies": None,
+    }
     if scene.bodies:
         data["bodies"] = _bodies_data(scene)
-    data["points"] = [{"name": p.name, "labels": list(p.labels), "count": p.positions.shape[1],
-                       "xyz": _planar(p.positions), "links": _encode(p.links, np.int32)} for p in scene.points]
-    data["arrows"] = [{"name": a.name, "count": a.origins.shape[1], "origin": _planar(a.origins),
-                       "vector": _planar(a.vectors)} for a in scene.arrows]
+    data["points"] = [
+        {
+            "name": p.name,
+            "labels": list(p.labels),
+            "count": p.positions.shape[1],
+            "xyz": _planar(p.positions),
+            "links": _encode(p.links, np.int32),
+        }
+        for p in scene.points
+    ]
+    data["arrows"] = [
+        {"name": a.name, "count": a.origins.shape[1], "origin": _planar(a.origins), "vector": _planar(a.vectors)}
+        for a in scene.arrows
+    ]
     data["com"] = None if scene.com is None else _encode(scene.com, np.float32)
     data["zmp"] = None if scene.zmp is None else _encode(scene.zmp, np.float32)
-    data["support"] = None if scene.support is None else {"count": scene.support.shape[1],
-                                                          "xyz": _planar(scene.support)}
+    data["support"] = (
+        None if scene.support is None else {"count": scene.support.shape[1], "xyz": _planar(scene.support)}
+    )
     data["activations"] = None
     if scene.activations is not None:
         values = scene.activations.values
@@ -139,11 +182,17 @@ def _bodies_data(scene: Scene) -> dict:
     rotations = np.where(valid[..., None, None], rotations, np.eye(3))
     quaternions = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(rotations.shape[:2] + (4,))
     positions = np.where(valid[..., None], positions, np.nan)
-    return {"count": len(scene.bodies), "names": [b.name for b in scene.bodies],
-            "quat": _encode(quaternions, np.float32), "pos": _encode(positions, np.float32),
-            "vertices": _encode(np.concatenate([s.vertices for s in surfaces]), np.float32),
-            "starts": _encode(starts, np.int32), "i": _encode(triangles[:, 0], np.int32),
-            "j": _encode(triangles[:, 1], np.int32), "k": _encode(triangles[:, 2], np.int32)}
+    return {
+        "count": len(scene.bodies),
+        "names": [b.name for b in scene.bodies],
+        "quat": _encode(quaternions, np.float32),
+        "pos": _encode(positions, np.float32),
+        "vertices": _encode(np.concatenate([s.vertices for s in surfaces]), np.float32),
+        "starts": _encode(starts, np.int32),
+        "i": _encode(triangles[:, 0], np.int32),
+        "j": _encode(triangles[:, 1], np.int32),
+        "k": _encode(triangles[:, 2], np.int32),
+    }
 
 
 def _posed_box(body: Body) -> np.ndarray:
@@ -152,8 +201,9 @@ def _posed_box(body: Body) -> np.ndarray:
     if not len(vertices):
         return body.positions[:, None]
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
-    corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1)
-                        for k in (0, 1)])
+    corners = np.array(
+        [[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]] for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+    )
     return np.einsum("tij,cj->tci", body.rotations, corners) + body.positions[:, None]
 
 
@@ -170,8 +220,11 @@ def _samples(scene: Scene) -> list[np.ndarray]:
 
 def _centre(scene: Scene) -> np.ndarray:
     """[T, 3] per-frame mean of the drawn bodies and points (arrows excluded), gaps filled, for the follow view."""
-    samples = [b.positions[:, None] for b in scene.bodies] + [p.positions for p in scene.points] or \
-        _samples(scene) or [np.zeros((scene.n_frames, 1, 3))]
+    samples = (
+        [b.positions[:, None] for b in scene.bodies] + [p.positions for p in scene.points]
+        or _samples(scene)
+        or [np.zeros((scene.n_frames, 1, 3))]
+    )
     stacked = np.concatenate(samples, axis=1)
     finite = np.isfinite(stacked).all(axis=-1)
     count = finite.sum(axis=1)
@@ -240,8 +293,9 @@ def read_scene(path: str | Path, *, model: str | Path | None = None, geometry: S
 
         folders = [Path(g) for g in geometry] + geometry_folders(model)
         return model_scene(BodyModel.from_osim(model), read_motion(path), folders=folders, name=name)
-    raise ConfigError(f"{path}: cannot view {suffix or 'a file without suffix'} (expected one of "
-                      f"{', '.join(MOTION_SUFFIXES)})")
+    raise ConfigError(
+        f"{path}: cannot view {suffix or 'a file without suffix'} (expected one of {', '.join(MOTION_SUFFIXES)})"
+    )
 
 
 ACTIVATION_SUFFIXES = ("/activation", ".activation")
@@ -299,8 +353,9 @@ def read_com_zmp(path: str | Path) -> dict:
             raise DataFormatError(path, f"support polygon columns missing: {', '.join(missing)}")
         out["support"] = np.stack([table.data[:, [labels.index(c) for c in row]] for row in columns], axis=1)
     if len(out) == 1:
-        raise DataFormatError(path, f"no balance columns (expected {' '.join(COM_ZMP_COLUMNS)} and/or "
-                                    "support_<k>_x/_y/_z)")
+        raise DataFormatError(
+            path, f"no balance columns (expected {' '.join(COM_ZMP_COLUMNS)} and/or support_<k>_x/_y/_z)"
+        )
     return out
 
 
@@ -316,11 +371,19 @@ def read_forces(path: str | Path):
     return read_ground_reaction(path)
 
 
-def view_command(motion_path: str | Path, *, model: str | Path | None = None, grf: str | Path | None = None,
-                 activations: str | Path | None = None, com_zmp: str | Path | None = None,
-                 compare: str | Path | None = None, out: str | Path = "viewer.html",
-                 compare_mode: str = "overlay", title: str | None = None,
-                 geometry: Sequence[str | Path] = ()) -> Path:
+def view_command(
+    motion_path: str | Path,
+    *,
+    model: str | Path | None = None,
+    grf: str | Path | None = None,
+    activations: str | Path | None = None,
+    com_zmp: str | Path | None = None,
+    compare: str | Path | None = None,
+    out: str | Path = "viewer.html",
+    compare_mode: str = "overlay",
+    title: str | None = None,
+    geometry: Sequence[str | Path] = (),
+) -> Path:
     """``biomotion view``: read the files, build the scenes, write the viewer to ``out``; returns its path.
 
     ``grf`` (``.mot`` or ``.c3d``) adds arrows at the centres of pressure, ``activations`` (``.sto``) the activation

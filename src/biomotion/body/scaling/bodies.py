@@ -34,8 +34,9 @@ from biomotion.io.osim import GROUND, ScaleSpec, read_scale_set
 _EQUAL_TOLERANCE = 1.8e-14
 
 
-def scale_factors(model: BodyModel, scales: Mapping[str, Sequence[float] | torch.Tensor] | Sequence[ScaleSpec]
-                  ) -> torch.Tensor:
+def scale_factors(
+    model: BodyModel, scales: Mapping[str, Sequence[float] | torch.Tensor] | Sequence[ScaleSpec]
+) -> torch.Tensor:
     """[B, 3] factors per body (ones for bodies not named) from a name mapping or a parsed ScaleSet.
 
     Segments that name no body are ignored, as OpenSim does: the ScaleTool writes entries for ground and for
@@ -49,9 +50,12 @@ def scale_factors(model: BodyModel, scales: Mapping[str, Sequence[float] | torch
     return torch.stack(rows)
 
 
-def scale_model(model: BodyModel, factors: torch.Tensor | Mapping[str, Sequence[float] | torch.Tensor]
-                | Sequence[ScaleSpec], mass: float | torch.Tensor | None = None,
-                preserve_mass_distribution: bool = True) -> BodyModel:
+def scale_model(
+    model: BodyModel,
+    factors: torch.Tensor | Mapping[str, Sequence[float] | torch.Tensor] | Sequence[ScaleSpec],
+    mass: float | torch.Tensor | None = None,
+    preserve_mass_distribution: bool = True,
+) -> BodyModel:
     """A new model scaled by ``factors`` ([B, 3] in BodySet order, a name mapping or a ScaleSet), optionally to a
     total ``mass`` (kg), as OpenSim's ``Model::scale``."""
     if not isinstance(factors, torch.Tensor):
@@ -67,30 +71,46 @@ def scale_model(model: BodyModel, factors: torch.Tensor | Mapping[str, Sequence[
 
     joints = []
     for joint in model.joints:
-        axes = tuple(dataclasses.replace(axis, scale=axis.scale * torch.dot(axis.axis, of(joint.parent)))
-                     if not axis.rotation and joint.type == "CustomJoint" else axis for axis in joint.axes)
-        joints.append(dataclasses.replace(
-            joint, parent_translation=joint.parent_translation * of(joint.parent),
-            child_translation=joint.child_translation * factors[joint.child], axes=axes))
-    marker_scale = torch.where((model.marker_bodies < 0)[:, None], ones,
-                               factors[model.marker_bodies.clamp(min=0)])
+        axes = tuple(
+            dataclasses.replace(axis, scale=axis.scale * torch.dot(axis.axis, of(joint.parent)))
+            if not axis.rotation and joint.type == "CustomJoint"
+            else axis
+            for axis in joint.axes
+        )
+        joints.append(
+            dataclasses.replace(
+                joint,
+                parent_translation=joint.parent_translation * of(joint.parent),
+                child_translation=joint.child_translation * factors[joint.child],
+                axes=axes,
+            )
+        )
+    marker_scale = torch.where((model.marker_bodies < 0)[:, None], ones, factors[model.marker_bodies.clamp(min=0)])
     masses, inertias = _scale_inertial(model.masses, model.inertias, factors, not preserve_mass_distribution)
     if mass is not None:
         ratio = torch.as_tensor(mass, dtype=model.dtype) / masses.sum()
         masses, inertias = masses * ratio, inertias * ratio
-    return dataclasses.replace(model, joints=tuple(joints), masses=masses, inertias=inertias,
-                               coms=model.coms * factors, marker_offsets=model.marker_offsets * marker_scale,
-                               body_scales=model.body_scales * factors)
+    return dataclasses.replace(
+        model,
+        joints=tuple(joints),
+        masses=masses,
+        inertias=inertias,
+        coms=model.coms * factors,
+        marker_offsets=model.marker_offsets * marker_scale,
+        body_scales=model.body_scales * factors,
+    )
 
 
-def scale_model_from_file(model: BodyModel, path: str | Path, mass: float | None = None,
-                          preserve_mass_distribution: bool = True) -> BodyModel:
+def scale_model_from_file(
+    model: BodyModel, path: str | Path, mass: float | None = None, preserve_mass_distribution: bool = True
+) -> BodyModel:
     """`scale_model` with the factors of an OpenSim ScaleSet file."""
     return scale_model(model, read_scale_set(path), mass, preserve_mass_distribution)
 
 
-def _scale_inertial(masses: torch.Tensor, inertias: torch.Tensor, factors: torch.Tensor, scale_mass: bool
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
+def _scale_inertial(
+    masses: torch.Tensor, inertias: torch.Tensor, factors: torch.Tensor, scale_mass: bool
+) -> tuple[torch.Tensor, torch.Tensor]:
     """OpenSim's ``Body::scaleInertialProperties`` for every body (inertia about the COM, body frame)."""
     new_masses, new_inertias = [], []
     for b in range(masses.shape[0]):
@@ -98,8 +118,9 @@ def _scale_inertial(masses: torch.Tensor, inertias: torch.Tensor, factors: torch
         mass_factor = torch.abs(s.prod())
         m = m0 * mass_factor if scale_mass else m0
         a = s.abs()
-        uniform = bool((a[0] - a[1]).abs() <= _EQUAL_TOLERANCE * a.max() and
-                       (a[0] - a[2]).abs() <= _EQUAL_TOLERANCE * a.max())
+        uniform = bool(
+            (a[0] - a[1]).abs() <= _EQUAL_TOLERANCE * a.max() and (a[0] - a[2]).abs() <= _EQUAL_TOLERANCE * a.max()
+        )
         if float(m) <= 2.2e-16:
             scaled = torch.zeros_like(inertia)
         elif uniform:
@@ -142,5 +163,7 @@ def _check_offsets_on_bodies(model: BodyModel) -> None:
     bodies = {GROUND} | {b.path for b in model.spec.bodies}
     for frame in model.spec.frames:
         if frame.parent not in bodies:
-            raise ModelError(f"{model.spec.path}: offset frame {frame.path!r} is attached to another offset frame "
-                             f"({frame.parent!r}); scaling such chains is not supported")
+            raise ModelError(
+                f"{model.spec.path}: offset frame {frame.path!r} is attached to another offset frame "
+                f"({frame.parent!r}); scaling such chains is not supported"
+            )

@@ -1,9 +1,9 @@
 """A scaled model written as an ``.osim`` file OpenSim loads, and its ``ScaleSet`` file.
 
 The scaled model file is the generic ``.osim`` edited element by element (what OpenSim's ``Model::scale`` changes):
-body masses, centres of mass and inertias (`biomotion.body.scaling.bodies.scale_model`), mesh scale factors, offset-frame
-translations, CustomJoint translation functions (wrapped in a MultiplierFunction by ``axis . factors`` of the
-parent body, OpenSim's ``CustomJoint::extendScale``), marker locations, muscle path points (fixed, conditional and
+body masses, centres of mass and inertias (`biomotion.body.scaling.bodies.scale_model`), mesh scale factors,
+offset-frame translations, CustomJoint translation functions (wrapped in a MultiplierFunction by ``axis . factors`` of
+the parent body, OpenSim's ``CustomJoint::extendScale``), marker locations, muscle path points (fixed, conditional and
 moving), wrap objects (translation, and cylinder/ellipsoid/sphere dimensions as OpenSim's ``extendScale``), and
 muscle optimal fibre and tendon slack lengths scaled by the change of path length in the default pose. That path
 length is measured along the path points; wrapping surfaces are not followed, so for wrapped muscles the two
@@ -47,6 +47,7 @@ class ScaleResult:
         placement: the marker placement, a `biomotion.ik.scaling.Placement` (None when there was none).
         generic: the model before scaling.
     """
+
     factors: dict[str, tuple[float, float, float]]
     measurements: dict[str, float]
     mass: float | None
@@ -56,8 +57,8 @@ class ScaleResult:
     generic: BodyModel
 
 
-
 # --- writing ----------------------------------------------------------------------------------------------------------
+
 
 def write_scale_set(path: str | Path, factors: Mapping[str, Sequence[float]]) -> Path:
     """Write an OpenSim ``ScaleSet`` file (what the ScaleTool's ``output_scale_file`` holds)."""
@@ -129,15 +130,17 @@ def _socket(elem: ET.Element, name: str) -> str | None:
 
 def _function_spec(elem: ET.Element) -> osim.FunctionSpec:
     """The `biomotion.io.osim` spec of an OpenSim function element (the kinds path points use)."""
-    values = {child.tag: _numbers(child) for child in elem if child.tag in ("x", "y", "value", "coefficients",
-                                                                          "scale")}
+    values = {child.tag: _numbers(child) for child in elem if child.tag in ("x", "y", "value", "coefficients", "scale")}
     if elem.tag == "Constant":
         return osim.ConstantFunction(float(values["value"][0]))
     if elem.tag == "LinearFunction":
         return osim.LinearFunction(*(float(v) for v in values["coefficients"]))
     if elem.tag in ("SimmSpline", "NaturalCubicSpline", "PiecewiseLinearFunction"):
-        kind = {"SimmSpline": osim.SimmSpline, "NaturalCubicSpline": osim.NaturalCubicSpline,
-                "PiecewiseLinearFunction": osim.PiecewiseLinearFunction}[elem.tag]
+        kind = {
+            "SimmSpline": osim.SimmSpline,
+            "NaturalCubicSpline": osim.NaturalCubicSpline,
+            "PiecewiseLinearFunction": osim.PiecewiseLinearFunction,
+        }[elem.tag]
         return kind(tuple(values["x"]), tuple(values["y"]))
     if elem.tag == "PolynomialFunction":
         return osim.PolynomialFunction(tuple(values["coefficients"]))
@@ -196,8 +199,7 @@ class _PathPoints:
                 coordinate = _socket(point, f"{axis}_coordinate")
                 if holder is None or len(holder) == 0:
                     continue
-                value = float(self.q[self.model.coordinate_index(coordinate.rsplit("/", 1)[-1])]) if coordinate \
-                    else 0.0
+                value = float(self.q[self.model.coordinate_index(coordinate.rsplit("/", 1)[-1])]) if coordinate else 0.0
                 function = build_function(_function_spec(next(iter(holder))))
                 local[i] = float(function(torch.tensor(value, dtype=_F64)))
         else:
@@ -220,13 +222,14 @@ def _path_length(points: list[np.ndarray | None]) -> float:
     return float(sum(np.linalg.norm(b - a) for a, b in zip(active, active[1:])))
 
 
-def write_scaled_osim(source: str | Path, destination: str | Path, result: ScaleResult,
-                      name: str | None = None) -> Path:
+def write_scaled_osim(
+    source: str | Path, destination: str | Path, result: ScaleResult, name: str | None = None
+) -> Path:
     """Write the scaled, calibrated model: the generic ``source`` .osim (the file ``result.generic`` was read
     from) edited as OpenSim's scaling edits it (see the module docstring), with ``result``'s factors, inertial
     properties and placed markers."""
     source = Path(source)
-    tree = parse_tree(source)   # DataFormatError for a missing, malformed or DOCTYPE-bearing file
+    tree = parse_tree(source)  # DataFormatError for a missing, malformed or DOCTYPE-bearing file
     root = tree.getroot()
     model_elem = root.find("Model")
     if model_elem is None:
@@ -369,8 +372,9 @@ def _muscle_lengths(model_elem: ET.Element, points: _PathPoints) -> dict[ET.Elem
     """Path length along the path points in the default pose, per force that has a fibre or resting length."""
     lengths = {}
     for force, path in _path_elements(model_elem):
-        if not any(force.find(t) is not None for t in ("optimal_fiber_length", "tendon_slack_length",
-                                                       "resting_length")):
+        if not any(
+            force.find(t) is not None for t in ("optimal_fiber_length", "tendon_slack_length", "resting_length")
+        ):
             continue
         lengths[force] = _path_length([points.position(p) for p in path])
     return lengths
@@ -389,8 +393,11 @@ def _marker_elements(model_elem: ET.Element, markers: Sequence[osim.MarkerSpec],
     existing = {elem.get("name"): elem for elem in objects if elem.tag == "Marker"}
     for marker in markers:
         elem = existing.get(marker.name)
-        if elem is not None and frames.path(_socket(elem, "parent_frame") or "/ground") == marker.frame and \
-                (elem.findtext("fixed", "false").strip().lower() == "true") == marker.fixed:
+        if (
+            elem is not None
+            and frames.path(_socket(elem, "parent_frame") or "/ground") == marker.frame
+            and (elem.findtext("fixed", "false").strip().lower() == "true") == marker.fixed
+        ):
             continue
         if elem is None:
             elem = ET.SubElement(objects, "Marker", name=marker.name)

@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-
 from biomotion.errors import ConfigError
 
 LINES_FILE = Path(__file__).with_name("ansur_segments.json")
@@ -43,6 +42,7 @@ FACTOR_RANGE = (0.5, 1.6)
 class SegmentMeasure:
     """A segment's length from ANSUR II measures (``top - bottom``, or ``top`` alone) and the model bodies it
     scales (each name as is, and with ``_r`` / ``_l``)."""
+
     name: str
     top: str
     bottom: str | None
@@ -100,9 +100,11 @@ def segment_factors(measures_mm: Mapping[str, float], generic_height: float) -> 
         factor = length / expected
         if not FACTOR_RANGE[0] <= factor <= FACTOR_RANGE[1]:
             named = segment.top if segment.bottom is None else f"{segment.top} - {segment.bottom}"
-            raise ConfigError(f"{segment.name} length {named} = {length:g} mm gives a scale factor of {factor:.3g} "
-                              f"against {expected:.0f} mm at the generic model's {generic_height:.2f} m; ANSUR II "
-                              "measures are in millimetres")
+            raise ConfigError(
+                f"{segment.name} length {named} = {length:g} mm gives a scale factor of {factor:.3g} "
+                f"against {expected:.0f} mm at the generic model's {generic_height:.2f} m; ANSUR II "
+                "measures are in millimetres"
+            )
         factors[segment.name] = factor
     return factors
 

@@ -25,8 +25,8 @@ arms by the sides), from the foot bottom to the top of the head:
   by forward kinematics. A scaled model re-read from its file has no scaling history: without a head marker it
   would be measured as the generic height again.
 
-The scaled model file is written by `biomotion.body.scaling.osim_file.write_scaled_osim` (bodies, joints, markers, meshes,
-wrap objects, muscle paths and fibre/tendon lengths), so OpenSim loads it.
+The scaled model file is written by `biomotion.body.scaling.osim_file.write_scaled_osim` (bodies, joints, markers,
+meshes, wrap objects, muscle paths and fibre/tendon lengths), so OpenSim loads it.
 """
 
 from __future__ import annotations
@@ -48,9 +48,9 @@ from biomotion.body.kinematics import (
 )
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_model
+from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.body.scaling.segments import body_factors, measures_of, segment_factors
 from biomotion.errors import BiomotionWarning, ConfigError, ModelError
-from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
 from biomotion.io.atomic import atomic_write
 from biomotion.profile import Profile
 
@@ -70,6 +70,7 @@ _F64 = torch.float64
 class StandingHeight:
     """A model's standing height (m) with every coordinate at zero: ``top - bottom`` (heights in ground, m), and
     what the top is (``"marker HEAD"`` or ``"virtual vertex on torso, generic height 1.70 m"``)."""
+
     height: float
     top: float
     bottom: float
@@ -101,9 +102,16 @@ def standing_height(model: BodyModel, *, generic_height: float | None = None) ->
     return StandingHeight(top - bottom, top, bottom, reference)
 
 
-def scale_to_profile(generic_osim: str | Path, height: float | None, mass: float | None, out_osim: str | Path, *,
-                     measures: Mapping[str, float] | None = None, generic_height: float | None = None,
-                     name: str | None = None) -> BodyModel:
+def scale_to_profile(
+    generic_osim: str | Path,
+    height: float | None,
+    mass: float | None,
+    out_osim: str | Path,
+    *,
+    measures: Mapping[str, float] | None = None,
+    generic_height: float | None = None,
+    name: str | None = None,
+) -> BodyModel:
     """Scale the model in ``generic_osim`` to ``height`` (m), ``mass`` (kg) and optionally ANSUR II segment
     ``measures`` (mm); write it to ``out_osim``.
 
@@ -127,11 +135,22 @@ def scale_to_profile(generic_osim: str | Path, height: float | None, mass: float
     segments = segment_factors(measures, stature) if measures else {}
     per_body = body_factors(generic.body_names, segments, factor)
     factors = {body: (f, f, f) for body, f in per_body.items()}
-    scaled = scale_model(generic, torch.tensor([factors[b] for b in generic.body_names], dtype=_F64), mass=mass,
-                         preserve_mass_distribution=True)
+    scaled = scale_model(
+        generic,
+        torch.tensor([factors[b] for b in generic.body_names], dtype=_F64),
+        mass=mass,
+        preserve_mass_distribution=True,
+    )
     measured = ({} if height is None else {"standing_height": factor}) | segments
-    result = ScaleResult(factors=factors, measurements=measured, mass=mass, preserve_mass_distribution=True,
-                         model=scaled, placement=None, generic=generic)
+    result = ScaleResult(
+        factors=factors,
+        measurements=measured,
+        mass=mass,
+        preserve_mass_distribution=True,
+        model=scaled,
+        placement=None,
+        generic=generic,
+    )
     write_scaled_osim(generic_osim, out_osim, result, name=name)
     return scaled
 
@@ -139,22 +158,28 @@ def scale_to_profile(generic_osim: str | Path, height: float | None, mass: float
 def scale_to_person(generic_osim: str | Path, profile: Profile, out_osim: str | Path, **options) -> BodyModel:
     """`scale_to_profile` with a `Profile`'s height and mass (either may be None) and the ANSUR II segment
     measures (mm) among its extra fields (an ANSUR II table row has them all)."""
-    return scale_to_profile(generic_osim, profile.height, profile.mass, out_osim,
-                            measures=measures_of(profile.extra), **options)
+    return scale_to_profile(
+        generic_osim, profile.height, profile.mass, out_osim, measures=measures_of(profile.extra), **options
+    )
 
 
-def write_person_model(generic_osim: str | Path, profile: Profile, out: str | Path, name: str
-                       ) -> tuple[Path, Path, dict]:
+def write_person_model(
+    generic_osim: str | Path, profile: Profile, out: str | Path, name: str
+) -> tuple[Path, Path, dict]:
     """`scale_to_person` into ``out/<name>.osim``, with ``out/<name>_scale.json``: the factor of every body, the
     ANSUR II measures used, the mass and the standing height of the result. Returns (model file, summary file,
     summary)."""
     out = Path(out)
     model = scale_to_person(generic_osim, profile, out / f"{name}.osim", name=name)
-    summary = {"generic_model": str(generic_osim), "height_m": profile.height, "mass_kg": float(model.total_mass),
-               "ansur_measures_mm": measures_of(profile.extra),
-               "scale_factors": {body: round(float(model.body_scales[i, 0]), 6)
-                                 for i, body in enumerate(model.body_names)},
-               "standing_height_m": round(standing_height(model).height, 4), "model": f"{name}.osim"}
+    summary = {
+        "generic_model": str(generic_osim),
+        "height_m": profile.height,
+        "mass_kg": float(model.total_mass),
+        "ansur_measures_mm": measures_of(profile.extra),
+        "scale_factors": {body: round(float(model.body_scales[i, 0]), 6) for i, body in enumerate(model.body_names)},
+        "standing_height_m": round(standing_height(model).height, 4),
+        "model": f"{name}.osim",
+    }
     summary_file = out / f"{name}_scale.json"
     with atomic_write(summary_file) as handle:
         json.dump(summary, handle, indent=1)
@@ -163,12 +188,15 @@ def write_person_model(generic_osim: str | Path, profile: Profile, out: str | Pa
 
 # ---- helpers ---------------------------------------------------------------------------------------------------
 
+
 def _check_range(what: str, value: float | None, bounds: tuple[float, float], unit: str) -> None:
     if value is None:
         return
     if not bounds[0] <= float(value) <= bounds[1]:
-        raise ConfigError(f"{what}={value} {unit} is outside [{bounds[0]}, {bounds[1]}] {unit}: give SI units "
-                          f"(height in metres, mass in kilograms)")
+        raise ConfigError(
+            f"{what}={value} {unit} is outside [{bounds[0]}, {bounds[1]}] {unit}: give SI units "
+            f"(height in metres, mass in kilograms)"
+        )
 
 
 def _up(model: BodyModel) -> torch.Tensor:
@@ -184,8 +212,7 @@ def _foot_bottom(model: BodyModel, poses, up: torch.Tensor) -> float:
         feet = foot_points(model)
         points = points_in_ground(poses, feet.bodies, feet.offsets)
     except ModelError:  # no calcn bodies: the lowest point the model defines
-        points = torch.cat([poses.positions,
-                            points_in_ground(poses, model.marker_bodies, model.marker_offsets)])
+        points = torch.cat([poses.positions, points_in_ground(poses, model.marker_bodies, model.marker_offsets)])
     return float((points @ up).min())
 
 
@@ -198,17 +225,22 @@ def _generic_height(model: BodyModel, generic_height: float | None) -> float:
         _check_range("generic_height", generic_height, HEIGHT_RANGE, "m")
         return float(generic_height)
     if not model.name.lower().startswith("rajagopal"):
-        warnings.warn(f"model {model.name!r} has no head-top marker and no generic_height was given: its standing "
-                      f"height is taken as {RAJAGOPAL_2016_HEIGHT} m, the generic subject of Rajagopal 2016",
-                      BiomotionWarning, stacklevel=3)
+        warnings.warn(
+            f"model {model.name!r} has no head-top marker and no generic_height was given: its standing "
+            f"height is taken as {RAJAGOPAL_2016_HEIGHT} m, the generic subject of Rajagopal 2016",
+            BiomotionWarning,
+            stacklevel=3,
+        )
     return RAJAGOPAL_2016_HEIGHT
 
 
 def _virtual_vertex(model: BodyModel, stated: float, up: torch.Tensor) -> tuple[int, torch.Tensor]:
     """(body, offset in that body as loaded, before scaling) of the point ``stated`` above the foot bottom,
     straight above the body's origin, in the model as its file describes it (unscaled)."""
-    body = next((model.body_index(n) for n in HEAD_BODIES if n in model.body_names),
-                next(b for b in range(model.n_bodies) if model.parent[b] < 0))
+    body = next(
+        (model.body_index(n) for n in HEAD_BODIES if n in model.body_names),
+        next(b for b in range(model.n_bodies) if model.parent[b] < 0),
+    )
     loaded = BodyModel.from_spec(model.spec, _F64)
     poses = forward_kinematics(loaded, apply_couplers(loaded, torch.zeros(loaded.n_q, dtype=_F64)))
     bottom = _foot_bottom(loaded, poses, up)
