@@ -10,9 +10,9 @@ variant: the defaults, the defaults without foot planting (`biomotion.guidance.p
 bend the toes, planting whose stance threshold is the metrics' 5 cm contact height instead of 3 cm, and without
 planting (to compare latent guidance alone) Table 5's weights (l_omega 10, l_foot 1,
 l_ground 10, lr 0.05) and re-quantisation at iteration 30, the foot and ground terms' contact mask by height alone
-(the default until 2026-12-03, before the stance speed test of `biomotion.guidance.refine.Guide.contact`), and
-lighter speed terms (l_speed 100, the default until 2026-12-03, and 300), without the foot-skim term (the default
-until 2026-12-07) and with the optional low-pass at 6 Hz (`GuidanceConfig.smooth_hz`).
+(the rule before the stance speed test of `biomotion.guidance.refine.Guide.contact`), lighter speed terms
+(l_speed 100 and 300), without the foot-skim term and with the optional low-pass at 6 Hz
+(`GuidanceConfig.smooth_hz`). docs/decisions/guidance-weights.md reads the table.
 Speed error: |mean horizontal pelvis speed - requested speed| at the person's size, over the clips whose request
 names a speed (the run).
 Muscle-limit violations are the share of frames x muscles whose surrogate activation leaves the training 5-95 %

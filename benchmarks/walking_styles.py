@@ -5,9 +5,9 @@
 Real: every clip of the cache labelled "walk" with a style (the Bandai-Namco walks; cache built by the command in
 `checkpoints/full-body/README.md`). Generated: `--samples` clips of 4 s per style from the full-body bundle, no
 profile, at the style's median training speed as `biomotion generate` asks (`ActionVocabulary.resolve`), guided
-with the defaults, with the foot and ground terms' contact mask by height alone (the rule until 2026-12-03,
-`biomotion.models.foot_contact.stance_mask`) and without the foot-skim term (`biomotion.guidance.losses.foot_skim`,
-off until 2026-12-07), whose pull on feet near the floor could shorten slow walks' strides. Stride length and frequency
+with the defaults, with the foot and ground terms' contact mask by height alone (the rule before
+`biomotion.models.foot_contact.stance_mask`) and without the foot-skim term (`biomotion.guidance.losses.foot_skim`),
+whose pull on feet near the floor could shorten slow walks' strides. Stride length and frequency
 as the manipulation study of `biomotion eval generation` measures them
 (`biomotion.evaluation.generation.kinematic_measures`).
 """

@@ -338,7 +338,7 @@ def test_activation_bounds_use_converged_training_frames_only():
 
 
 def test_muscles_label_verb_writes_labels_with_com_and_resumes(tmp_path, data_root, capsys):
-    """`biomotion muscles label` on a small real cache (Hamner 2013, 6 clips): activations of the 80 muscles and
+    """`biomotion train labels` on a small real cache (Hamner 2013, 6 clips): activations of the 80 muscles and
     COM terms per frame; a run that lost some clips' results recomputes only those."""
     from biomotion.cli import main
     from biomotion.data.registry import DatasetCache, build_cache

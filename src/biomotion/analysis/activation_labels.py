@@ -34,7 +34,7 @@ class LabelSettings:
     tolerance: float = 1e-6  # N·m on the torque balance
     max_iterations: int = 200
     # the contact gate's width of the inferred ground reaction the torques come from, pinned at the value the
-    # shipped surrogate's labels were made with (`ContactSettings.height_scale` became 0.01 afterwards)
+    # shipped surrogate's labels were made with (`ContactSettings.height_scale` is 0.01; docs/decisions/inferred-grf.md)
     contact_height_scale: float = 0.02
 
 

@@ -97,9 +97,9 @@ class ContactSettings:
     The gate's values were chosen on two trials kept out of every evaluation of the inferred forces — Hamner
     subject01 running at 5 m/s and gait2392 subject01 walking — by a small grid search, repeatable with
     ``python benchmarks/grf_settings.py`` (docs/results/grf.md: each setting varied alone at the evaluation's
-    10 Hz); its re-run on 2026-12-03 moved ``height_scale`` from 0.02 to 0.01, the one change that lowered the
-    tuning trials' mean RMSE by more than 2 % (0.0996 -> 0.0916 BW). The speed gate uses the vertical speed
-    because a treadmill belt carries the stance foot horizontally.
+    10 Hz; a default moves only where another value lowers the tuning trials' mean RMSE by more than 2 %;
+    docs/decisions/inferred-grf.md). The speed gate uses the vertical speed because a treadmill belt carries the
+    stance foot horizontally.
     """
 
     height_scale: float = 0.01  # δd (m)

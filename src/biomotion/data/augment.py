@@ -5,9 +5,8 @@ The surrogate's labels are a deterministic function of the kinematics (`biomotio
 inverse dynamics with the ground reaction inferred from the motion, then static optimization), so any plausible
 motion with its own labels is a valid training pair. Playing a clip ``f`` times faster (its pelvis travels the
 same path in 1/f of the time) gives new velocities and accelerations — and so new torques and activations — from
-the same poses; with f in 0.8-1.25 the clips stay within the speeds people move at. Measured on the lab cache
-(Fukuchi, OpenCap, Hamner, Schreiber; 111 training clips plus their copies at 0.8, 0.9, 1.1 and 1.25, the same
-12-minute training): held-out pooled R² 0.863 -> 0.871, mean per muscle 0.834 -> 0.843.
+the same poses; with f in 0.8-1.25 the clips stay within the speeds people move at. The surrogate's recipe
+(docs/decisions/surrogate-recipe.md) has what the copies gained.
 
 Only clips of the ``split`` (default the training split) are copied, so validation and test clips stay the real
 ones; copies keep their subject, hence their split. Each copy is the clip's values on the time axis divided by
@@ -20,9 +19,8 @@ cache's (the real clips' percentiles); the surrogate's activation bounds come fr
 Posture copies (``posture_copies`` per clip) give the clip a random marker-placement offset
 (`biomotion.data.posture`: the pelvis turned with the thighs and trunk kept in the ground, the hips' axial
 rotation offset), the way another lab's markers would have reported the same movement; ``clip_id``
-``<clip_id>@posture<k>``, ``augmentation`` = {"posture_deg": offsets, "from": clip_id}. Measured with two copies per
-clip on top of the four time warps (27-minute cap, 40000 iterations, one seed each, 2026-12-04): held-out mean R²
-per muscle 0.880 against 0.875 for the same training without them (`checkpoints/surrogate.md`).
+``<clip_id>@posture<k>``, ``augmentation`` = {"posture_deg": offsets, "from": clip_id}. The shipped surrogate is
+trained with two posture copies per clip on top of the four time warps (`checkpoints/surrogate.md`).
 """
 
 from __future__ import annotations

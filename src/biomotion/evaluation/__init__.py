@@ -1,5 +1,5 @@
 """Evaluation harness: every applicable metric on generated and real clips, tables, plots and reference values
-(GitHub issue 6; the metrics themselves live in `biomotion.metrics`)."""
+(the metrics themselves live in `biomotion.metrics`)."""
 
 from biomotion.data.clips import load_clip_set
 from biomotion.evaluation.harness import (

@@ -206,8 +206,7 @@ def embedding(tokenizer, motion: Motion) -> np.ndarray:
     """Mean and std over time of the tokenizer's pre-quantisation latents (the probe's clip embedding), with the
     coupled coordinates (`COUPLED_COORDINATES`) masked: generated clips carry the canonical coupler's value there,
     real clips their source's (the Schreiber-Moissenet models leave knee ``_beta`` free, near 0.01 rad), and a probe
-    that read them would tell sources apart, not people (with them read, any generated clip of a Schreiber subject
-    lost its identity: dev subjects 0.82 -> 0.77 for the coupler alone, `benchmarks/dev_subjects.py`)."""
+    that read them would tell sources apart, not people (docs/decisions/identity-probe.md)."""
     n = motion.n_frames // 4 * 4
     mask = motion.mask & ~np.isin(np.asarray(motion.names), COUPLED_COORDINATES)
     q = torch.tensor(np.where(mask[None], motion.values[:n], 0.0), dtype=torch.float32)[None]
@@ -414,7 +413,7 @@ def _mean(table: dict, variant: str, key: str) -> float:
 
 
 def done_when(table: dict, identity: dict, manipulation: dict | None) -> dict[str, bool | None]:
-    """Issue 7's bars, each True/False (None where it could not be measured)."""
+    """The generation bars (README, status), each True/False (None where it could not be measured)."""
     m = lambda v, k: _mean(table, v, k)
     fid = "fidelity"
     checks = {

@@ -16,7 +16,7 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
   point plus height squared for points in contact, so planted feet neither sink nor hover (the contact metrics).
 - `angular_jerk`: not in Table 1; L_omega's form one derivative up, 1/T sum_t sum_j max(0, |d3q_tj/dt3| - high_j)
   with 95th percentile bounds. It turns A.1's "refine motion smoothness" into a term, so guided motion is no
-  jerkier than the data (issue 7's bar: jerk within 2x the reference).
+  jerkier than the data (the generation bar: jerk within 2x the reference).
 - `locomotion_speed`: not in the paper; (||mean horizontal pelvis velocity|| - target)^2, the requested speed.
   Without it guidance found the cheapest way to stop a sliding stance foot: slowing the whole body down (guided
   runs asked for 3.5 m/s came out at 1.7-2.5 m/s).

@@ -38,10 +38,10 @@ from scipy import ndimage
 from biomotion.body.kinematics import apply_couplers, forward_kinematics, point_jacobians, points_in_ground
 
 #: Leg coordinates of the canonical model (Rajagopal 2016) that planting may change (knee ``_beta`` is coupled).
-#: Not the toe joint: the solver found bending the toes the cheapest way to move a toe point, and every such bend
-#: put toe-muscle activations outside their training band (muscle-limit violations 30 % -> 45 % of frames x
-#: muscles on the example profile; without ``mtp_angle`` 30 %, with the same contact figures:
-#: ``benchmarks/guidance_weights.py``).
+#: Not the toe joint: the solver finds bending the toes the cheapest way to move a toe point, and every such bend
+#: puts toe-muscle activations outside their training band (muscle-limit violations 24.6 % of frames x muscles
+#: on the example profile without ``mtp_angle``, 31.3 % with it, the same contact figures:
+#: ``benchmarks/guidance_weights.py``, docs/results/guidance_weights.md).
 LEG_COORDINATES = ("hip_flexion", "hip_adduction", "hip_rotation", "knee_angle", "ankle_angle", "subtalar_angle")
 
 
@@ -50,8 +50,8 @@ class PlantingConfig:
     """Thresholds (m), fade length (frames at the clip's rate) and solver settings of foot planting.
 
     ``stance_height`` 3 cm rather than the metrics' 5 cm contact height: at 5 cm, on the example profile, foot
-    contact velocity rose 0.30 -> 0.35 m/s, skate 12 -> 15 % and jerk 331 -> 398 m/s^3
-    (``benchmarks/guidance_weights.py``, docs/results/guidance_weights.md)."""
+    contact velocity is 0.24 against 0.21 m/s and jerk 314 against 263 m/s^3 (``benchmarks/guidance_weights.py``,
+    docs/results/guidance_weights.md; docs/decisions/foot-planting.md)."""
 
     stance_height: float = 0.03
     band: float = 0.015

@@ -10,94 +10,37 @@ ramped in linearly over ``ramp`` iterations, and from ``quantize_at`` on (if set
 of codebook entries. Last, the feet are planted in coordinate space (`biomotion.guidance.planting`: stance feet
 held still on the floor by inverse kinematics of the legs), which latent guidance alone cannot do exactly.
 
-Defaults, and where they leave Table 5 (measured by ``python benchmarks/guidance_weights.py``,
-docs/results/guidance_weights.md: the example profile running, walking and squatting, never evaluation subjects;
-the example-profile figures quoted below were measured before the tempo and the foot-skim term; the table was
-re-run with both on 2026-12-07, where "no foot-skim term" reads foot contact velocity 0.29 against the defaults'
-0.21 m/s and jerk 284 against 263 m/s^3):
-- 40 iterations, physics from the first one: Table 5 runs 250 on a GPU with physics from 100, but guidance starts
-  from the sample itself, where the proximity gradient is exactly zero, so a proximity-only warm-up would not move
-  anything; 40 fits the 1 s CPU budget (``benchmarks/generation.py``).
-- l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with
-  l_omega 10 and l_foot 1 guidance slowed the legs while the pelvis kept its speed, and sliding *rose* (foot
-  contact velocity 0.59 -> 0.70 m/s, skate 26 -> 40 %, before planting); with these weights latent guidance
-  alone takes them to 0.40 m/s and 16 %, jerk 494 -> 314 m/s^3, floating 3.4 -> 2.1 cm (row "no foot planting").
-  l_speed 1000 holds the requested speed (`losses.locomotion_speed`): at 100 the runs asked for 3.5 m/s came out
-  0.21 m/s slow on average (300: 0.07; 1000: 0.01 m/s), and the heavier term also lowered foot contact velocity
-  (0.32 -> 0.30 m/s) and skate (14 -> 12 %), at floating 1.0 -> 1.2 cm, jerk 318 -> 331 m/s^3 and muscle-limit
-  violations 26.7 -> 29.9 %.
+Defaults, and where they leave Table 5 (chosen on the example profile, ``python benchmarks/guidance_weights.py``,
+or on the generator's dev subjects, ``python benchmarks/dev_subjects.py``; never on evaluation subjects; the
+evidence is in docs/decisions/guidance-weights.md and the pages it links):
+- 40 iterations, physics from the first one: guidance starts from the sample itself, where the proximity gradient is
+  exactly zero, so A.1's proximity-only warm-up would not move anything; 40 fits the 1 s CPU budget
+  (``benchmarks/generation.py``).
+- l_v 0.1, l_a 1, l_act 10 as Table 5; l_omega 1 instead of 10 and l_foot 100 (Table 5 gives none): with Table 5's
+  weights guidance slows the legs while the pelvis keeps its speed, and sliding rises.
+- l_speed 1000 holds the requested speed (`losses.locomotion_speed`); lighter, runs come out slow.
 - l_posture 3000 (ours, with a person's reference clips only: `losses.posture`) holds each clip's mean posture at
-  the person's (`biomotion.generation.posture`). Chosen on the generator's dev subjects (9 training subjects set
-  aside from its training, 22 clips; never evaluation subjects) by the identity probe of `biomotion eval
-  generation` as it was then, reading knee ``_beta`` (real clips 0.91, unguided sample 0.82): 0.68 without the
-  term, 0.64 / 0.77 / 0.82 / 0.77 / 0.77 at 1000 / 3000 / 10000 / 30000 / 100000, where muscle-limit
-  violations went 41.0 -> 42.0 / 41.8 / 44.1 / 46.2 / 51.1 % and jerk 576 -> 575 / 582 / 593 / 613 / 621 m/s^3; 3000 is
-  the largest gain at under a point of muscle violations and 2 % of jerk (foot contact velocity 0.58 -> 0.52 m/s,
-  floating 1.38 -> 1.32 cm with it). Checked again on 2026-12-04 with the tempo and planting, 3 repeats of 23 targets,
-  after the probe stopped reading the coupled knee ``_beta`` and the posture stopped including it (``python
-  benchmarks/dev_subjects.py --repeats 3 --guidance shipped: --guidance posture_0:w_posture=0 --guidance
-  posture_1000:w_posture=1000 --guidance posture_10000:w_posture=10000 --guidance posture_30000:w_posture=30000``):
-  identity 0.73 / 0.73 / 0.77 / 0.77 / 0.77 at 0 / 1000 / 3000 / 10000 / 30000 (real 0.91), muscle-limit violations
-  31.3 / 32.4 / 34.3 / 36.2 / 38.5 %, jerk 458 / 455 / 462 / 463 / 472 m/s^3; 3000 stays (differences of 0.04 are about
-  one binomial standard error of 69 clips).
+  the person's (`biomotion.generation.posture`): the largest identity gain for the least muscle and jerk cost.
 - tempo on (``tempo``, ours: `biomotion.guidance.tempo`): when a speed is asked for, the sample is first played
   faster or slower (0.8-1.25 times) to reach it, and guidance refines the latents through that playback, so the
-  speed term starts near its target instead of dragging the pelvis ahead of planted feet. On the generator's dev
-  subjects (3 repeats of 23 targets, ``python benchmarks/dev_subjects.py --repeats 3 --guidance shipped:
-  --guidance no_tempo:tempo=none --guidance no_planting:planting=none --guidance
-  planting_damping_0.1:planting.damping=0.1 --guidance planting_damping_1:planting.damping=1 --guidance
-  unguided:-``, docs/results/dev_guidance.md), against the same guidance
-  without it: foot contact velocity 0.53 -> 0.44 m/s, skate 26 -> 17 %, jerk 581 -> 462 m/s^3, muscle-limit
-  violations 41.5 -> 34.3 %, speed error 0.11 -> 0.07 m/s, identity probe 0.77 either way. On the example
-  profile's six clips (two of them runs with a speed) the row "no tempo" reads the other way on contact (foot
-  contact velocity 0.31 against 0.34 m/s, skate 16.3 against 17.2 %) and the same way on jerk (318 against 282
-  m/s^3) and muscle-limit violations (25.9 against 21.3 %); the 69 dev clips decided.
-- no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes at iteration 30 returned
-  much of the gains (jerk 414 m/s^3, muscle-limit violations 48 % against 30 %), so the decoder reads the refined
-  latents.
-- foot planting on (``planting``), same dev-subject run: foot contact velocity 0.54 -> 0.44 m/s, skate 21 -> 17 %,
-  floating 2.2 -> 1.1 cm, penetration 0.024 -> 0.001 cm, at jerk 429 -> 462 m/s^3, identity probe 0.77 either way;
-  its damping at 0.1 or 1 (default 0.01) did not improve contact (0.45 / 0.50 m/s), so it stays. On the example
-  profile: foot contact velocity 0.40 -> 0.30 m/s, skate 16 -> 12 %, floating 2.1 -> 1.2 cm, penetration
-  0.026 -> 0.001 cm, at jerk 314 -> 331 m/s^3 and unchanged muscle-limit violations (30 %).
+  speed term starts near its target instead of dragging the pelvis ahead of planted feet
+  (docs/decisions/tempo.md).
+- no re-quantisation (``quantize_at=None``): snapping the refined latents back to codes returns much of the gains,
+  so the decoder reads the refined latents.
+- foot planting on (``planting``, `biomotion.guidance.planting`; docs/decisions/foot-planting.md).
 - the foot and ground terms act on stance points (`stance_mask`: below 5 cm and slower than 1.5 times the body),
-  not on every point below 5 cm as until 2026-12-03, which stopped the low swing foot of slow walks. The figures
-  above were measured with height alone; on the example profile the stance test moves the defaults' foot contact
-  velocity 0.30 -> 0.32 m/s, skate 11.6 -> 15.9 %, floating 1.18 -> 0.93 cm, jerk 331 -> 313 m/s^3 and
-  muscle-limit violations 29.9 -> 26.2 % (row "contact by height alone"); the dev-subject figures that chose it
-  are in `stance_mask`. With a tokenizer that decodes foot contact (`configs/tokenizer_foot_contact.yaml`; not the
-  shipped one) the mask is read from its channels instead (``decoded_contact``); docs/generation.md has how that
-  compared.
+  so a slow walk's low swing foot is not stopped (docs/decisions/stance-mask.md). With a tokenizer that decodes
+  foot contact (`configs/tokenizer_foot_contact.yaml`; not the shipped one) the mask is read from its channels
+  instead (``decoded_contact``).
 - no ZMP term (``w_zmp`` 0; ours, after HUMOS Sec. 3.4: `losses.zmp_support`, the ZMP of body motion differenced
-  from the poses guidance already computes, `biomotion.body.balance.sampled_body_motion`). On the generator's dev
-  subjects (``python benchmarks/dev_subjects.py --repeats 2 --guidance shipped: --guidance zmp_300:w_zmp=300
-  --guidance zmp_3000:w_zmp=3000 --out docs/results/dev_guidance_zmp.md``, 2026-12-06) weight 300 raised ZMP in
-  support 1.6 -> 6.0 % (targets with a measured trunk 1.2 -> 8.2 %; real clips 21.4 and 44.6 %), but foot contact
-  velocity rose 0.41 -> 0.46 m/s, skate 16.6 -> 17.7 %, muscle-limit violations 42.4 -> 44.5 %, and a guided 3 s
-  clip took 0.25-0.45 s longer against the 1 s budget; 3000 was no better on ZMP (5.3 %) and worse on contact,
-  jerk and muscle-limit violations. So it is off; the API turns it on (``GuidanceConfig(w_zmp=300)``).
+  from the poses guidance already computes, `biomotion.body.balance.sampled_body_motion`): it raises ZMP in
+  support a little at a cost in foot contact and time; the API turns it on (``GuidanceConfig(w_zmp=300)``).
 - l_skim 10 (ours: `losses.foot_skim`, the horizontal speed of foot points near the floor whether or not the stance
-  mask holds them). On the evaluation subjects the clips that missed the real clips' foot contact velocity were
-  runs whose feet reached the floor at swing speed (a toe 2.4 cm up at 10 m/s the frame before touch-down) and
-  left it the same way; the stance mask leaves such points out (faster than 1.5 times the body), so neither L_foot
-  nor planting touched them. On the generator's dev subjects (``python benchmarks/dev_subjects.py --repeats 2
-  --guidance shipped: --guidance skim_0:w_foot_skim=0 --guidance skim_30:w_foot_skim=30 --guidance
-  skim_100:w_foot_skim=100 --guidance smooth_6:smooth_hz=6 --guidance smooth_8:smooth_hz=8 --out
-  docs/results/dev_guidance_skim.md``) weight 10 took foot contact velocity 0.41 -> 0.29 m/s and skate 16.6 ->
-  15.6 % (real clips 0.49 m/s, 37 %), floating 1.01 -> 0.87 cm, jerk 459 -> 444 m/s^3, at muscle-limit
-  violations 42.4 -> 43.8 % and identity probe 0.77 -> 0.73 (one binomial standard error of 46 clips); 30 and 100
-  went further on contact (0.26, 0.24 m/s) at more muscle-limit violations (44.3, 46.1 %) and identity (0.73,
-  0.68). The walking styles keep their strides (``python benchmarks/walking_styles.py``,
-  docs/results/walking_styles.md: full-body bundle, 8 clips of 4 s, seed 0, without / with the term: elderly
-  0.84 / 0.77 m, real 0.77; exhausted 1.11 / 1.08, real 1.11; active 1.41 / 1.41, real 1.36; youthful 1.47 /
-  1.46, real 1.38).
+  mask holds them): feet that reach and leave the floor at swing speed are in no stance, so neither L_foot nor
+  planting holds them (docs/decisions/foot-skim.md).
 - no low-pass (``smooth_hz`` None; ours): the guided coordinates may be low-passed before planting (zero-lag
   Butterworth, `biomotion.motion.lowpass`, the filter the real clips went through at their source), ``biomotion
-  generate --smooth HZ``. In the same dev-subject run, 6 Hz lowered jerk and muscle-limit violations, raised foot
-  contact velocity and skate, and left ZMP in support about where it was (rows smooth_6, smooth_8 of
-  docs/results/dev_guidance_skim.md): the ZMP's distance from the support is not high-frequency noise. Foot
-  contact velocity is the contact figure the generated clips had to reach on the evaluation subjects, so the
-  default stays off.
+  generate --smooth HZ``: less jerk and fewer muscle-limit violations, a little more foot sliding.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the

@@ -770,10 +770,9 @@ def _switch_at_cuts(z: torch.Tensor, other: torch.Tensor, cut: Sequence[int], tu
     """Follow ``z`` until one of a ball joint's whole-turn angles (``cut``, clamped to [lower, lower + 2 pi],
     solved across the limit) crosses its range's cut, then follow ``other`` (the joint's second set of angles)
     until it crosses one, and so on. OpenSim cannot cross a clamped limit: its sequential solve sits at the
-    limit until it falls into the other set, where it stays. Measured on OpenCap Subject4's asymmetric drop
-    jumps, where a shoulder passes overhead: the frames whose shoulder angles differ from OpenSim's by over 1 deg
-    went from 46/46 (left/right, DJAsym1), 45/24 (DJAsym2) and 19/103 (DJAsym3) to 38/39, 25/24 and 19/20; what is
-    left are the frames where OpenSim sits at the limit."""
+    limit until it falls into the other set, where it stays. On OpenCap Subject4's asymmetric drop jumps, where a
+    shoulder passes overhead, what is left after this rule are the frames where OpenSim sits at the limit
+    (docs/decisions/batched-lm-ik.md)."""
     options = (z, other)
     low = turn_start[list(cut)].to(z.dtype)
     # solved without the limit, the angles may sit whole turns away: a crossing is a half-turn step once wrapped

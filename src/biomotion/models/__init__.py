@@ -1,4 +1,6 @@
-"""Learned models of PG-BIG: the motion tokenizer (`vqvae`) and its training command (`train_tokenizer`)."""
+"""Learned models and their formats: the motion tokenizer (`vqvae`), subject profiler, profile-action prior, action
+vocabulary, conditioning inputs, foot contact and the generator bundle; trained by ``biomotion train``
+(`biomotion.training`)."""
 
 from biomotion.models.vqvae import EMAQuantizer, MotionVQVAE, VQVAEConfig
 

@@ -3,8 +3,8 @@
 PG-BIG's tokenizer carries foot-contact channels and is trained with a penetration term (Sec. 3.1, Table 4), and its
 foot guidance term L_foot uses a binary contact mask m_t (Table 1) that the paper does not define. Here:
 
-- `stance_mask` says which foot points of a clip are in stance (low and slow; the rule guidance has used since
-  2026-12-03, with the evidence that chose it);
+- `stance_mask` says which foot points of a clip are in stance (low and slow: the rule guidance uses;
+  docs/decisions/stance-mask.md has the evidence that chose it);
 - `FootKinematics.labels` reduces it to four channels, heel and forefoot of each foot (HumanML3D's layout: Guo
   et al. 2022 store heel and toe contact of both feet), the targets of the tokenizer's contact channels, and
   `points_in_contact` takes decoded channels back to foot points (guidance's m_t);
@@ -49,16 +49,10 @@ def stance_mask(
 
     A stance foot sliding in a sample is slower than the body it carries (the example runner's unguided stance
     feet: about 1.3 m/s against 3.5), so the speed test still catches it; a swing foot is faster than the body,
-    and height alone took the low swing of a slow walk for stance, where the foot and ground terms then stopped
-    it: "walk, elderly" from the full-body bundle, 8 samples of 4 s, came out with strides of 0.42 m by height
-    alone, 0.83 / 0.79 / 0.75 m at ratios 1 / 1.5 / 2 (real elderly walks: 0.77 m; every walking style in
-    docs/results/walking_styles.md, `python benchmarks/walking_styles.py`). Ratio 1.5 was the best of
-    these on the generator's dev subjects (training subjects set aside, 23 clips; never evaluation subjects), and
-    better than height alone on every figure there but jerk: foot contact velocity 0.525 -> 0.521 m/s, skate
-    28.1 -> 26.0 %, floating 1.30 -> 1.15 cm, DTW fidelity 10.23 -> 9.89 cm, muscle-limit violations 41.8 ->
-    41.5 %, jerk 582 -> 584 m/s^3 (ratio 1: skate 31.2 %, foot contact velocity 0.65 m/s; ratio 2: within 1 % of
-    height alone).
-    On the example profile it trades sliding for floating, jerk and muscles (docs/results/guidance_weights.md)."""
+    and height alone takes the low swing of a slow walk for stance, where the foot and ground terms then stop it
+    (the strides of "walk, elderly" shrink: docs/results/walking_styles.md, `python benchmarks/walking_styles.py`).
+    Ratio 1.5 was chosen on the generator's dev subjects (training subjects set aside; never evaluation subjects;
+    docs/decisions/stance-mask.md)."""
     feet = feet.detach()
     low = feet[..., 1] < height
     if ratio is None:

@@ -18,7 +18,7 @@ of each actuator's term is w_i = clip(sign(s_i) (|s_i|/p)^(1/(p-1)), lo_i, hi_i)
 concave dual is maximised by a semismooth Newton method with a backtracking line search (Qi & Sun 1993,
 Math Program 58:353). All frames are solved together: one batched [T, C, C] linear solve per iteration over the
 frames still iterating. A frame leaves the batch once balanced, or once its imbalance stops falling (the bounded
-actuators cannot balance it: a filter's end effect, a missing reserve), so one such frame no longer keeps the
+actuators cannot balance it: a filter's end effect, a missing reserve), so one such frame does not keep the
 whole trial iterating to ``max_iterations``.
 """
 

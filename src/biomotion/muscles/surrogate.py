@@ -24,21 +24,10 @@ coordinate mask [B, 39]; output sigmoid activations [B, T, M] of the Rajagopal 2
   already has its foot points);
 - with ``config.smooth_hz`` > 0 (ours), the coordinates low-passed the way the labels' inverse dynamics low-passes
   them (`smoothing_taps`: the zero-lag Butterworth's impulse response, 35 taps at 6 Hz and 30 Hz, wider than the
-  receptive field) and their velocities and accelerations. Measured once and not kept (2026-12-06, seed 0, the
-  shipped cache and settings, 27 minutes: ``python -m biomotion.training.train_surrogate --config <configs/
-  surrogate.yaml with model.smooth_hz 6.0> --cache build/dataset_lab_post --out build/surrogate_smooth.safetensors
-  --minutes 27 --iterations 40000 --threads 2``): held-out `surrogate_r2` 0.889 (one pass 0.874, pooled 0.909)
-  against 0.895 (0.879, 0.915), but after 24911 iterations against the shipped run's 37437, the machine slower that
-  day (the shipped recipe itself ran 19 against 25 iterations/s), so the comparison is not at equal work; run
-  again on 2026-12-07 in 29 minutes (29987 iterations), it read 0.892 against the shipped 0.895 scored the same
-  hour, and one pass took 6.3 ms per 3 s clip that day, over the 5 ms bar (checkpoints/surrogate.md);
+  receptive field) and their velocities and accelerations; off in the shipped config (measured, not kept:
+  docs/decisions/surrogate-recipe.md);
 - with ``config.dilation`` > 1 (ours), a wider receptive field at the same cost (WaveNet's dilated convolutions,
-  van den Oord et al. 2016). Measured once and not kept (2026-12-06, seed 0, the shipped cache and settings, the
-  shipped run's 37437 iterations, 31 minutes on that day's slower machine: ``python -m
-  biomotion.training.train_surrogate --config <configs/surrogate.yaml with model.dilation 2> --cache
-  build/dataset_lab_post --out build/surrogate_dil.safetensors --minutes 40 --iterations 37437 --threads 2``):
-  dilation 2 (33 frames, 1.1 s at 30 Hz) read held-out `surrogate_r2` 0.893 (one pass 0.881, pooled 0.913, COM
-  velocity 0.996) against 0.895 (0.879, 0.915, 0.997): a second of context does not help;
+  van den Oord et al. 2016); 1 in the shipped config (a second of context did not help);
 
 standardised with mean/std buffers from the training split, then a Conv1d stem and residual blocks (kernel 5,
 replicate padding; block i dilated by ``config.dilation ** i``, so the receptive field is 1 + (kernel - 1)
@@ -50,13 +39,8 @@ the network is m such networks side by side, each ``width`` wide and started fro
 then grouped convolutions and heads, so a member's channels see only its own; each member is fitted to the labels on
 its own (`predict_members`, `biomotion.training.train_surrogate`) and a prediction is the members' mean, a deep ensemble
 (Lakshminarayanan, Pritzel & Blundell 2017, "Simple and scalable predictive uncertainty estimation using deep
-ensembles", NeurIPS), which removes part of the error that depends on the random start. Measured once and not
-kept (2026-12-05, seed 0, the shipped cache and training settings, 27 minutes: ``python -m
-biomotion.training.train_surrogate --config <configs/surrogate.yaml with model.width 80, model.members 2> --cache
-build/dataset_lab_post --out build/surrogate_ensemble.safetensors --minutes 27 --iterations 40000 --threads 2``,
-34491 iterations): two members 80 wide, the widest pair within the shipped network's time on a 3 s clip (4.5
-against 4.3 ms mirror-averaged, one thread), read held-out `surrogate_r2` 0.882 (one pass 0.874, pooled 0.904)
-against the single 128-wide network's 0.895 (0.879, 0.915): at this time budget width helps more than members.
+ensembles", NeurIPS), which removes part of the error that depends on the random start; the shipped config keeps
+one network, since at this time budget width helps more than members (docs/decisions/surrogate-recipe.md).
 Masked coordinates are set to 0 before anything
 else, which is also how the labels treated absent coordinates (`biomotion.training.surrogate_labels`). Everything
 is differentiable with respect to q.
@@ -390,10 +374,9 @@ class MuscleSurrogate(nn.Module):
 
         The body and its muscles are left-right symmetric, so the activations of a mirrored motion are the mirrored
         activations; one network only approximates that (it was trained on both images of every clip), and
-        averaging the two images removes the asymmetric part of its error. On the 24 held-out clips of the lab
-        sources it raises the shipped network's mean R² over muscles from 0.886 to 0.901 against the
-        static-optimization labels (RMSE 0.072 -> 0.067; `biomotion validate muscles`; 0.879 -> 0.895 for the
-        network before it, 0.866 -> 0.880 for the one before the contact features). Both images run as one batch;
+        averaging the two images removes the asymmetric part of its error: on the 24 held-out clips of
+        `biomotion validate muscles` the shipped network's mean R² over muscles is 0.901 this way and 0.886 for one
+        pass (``surrogate_r2``, ``surrogate_r2_one_pass``). Both images run as one batch;
         the mirror image's foot heights are the motion's with the feet swapped (the body is symmetric), so forward
         kinematics runs once.
         Guidance keeps the single pass (`forward`) inside its 40 iterations, where only the activation bounds

@@ -27,7 +27,7 @@ properties from the .osim), as in OpenSim's static optimization. The muscle type
 (``muscle_curves``). Activations are not low-pass filtered afterwards (PG-BIG filters theirs at 6 Hz;
 ours come from 6 Hz-filtered kinematics already).
 
-    biomotion muscles label --cache build/dataset --data-root ../shared/data
+    biomotion train labels --cache build/dataset --data-root ../shared/data
 
 writes ``<cache>/surrogate_labels.safetensors`` (activations of the 80 muscles, convergence, COM position, velocity
 and acceleration per frame) and ``bounds_muscle_activations.json``; each clip's result is kept in

@@ -73,7 +73,7 @@ def make_windows(
     that the network sees as inference would, and a stride no longer than ``length - 2 cut_margin`` still
     covers every frame."""
     if labels.com is None:
-        raise BiomotionError("the surrogate labels hold no COM terms; recompute them with `biomotion muscles label`")
+        raise BiomotionError("the surrogate labels hold no COM terms; recompute them with `biomotion train labels`")
     qs, masks, targets, weights, coms, reals = [], [], [], [], [], []
     for i in cache.indices(split=split):
         record = cache.records[i]
@@ -219,14 +219,9 @@ def activation_loss(kind: str) -> Callable[[torch.Tensor], torch.Tensor]:
 def muscle_loss_weights(activations: torch.Tensor, per_muscle_scale: bool, min_std: float) -> torch.Tensor:
     """[M] weight of each muscle's L1 error, from the train-split labels ``activations`` [N, M]: ones, or with
     ``per_muscle_scale`` 1 / std of the muscle's labels (floored at ``min_std``), normalised to mean 1 so the
-    learning rate carries over. Scaled so, the loss weighs muscles as the mean per-muscle R^2 of issue 5's bar
-    does; unscaled, the large, variable muscles dominate it.
-
-    Measured once (2026-12-05, seed 0, same cache, config and command as the checkpoint then shipped, without
-    contact features; 38118 of 40000 iterations in the 27 minutes): held-out `surrogate_r2` 0.880 -> 0.884, val
-    mean per-muscle R^2 0.866 -> 0.871, but EMG on/off agreement with the surrogate 0.785 -> 0.761 (the recorded
-    muscles are large ones). The gain is under the seed-to-seed spread (0.007), so the shipped configuration leaves
-    it off."""
+    learning rate carries over. Scaled so, the loss weighs muscles as the mean per-muscle R^2 of the surrogate's
+    validation does; unscaled, the large, variable muscles dominate it. Off in the shipped configuration: its gain
+    was under the seed-to-seed spread (docs/decisions/surrogate-recipe.md)."""
     if not per_muscle_scale:
         return torch.ones(activations.shape[-1], dtype=activations.dtype)
     weight = 1.0 / activations.std(0).clamp_min(min_std)

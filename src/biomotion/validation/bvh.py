@@ -1,4 +1,4 @@
-"""Retargeting every Bandai-Namco BVH clip under a data root onto the Rajagopal 2016 model: the IK issue's BVH
+"""Retargeting every Bandai-Namco BVH clip under a data root onto the Rajagopal 2016 model: the IK check's BVH
 figures (`biomotion validate ik`).
 
 Per clip `biomotion.ik.skeleton.retarget_skeleton` with the default rules, then:

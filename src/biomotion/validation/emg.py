@@ -1,6 +1,6 @@
 """EMG check: measured EMG on/off timing against predicted muscle activations, Rajagopal walk (subject 11).
 
-`emg_check` returns the figure of the issue bar ``emg_onoff_agreement`` (share of frames where EMG and predicted
+`emg_check` returns the figure of the EMG bar ``emg_onoff_agreement`` (share of frames where EMG and predicted
 activation agree on "on" or "off", pooled over the 10 recorded muscles; bar 0.80), per muscle, for two
 predictions of the same trial:
 
@@ -66,10 +66,10 @@ clocks (``emg_alignment``: measured lag 0 samples, r = 0.999). No electromechani
 the activation are compared at the same instant (``emg_lead_s`` in the detail reports, per muscle, by how much the
 envelope leads the activation; it is not used for the figure).
 
-Measured (``python -m biomotion.validation.emg``, 238 frames, 0-2.37 s): pooled agreement 0.766 with static
-optimization and 0.748 with the shipped surrogate (`MuscleSurrogate.predict_symmetric`; the surrogate before it,
-trained without trimming window cuts, 0.768, the one before the contact features 0.785, and before that 0.759),
-both below the 0.80 bar; see ``tests/muscles/test_emg.py``.
+Measured (``biomotion validate muscles``, ``emg_onoff_agreement`` and ``emg_onoff_agreement_surrogate``; 238
+frames, 0-2.37 s): pooled agreement 0.766 with static optimization and 0.748 with the shipped surrogate
+(`MuscleSurrogate.predict_symmetric`), both below the 0.80 bar; OpenSim's own static optimization scores 0.780 under
+the same rule (docs/decisions/emg-bar.md); see ``tests/validation/test_emg.py``.
 """
 
 from __future__ import annotations

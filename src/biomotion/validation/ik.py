@@ -1,7 +1,7 @@
 """Validation of marker IK and static scaling against OpenSim 4.6 (the oracle; needs ``opensim``).
 
 `validate_ik` runs, on whatever is present under a data root, our IK and OpenSim's ``InverseKinematicsTool``
-(run fresh, same model, markers, weights, coordinate tasks and frames) and returns the figures of the IK issue:
+(run fresh, same model, markers, weights, coordinate tasks and frames) and returns the figures of the IK check:
 
 - ``ik_rmse_deg_same_minimum`` / ``ik_rmse_m_same_minimum``: the same over the frames where the two objectives
   agree within 1 % (both found the same minimum); ``frames_opensim_objective_1pct_higher`` and
@@ -23,7 +23,7 @@
 Per case the detail holds every coordinate's RMSE and, for coordinates over the bar, how many frames OpenSim's
 own objective is at least 1 % above ours there (OpenSim stopping short or in another local minimum).
 
-OpenSim runs to ``ORACLE_ACCURACY`` rather than the setups' ``accuracy`` (1e-5 in every setup here): the issue's
+OpenSim runs to ``ORACLE_ACCURACY`` rather than the setups' ``accuracy`` (1e-5 in every setup here): the check's
 comparison is between two solutions of the same IK problem, and at 1e-5 OpenSim's optimizer stops before the
 optimum where the objective is shallow. The speed figure times OpenSim's run at the setup's own accuracy (how it
 is used), a second run beside the converged one. Measured on OpenCap Subject4 walking1 with `opensim_ik` at each

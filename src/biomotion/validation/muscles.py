@@ -1,6 +1,6 @@
 """Validation of muscle geometry and static optimization against OpenSim 4.6 (the oracle; needs ``opensim``).
 
-`validate_muscles` returns the figures of the muscles issue:
+`validate_muscles` returns the figures of the muscles check:
 
 - ``moment_arm_rmse_m``: worst RMSE over all (muscle, coordinate) pairs that OpenSim reports non-zero, between
   the shipped path functions and OpenSim's ``GeometryPath.computeMomentArm`` at fresh random poses in the sampled
@@ -17,9 +17,10 @@
   mean R² over all muscles, ``so_rajagopal_r2_active`` over the muscles OpenSim activates (range >
   ``ACTIVE_RANGE``). The coordinates file for OpenSim is written in radians: from a degrees file OpenSim 4.6's
   AnalyzeTool hands its optimization knee_angle_*_beta speeds in deg/s (the patella's coupled coordinate), which
-  put 40 N·m of patella inertia on the hips and made the two solutions disagree (R² about 0 before this was found;
-  0.99 after). ``so_rajagopal_muscle_torque_gap_rms_nm_*`` is the RMS gap between each solution's muscle torques
-  (through our muscle model) and the inverse-dynamics torque; the rest is left to the reserves.
+  put 40 N·m of patella inertia on the hips and made the two solutions disagree (R² about 0; 0.99 in radians;
+  docs/decisions/static-optimization-vs-opensim.md). ``so_rajagopal_muscle_torque_gap_rms_nm_*`` is the RMS gap
+  between each solution's muscle torques (through our muscle model) and the inverse-dynamics torque; the rest is
+  left to the reserves.
 - ``so_r2_vs_opensim``: the lower of the two trials' mean R² over all muscles (``so_r2_gait2392``,
   ``so_rajagopal_r2_all``), so one figure holds the bar for both.
 - ``surrogate_ms_per_clip``, ``surrogate_speedup_vs_opensim``: the shipped surrogate on the same walk clip (after
@@ -29,13 +30,13 @@
 - ``emg_onoff_agreement``: EMG on/off timing of the Rajagopal walk against our static optimization of the same
   trial (`biomotion.validation.emg`), and the surrogate's under ``emg_onoff_agreement_surrogate``;
   ``emg_onoff_agreement_opensim_so``: the same rule on OpenSim's own StaticOptimization of the walk's shared inputs
-  above (generic model, our IK), what the issue's method scores when the oracle runs it, with ours on those inputs
+  above (generic model, our IK), what the check's method scores when the oracle runs it, with ours on those inputs
   beside it (``emg_onoff_agreement_same_inputs_ours``);
 - ``surrogate_r2``, ``surrogate_rmse`` (`surrogate_figures`): the shipped surrogate against labels computed fresh
-  (`biomotion.analysis.activation_labels.Labeler`, as `biomotion muscles label`) on every clip of the lab sources
+  (`biomotion.analysis.activation_labels.Labeler`, as `biomotion train labels`) on every clip of the lab sources
   under the data root whose subject the surrogate was not trained on, of the activations it reports
   (`MuscleSurrogate.predict_symmetric`; one pass under ``surrogate_r2_one_pass``): mean R² over the muscles whose
-  labels vary (`biomotion.training.train_surrogate.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
+  labels vary (`biomotion.muscles.surrogate_scores.agreement`; how many in ``surrogate_muscles_in_mean``, each one's
   R² in ``surrogate_r2_per_muscle``, worst first), pooled R² and RMSE beside it. Not trained on: not among the
   subjects the surrogate's weights or model card list as its training set (`MuscleSurrogate.training_subjects`),
   so on a data root of new subjects every one counts; for a checkpoint that lists none, the split rule decides
@@ -647,7 +648,7 @@ def _emg_same_inputs(
     data_root: Path, reference: OpenSimStaticOptimization, ours: np.ndarray, names: Sequence[str]
 ) -> dict:
     """EMG on/off agreement (`biomotion.validation.emg`, its a-priori settings) of OpenSim's StaticOptimization and of
-    ours on the Rajagopal walk's shared inputs: the oracle's own score under the issue's method. Empty without the
+    ours on the Rajagopal walk's shared inputs: the oracle's own score under the check's method. Empty without the
     EMG recording."""
     from biomotion.validation import emg
 
@@ -673,7 +674,7 @@ def _emg_same_inputs(
 def validate_muscles(
     data_root: str | Path, poses: int = 200, start: float = 0.5, end: float = 2.5, surrogate: Path | None = SURROGATE
 ) -> dict:
-    """The muscles issue's figures (see module docstring) computed fresh against OpenSim on whatever of their
+    """The muscles check's figures (see module docstring) computed fresh against OpenSim on whatever of their
     sources ``data_root`` holds; ``skipped`` names the parts left out and why."""
     data_root = Path(data_root)
     os.environ.setdefault("OMP_NUM_THREADS", "2")

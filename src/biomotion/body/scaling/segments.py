@@ -1,5 +1,5 @@
-"""Segment-by-segment scale factors from ANSUR II body measures (issue 3: scale the generic model to a `Profile`,
-"optionally ANSUR II measures").
+"""Segment-by-segment scale factors from ANSUR II body measures: the generic model scaled to a `Profile` by its
+segments where the profile gives them.
 
 `biomotion.body.scaling.stature` scales every body by the stature ratio. A person measured as the ANSUR II survey
 measures (Gordon et al. 2014, "2012 Anthropometric Survey of U.S. Army Personnel", NATICK/TR-15/007; landmark
@@ -18,8 +18,9 @@ at the model's stature needs no such correspondence. The factor applies to all t
 keep the stature ratio (`biomotion.body.scaling.stature`).
 
 The lines are fitted once from ``anthropometry/ANSUR_II_MALE_Public.csv`` and shipped as ``ansur_segments.json``
-beside this module (``biomotion train segments --data-root ../shared/data`` writes it again; a
-test checks the shipped file against a fresh fit).
+beside this module (``biomotion train segments --data-root ../shared/data --out
+src/biomotion/body/scaling/ansur_segments.json`` writes it again; a test checks the shipped file against a fresh
+fit).
 """
 
 from __future__ import annotations
