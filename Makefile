@@ -30,11 +30,11 @@ SUBJECT4 := $(DATA)/opencap/Subject4
 # The main job: generate motion for the example person, with forces, muscles, metrics, plots and the viewer.
 demo: $(STAMP)
 	$(BIN)/biomotion generate --profile examples/runner_52_acl.yaml --action "running at 3.5 m/s" --seconds 3 \
-	    --data-root $(DATA) --out demo-output/generated_run
+	    --data-root $(DATA) --out demo-output/generated_run --overwrite
 	@echo "generated motion written to demo-output/generated_run (open viewer.html in a browser)"
 	$(BIN)/biomotion analyze $(SUBJECT4)/MarkerData/walking1.trc --setup $(SUBJECT4)/IK/walking1_ik_setup.xml \
 	    --model $(SUBJECT4)/Models/optimized_scale_and_markers.osim \
-	    --grf $(SUBJECT4)/ID/walking1_grf.mot --out demo-output/walking1 \
+	    --grf $(SUBJECT4)/ID/walking1_grf.mot --out demo-output/walking1 --overwrite \
 	    --geometry $(DATA)/opensim-models/Geometry --geometry $(DATA)/opensim-models/Models/Rajagopal/Geometry
 	@echo "demo outputs written to demo-output/walking1 (open viewer.html in a browser)"
 
