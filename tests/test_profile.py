@@ -117,3 +117,43 @@ def test_a_subject_table_row_out_of_range_names_line_and_column(tmp_path):
     with pytest.raises(DataFormatError, match="height=180.0 is outside") as info:
         read_subject_table(table)
     assert str(info.value).startswith(f"{table}:3: field 'height_m': ")
+
+
+def _alias_bomb(leaf: str) -> str:
+    """Nine levels of ten YAML aliases: a billion leaves once expanded, built by the parser in microseconds."""
+    value = leaf
+    for k in range(9):
+        value = f"[&l{k} {value}" + f", *l{k}" * 9 + "]"
+    return value
+
+
+@pytest.mark.parametrize(
+    "field, text",
+    [
+        ("injuries", "injuries: " + _alias_bomb("{location: knee}")),
+        ("extra", "extra: {shoes: " + _alias_bomb("a") + "}"),
+        ("sport", "sport: " + _alias_bomb("a")),
+    ],
+)
+def test_a_yaml_alias_bomb_is_refused_at_once_with_a_short_message(tmp_path, field, text):
+    """The message used the value's full repr, a billion items (bad-input corpus case profile-yaml-alias-bomb hung
+    past its 60 s); a text field or an extra value held anything YAML built, later dumped into metrics.json."""
+    from biomotion.io.profiles import read_profile
+
+    path = tmp_path / "bomb.yaml"
+    path.write_text(f"age: 30\n{text}\n")
+    with pytest.raises(DataFormatError, match=field) as info:
+        read_profile(path)
+    assert len(str(info.value)) < 400
+
+
+def test_numbers_and_dates_in_text_fields_become_text():
+    """YAML reads ``date: 2015-03-01`` as a date and ``subject_id: 12`` as a number: kept as their text."""
+    profile = Profile.from_dict(
+        yaml.safe_load("subject_id: 12\nlevel: 3\ninjuries: [{location: knee, date: 2015-03-01}]\nextra: {a: [1, x]}")
+    )
+    assert (profile.subject_id, profile.level, profile.injuries[0].date) == ("12", "3", "2015-03-01")
+    with pytest.raises(ProfileError, match="sport must be text, got \\['running'\\]"):
+        Profile(sport=["running"])
+    with pytest.raises(ProfileError, match="extra.shoes must be a value or a list of values"):
+        Profile(extra={"shoes": {"left": 1}})

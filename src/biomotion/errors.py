@@ -53,6 +53,11 @@ class ConfigError(BiomotionError):
     """Bad options, setup files or command-line arguments."""
 
 
+class SettingsError(ConfigError):
+    """A setting of a configuration mapping (a training config's YAML, a model's settings) that is unknown,
+    missing or of the wrong type; the caller that read the mapping from a file adds the file's name."""
+
+
 class ProfileError(ConfigError, ValueError):
     """A profile field that is unknown, of the wrong type or outside its documented range; ``field`` names it.
 

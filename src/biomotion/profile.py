@@ -8,9 +8,11 @@ field name (``agee``) is refused naming the closest known one, a number must lie
 
 from __future__ import annotations
 
+import datetime
 import difflib
 import math
 import numbers
+import reprlib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
@@ -26,6 +28,33 @@ class InjuryRecord:
     diagnosis: str | None = None
     date: str | None = None
 
+    def __post_init__(self) -> None:
+        for name in ("location", "diagnosis", "date"):
+            object.__setattr__(self, name, _text(getattr(self, name), name))
+
+
+def _shown(value: Any) -> str:
+    """A short repr for messages. A profile holds whatever YAML built, a nested alias "bomb" included (a few lines
+    that expand to a billion items), whose full repr would never end."""
+    shower = reprlib.Repr()
+    shower.maxlevel, shower.maxlist, shower.maxtuple, shower.maxdict = 2, 4, 4, 4
+    shower.maxstring = shower.maxother = 60
+    return shower.repr(value)
+
+
+def _text(value: Any, name: str) -> str | None:
+    """A text field as text: numbers and dates (YAML reads ``2015-03-01`` as a date) become their text; anything
+    else (a list, a mapping) is refused."""
+    if value is None or isinstance(value, str):
+        return value
+    if isinstance(value, (numbers.Real, datetime.date)) and not isinstance(value, bool):
+        return str(value)
+    raise ProfileError(f"{name} must be text, got {_shown(value)}", field=name)
+
+
+def _scalar(value: Any) -> bool:
+    return value is None or isinstance(value, (str, numbers.Real, datetime.date))
+
 
 SEXES = ("F", "M")
 RANGES: dict[str, tuple[float, float, str]] = {
@@ -36,6 +65,8 @@ RANGES: dict[str, tuple[float, float, str]] = {
 }
 """Documented range (inclusive) and unit of each numeric field: values outside are a unit mistake or a typo."""
 INJURY_FIELDS = ("location", "diagnosis", "date")
+TEXT_FIELDS = ("subject_id", "sex", "dominance", "sport", "level")
+"""Fields that hold text; a number or date given for one is kept as its text."""
 SYNONYMS = {
     "weight": "mass",
     "body_mass": "mass",
@@ -92,25 +123,32 @@ class Profile:
 
     def __post_init__(self) -> None:
         if self.sex is not None and self.sex not in SEXES:
-            raise ProfileError(f"sex must be one of {SEXES} or None, got {self.sex!r}", field="sex")
+            raise ProfileError(f"sex must be one of {SEXES} or None, got {_shown(self.sex)}", field="sex")
         for name, (low, high, unit) in RANGES.items():
             value = getattr(self, name)
             if value is None:
                 continue
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise ProfileError(f"{name} must be a number (SI units: m, kg, years), got {value!r}", field=name)
+                raise ProfileError(f"{name} must be a number (SI units: m, kg, years), got {_shown(value)}", field=name)
             if not (math.isfinite(value) and low <= value <= high):
                 hint = (
                     f": in metres, {value / 100:g} for {value:g} cm" if name == "height" and 30 <= value <= 280 else ""
                 )
                 raise ProfileError(f"{name}={value} is outside [{low:g}, {high:g}] {unit}{hint}", field=name)
+        for name in TEXT_FIELDS:
+            object.__setattr__(self, name, _text(getattr(self, name), name))
         if not isinstance(self.extra, Mapping):
-            raise ProfileError(f"extra must be a mapping of other fields, got {self.extra!r}", field="extra")
+            raise ProfileError(f"extra must be a mapping of other fields, got {_shown(self.extra)}", field="extra")
+        for key, value in self.extra.items():  # kept as given, and written into reports: values or flat lists
+            if not (_scalar(value) or (isinstance(value, (list, tuple)) and all(_scalar(v) for v in value))):
+                raise ProfileError(
+                    f"extra.{key} must be a value or a list of values, got {_shown(value)}", field="extra"
+                )
         object.__setattr__(self, "injuries", tuple(self.injuries))
         for number, injury in enumerate(self.injuries):
             if not isinstance(injury, InjuryRecord):
                 raise ProfileError(
-                    f"injuries[{number}] must be an InjuryRecord, got {injury!r}", field=f"injuries[{number}]"
+                    f"injuries[{number}] must be an InjuryRecord, got {_shown(injury)}", field=f"injuries[{number}]"
                 )
 
     @property
@@ -141,7 +179,8 @@ class Profile:
         listed = data.get("injuries") or ()
         if isinstance(listed, (str, Mapping)) or not isinstance(listed, (list, tuple)):
             raise ProfileError(
-                f"injuries must be a list of {{{', '.join(INJURY_FIELDS)}}} mappings, got {listed!r}", field="injuries"
+                f"injuries must be a list of {{{', '.join(INJURY_FIELDS)}}} mappings, got {_shown(listed)}",
+                field="injuries",
             )
         injuries = []
         for number, injury in enumerate(listed):
@@ -150,7 +189,8 @@ class Profile:
                 continue
             if not isinstance(injury, Mapping):
                 raise ProfileError(
-                    f"injuries[{number}] must be a mapping with keys among {', '.join(INJURY_FIELDS)}, got {injury!r}",
+                    f"injuries[{number}] must be a mapping with keys among {', '.join(INJURY_FIELDS)}, "
+                    f"got {_shown(injury)}",
                     field=f"injuries[{number}]",
                 )
             unknown = [str(key) for key in injury if key not in INJURY_FIELDS]
@@ -160,6 +200,6 @@ class Profile:
             injuries.append(InjuryRecord(**injury))
         extra = data.get("extra") or {}
         if not isinstance(extra, Mapping):
-            raise ProfileError(f"extra must be a mapping of other fields, got {extra!r}", field="extra")
+            raise ProfileError(f"extra must be a mapping of other fields, got {_shown(extra)}", field="extra")
         values = {k: v for k, v in data.items() if k not in ("injuries", "extra")}
         return cls(**values, injuries=tuple(injuries), extra=dict(extra))

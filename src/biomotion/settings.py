@@ -9,7 +9,7 @@ from dataclasses import fields
 from pathlib import Path
 from typing import Any, TypeVar
 
-from biomotion.errors import ConfigError
+from biomotion.errors import SettingsError
 
 T = TypeVar("T")
 
@@ -19,7 +19,7 @@ def settings_from_dict(cls: type[T], values: Mapping[str, Any], what: str) -> T:
     known = {f.name for f in fields(cls)}
     unknown = set(values) - known
     if unknown:
-        raise ConfigError(f"unknown {what} settings: {sorted(unknown)}; known: {sorted(known)}")
+        raise SettingsError(f"unknown {what} settings: {sorted(unknown)}; known: {sorted(known)}")
     return cls(**values)
 
 

@@ -15,7 +15,7 @@ import torch
 from biomotion.body.kinematics import forward_kinematics
 from biomotion.body.scaling.segments import ANSUR_MEN, SEGMENTS, body_factors, segment_factors, shipped_lines
 from biomotion.body.scaling.stature import scale_to_person, standing_height
-from biomotion.errors import ConfigError
+from biomotion.errors import ConfigError, DataFormatError
 from biomotion.io.tables import read_subject_table
 from biomotion.training.fit_segments import fit_lines
 from tests.conftest import data_path
@@ -105,3 +105,21 @@ def test_scale_command_scales_a_survey_row(tmp_path, capsys):
     assert factors["femur_r"] == factors["femur_l"] != factors["torso"]
     assert main(["scale", "--model", str(data_path(RAJAGOPAL)), "--out", str(tmp_path)]) == 2
     assert "give a ScaleTool SETUP (with a static trial), or a person" in capsys.readouterr().err
+
+
+def test_an_ansur_table_cut_short_names_its_line(tmp_path):
+    """A table cut in the middle of a row gave csv's None for the missing cells: float(None) was an internal error
+    of `biomotion train segments` (bad-input corpus case train-segments-ansur-truncated)."""
+    raw = data_path(ANSUR_MEN).read_bytes()
+    cut = tmp_path / "ansur.csv"
+    cut.write_bytes(raw[: len(raw) // 3])
+    with pytest.raises(DataFormatError, match=r"ansur\.csv:\d+: field '\w+': the row ends early"):
+        fit_lines(cut)
+    lines = raw.decode("latin-1").splitlines()
+    header = lines[0].split(",")
+    row = lines[1].split(",")
+    row[header.index("stature")] = "tall"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join([lines[0], ",".join(row), *lines[2:50]]) + "\n", encoding="latin-1")
+    with pytest.raises(DataFormatError, match=r"bad\.csv:2: field 'stature': not a number: 'tall'"):
+        fit_lines(bad)

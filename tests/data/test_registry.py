@@ -211,3 +211,27 @@ def test_a_runner_with_only_raw_c3d_is_solved_into_the_cache(tmp_path, data_root
     for name in ("hip_flexion_r", "knee_angle_r", "ankle_angle_r", "knee_angle_l", "hip_adduction_l"):
         rms = np.degrees(np.sqrt(np.mean((solved[name] - reference[name][: solved.n_frames]) ** 2)))
         assert rms < 1.0, name  # the chain reproduces RBDS09 within 0.54 deg (tests/ik/test_fukuchi_chain.py)
+
+
+def test_a_damaged_cache_names_its_file(tmp_path):
+    """A manifest.json cut short, or clips.safetensors overwritten, surfaced as JSONDecodeError and SafetensorError
+    (internal errors of `biomotion data augment` and `train`); an unknown --source as a KeyError."""
+    from biomotion.data.sources import discover_all
+    from biomotion.errors import BiomotionError, ConfigError, DataFormatError
+
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    with pytest.raises(BiomotionError, match="is not a dataset cache"):
+        DatasetCache(cache)
+    (cache / "manifest.json").write_text('{"clips": [{"source": "opencap", ')
+    with pytest.raises(DataFormatError, match=r"manifest\.json:1: not valid JSON"):
+        DatasetCache(cache)
+    (cache / "manifest.json").write_text('{"clips": []}')
+    with pytest.raises(DataFormatError, match=r"manifest\.json: not a dataset-cache manifest: no rate_hz, coordinates"):
+        DatasetCache(cache)
+    (cache / "manifest.json").write_text(json.dumps({"clips": [], "rate_hz": 30.0, "coordinates": ["pelvis_tx"]}))
+    (cache / "clips.safetensors").write_bytes(b"\x10" * 600)
+    with pytest.raises(DataFormatError, match=r"clips\.safetensors: cannot read the dataset cache arrays"):
+        DatasetCache(cache)
+    with pytest.raises(ConfigError, match="unknown source 'nosuch'; registered: fukuchi"):
+        discover_all(tmp_path, ["nosuch"])

@@ -85,6 +85,25 @@ def test_generate_writes_every_output(shipped, tmp_path, capsys):
     # "running" is no label's exact name: the user is told what it was taken as, on the console and in the file
     assert len(metrics["request"]["notes"]) == 1 and "taken as 'run on a treadmill'" in metrics["request"]["notes"][0]
     assert f"note: {metrics['request']['notes'][0]}" in printed
+    # what made the clip: the inputs, every field of the profile used, the text and the seed, the versions
+    request = metrics["request"]
+    assert request["inputs"]["profile"].endswith("runner_52_acl.yaml") and request["inputs"]["subject_table"] is None
+    assert request["text"] == "running at 3.5 m/s" and request["seed"] == 0
+    profile = request["profile"]
+    assert (profile["age"], profile["sex"], profile["height"], profile["mass"]) == (52, "M", 1.76, 74.0)
+    assert (profile["sport"], profile["level"], profile["experience_years"]) == ("running", "recreational", 15)
+    assert profile["injuries"] == [{"location": "Left knee", "diagnosis": "ACL reconstruction", "date": "2015"}]
+    assert set(request["versions"]) >= {"biomotion", "torch", "python"} and all(request["versions"].values())
+
+
+def test_the_same_seed_writes_the_same_motion(shipped, tmp_path, capsys):
+    """Two runs of the same request and seed write byte-identical motion.mot."""
+    written = []
+    for name in ("a", "b"):
+        args = ["generate", "--action", "walk", "--seconds", "0.5", "--seed", "7", "--no-figures"]
+        assert main([*args, "--out", str(tmp_path / name), "--data-root", str(data_path("."))]) == 0
+        written.append((tmp_path / name / "motion.mot").read_bytes())
+    assert written[0] == written[1]
 
 
 @pytest.mark.parametrize(

@@ -114,3 +114,23 @@ def test_locate_windows_separators_and_unassigned(tmp_path):
     setup = tmp_path / "setup.xml"
     assert locate("sub\\m.trc", setup) == (tmp_path / "sub" / "m.trc").resolve()
     assert locate("Unassigned", setup) is None and locate("missing.trc", setup) is None
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("<weight>1</weight>", "<weight>nan</weight>"), "<weight> is NaN"),
+        (("<weight>1</weight>", "<weight>inf</weight>"), "weight inf: a weight is a finite number >= 0"),
+        (("<time_range> 0.5 2.5</time_range>", "<time_range> 0.5 nan</time_range>"), "<time_range> holds NaN"),
+    ],
+)
+def test_a_nan_or_infinite_setting_is_refused_with_its_line(tmp_path, edit, message):
+    """NaN compares false with everything, so a NaN weight passed the negative-weight check and weighed a marker
+    by NaN (bad-input corpus case ik-setup-nan-weight)."""
+    text = data_path(GAIT_SETUP).read_text()
+    assert edit[0] in text
+    path = tmp_path / "setup.xml"
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(DataFormatError, match=r"setup\.xml:\d+: ") as info:
+        read_ik_setup(path)
+    assert message in str(info.value)

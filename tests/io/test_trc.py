@@ -202,3 +202,34 @@ def test_property_a_deleted_field_never_reads_silently(tmp_path, frames, count, 
     with pytest.raises(DataFormatError) as info:
         read_trc(tmp_path / "p.trc")
     assert info.value.line == line + 1
+
+
+def test_a_row_that_lost_a_value_is_refused_even_with_a_trailing_tab(tmp_path):
+    """subject01_walk1.trc ends every row with a tab: a row that lost a value still holds 2 + 3 x markers fields,
+    its last one empty, which read as a gap would shift every later value into the wrong marker (bad-input corpus
+    case trc-row-missing-value). A whole marker left empty stays a gap."""
+    lines = data_path("opensim-models/Pipelines/Gait2392_Simbody/subject01_walk1.trc").read_text().splitlines()
+    fields = lines[16].split("\t")
+    assert fields[-1] == ""  # the trailing tab
+    lost = tmp_path / "lost.trc"
+    lost.write_text("\n".join(lines[:16] + ["\t".join(fields[:7] + fields[8:])] + lines[17:]) + "\n")
+    with pytest.raises(DataFormatError, match=r"lost\.trc:17: 125 fields where the other rows have 126"):
+        read_trc(lost)
+    gap = tmp_path / "gap.trc"
+    gap.write_text("\n".join(lines[:16] + ["\t".join(fields[:5] + ["", "", ""] + fields[8:])] + lines[17:]) + "\n")
+    assert np.isnan(read_trc(gap).positions[10, 1]).all()
+
+
+def test_a_data_rate_far_from_the_time_column_is_refused(tmp_path):
+    """DataRate is checked against the Time column: 2 % apart is a real file's rounding (subject01_walk1.trc: 60 Hz,
+    steps of 0.017 s), a header saying 200 Hz for 60 Hz rows belongs to another file."""
+    source = data_path("opensim-models/Pipelines/Gait2392_Simbody/subject01_walk1.trc")
+    assert read_trc(source).n_frames == 151
+    lines = source.read_text().splitlines()
+    lines[2] = lines[2].replace("60.00", "200.00", 1)
+    path = tmp_path / "clock.trc"
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError, match=r"clock\.trc:3: field 'DataRate': DataRate says 200 Hz"):
+        read_trc(path)
+    with pytest.raises(DataFormatError, match="DataRate says 200 Hz"):
+        read_trc(path, time_range=(0.5, 1.0))

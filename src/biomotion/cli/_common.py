@@ -113,6 +113,9 @@ def writable_file(path: Path, what: str = "--out") -> Path:
     if path.is_dir():
         raise ConfigError(f"{path}: {what} names a folder; give a file name")
     parent = path.absolute().parent
+    blocking = next((p for p in (parent, *parent.parents) if p.exists()), None)
+    if blocking is not None and not blocking.is_dir():
+        raise ConfigError(f"{path}: {what} cannot be written: {blocking} is a file, not a folder")
     if parent.exists() and not os.access(parent, os.W_OK):
         raise ConfigError(f"{path}: {what} is not writable (no permission on {parent})")
     return path

@@ -147,7 +147,10 @@ def _augment(args: argparse.Namespace) -> int:
 
 def _sources(args: argparse.Namespace) -> int:
     from biomotion.data.sources import SOURCES
+    from biomotion.errors import ConfigError
 
+    if not args.data_root.is_dir():  # a typo would list every source as absent
+        raise ConfigError(f"{args.data_root}: --data-root is not a folder")
     for source in SOURCES.values():
         state = "present" if source.present(args.data_root) else "absent"
         print(f"{source.name:12s} {source.folder + '/':26s} {state:8s} {source.description}")

@@ -90,9 +90,25 @@ def run(args: argparse.Namespace) -> int:
             "--static/--scale-setup scale a model to markers; skeletons (BVH, --joint-map) are "
             "scaled to their own joint centres: retarget them without these options"
         )
+    from biomotion.errors import BiomotionError
+
     with fresh_folder(args.out, args.overwrite) as scratch:
         summaries = _retarget(args, files, scratch)
+        if summaries and all(s.error for s in summaries):  # nothing worth keeping: --out is not made
+            if len(summaries) == 1:
+                raise BiomotionError(summaries[0].error)
+            _print(summaries)
+            raise BiomotionError(
+                f"{args.input}: none of its {len(summaries)} trials could be retargeted (the first, "
+                f"{summaries[0].trial}: {summaries[0].error})"
+            )
     failed = [s for s in summaries if s.error]
+    _print(summaries)
+    print(f"{len(summaries) - len(failed)} of {len(summaries)} trials retargeted -> {args.out} (summary.csv)")
+    return 0
+
+
+def _print(summaries) -> None:
     for summary in summaries:
         state = (
             f"FAILED: {summary.error}"
@@ -103,8 +119,6 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         print(f"  {summary.trial}: {state}")
-    print(f"{len(summaries) - len(failed)} of {len(summaries)} trials retargeted -> {args.out} (summary.csv)")
-    return 2 if failed and len(failed) == len(summaries) else 0
 
 
 def _retarget(args: argparse.Namespace, files: list[Path], scratch: Path):

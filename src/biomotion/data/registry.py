@@ -315,10 +315,27 @@ class DatasetCache:
             raise BiomotionError(
                 f"{self.folder} is not a dataset cache (no {MANIFEST}); build one with `biomotion data build`"
             )
-        self.manifest = json.loads(manifest_path.read_text())
-        from safetensors.numpy import load_file
+        try:
+            self.manifest = json.loads(manifest_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise DataFormatError(
+                manifest_path,
+                f"not valid JSON ({error}): a damaged cache; build it again with `biomotion data build`",
+                line=getattr(error, "lineno", None),
+            ) from None
+        missing = [
+            key
+            for key in ("clips", "rate_hz", "coordinates")
+            if not isinstance(self.manifest, dict) or key not in self.manifest
+        ]
+        if missing:
+            raise DataFormatError(manifest_path, f"not a dataset-cache manifest: no {', '.join(missing)}")
+        from biomotion.io.tensors import read_tensors
 
-        arrays = load_file(str(self.folder / ARRAYS))
+        arrays = read_tensors(self.folder / ARRAYS, "dataset cache arrays", numpy=True)
+        absent = [key for key in ("values", "masks") if key not in arrays]
+        if absent:
+            raise DataFormatError(self.folder / ARRAYS, f"not dataset cache arrays: no {', '.join(absent)}")
         self.values = arrays["values"]
         self.masks = arrays["masks"].astype(bool)
         self.records = self.manifest["clips"]

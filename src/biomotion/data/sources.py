@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from biomotion.body.canonical import CANONICAL_COORDINATES, KNEE_COORDINATES
-from biomotion.errors import DataFormatError
+from biomotion.errors import ConfigError, DataFormatError
 from biomotion.io.mot import read_motion
 from biomotion.io.tables import read_subject_table
 from biomotion.motion import Motion
@@ -401,9 +401,13 @@ BANDAI = register_source(
 
 def discover_all(data_root: Path, names: Iterable[str] | None = None) -> tuple[list[ClipSpec], list[str]]:
     """Clips of every registered source present under ``data_root``; also the names of sources skipped (absent)."""
+    names = list(names or SOURCES)
+    unknown = [name for name in names if name not in SOURCES]
+    if unknown:
+        raise ConfigError(f"unknown source {', '.join(map(repr, unknown))}; registered: {', '.join(SOURCES)}")
     clips: list[ClipSpec] = []
     skipped: list[str] = []
-    for name in names or list(SOURCES):
+    for name in names:
         source = SOURCES[name]
         if not source.present(data_root):
             skipped.append(f"{name} (no {source.folder}/ under {data_root})")

@@ -18,6 +18,7 @@ Windows separators and the folder-relative quirks of the shipped data.
 
 from __future__ import annotations
 
+import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,16 +57,22 @@ class _Xml:
         if not raw:
             return default
         try:
-            return float(raw.replace("Inf", "inf"))
+            value = float(raw.replace("Inf", "inf"))
         except ValueError:
             raise self.error(elem.find(tag), f"<{tag}> is not a number: {raw!r}", tag) from None
+        if math.isnan(value):  # float() reads "nan"; no setting of a setup means anything by it
+            raise self.error(elem.find(tag), f"<{tag}> is NaN", tag)
+        return value
 
     def numbers(self, elem: ET.Element, tag: str) -> tuple[float, ...]:
         raw = self.text(elem, tag)
         try:
-            return tuple(float(v) for v in raw.split())
+            values = tuple(float(v) for v in raw.split())
         except ValueError:
             raise self.error(elem.find(tag), f"<{tag}> is not a list of numbers: {raw!r}", tag) from None
+        if any(math.isnan(v) for v in values):
+            raise self.error(elem.find(tag), f"<{tag}> holds NaN: {raw!r}", tag)
+        return values
 
     def flag(self, elem: ET.Element, tag: str, default: bool) -> bool:
         raw = self.text(elem, tag).lower()
@@ -150,8 +157,8 @@ def _task_set(doc: _Xml, elem: ET.Element | None) -> TaskSet:
         if not owner.flag(task, "apply", True):
             continue
         weight = owner.number(task, "weight", 1.0)
-        if weight < 0:
-            raise owner.error(task, f"task {name!r} has a negative weight {weight}", "weight")
+        if not 0 <= weight < math.inf:
+            raise owner.error(task, f"task {name!r} has weight {weight}: a weight is a finite number >= 0", "weight")
         if task.tag == "IKMarkerTask":
             weights[name] = weight
             continue

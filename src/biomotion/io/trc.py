@@ -16,6 +16,7 @@ inside the window: an IK setup's window of 1057 of those 4500 frames reads in 0.
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +26,8 @@ from biomotion.io.atomic import atomic_write
 from biomotion.motion import Markers, within_window
 
 UNIT_SCALE = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+RATE_TOLERANCE = 0.1
+"""How far (relative) DataRate may differ from the rate of the Time column before the file is refused."""
 
 
 def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) -> Markers:
@@ -79,6 +82,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
         )
     if time_range is not None:
         times = _times(path, body, numbers)
+        _check_rate(path, rate, times)
         start, end = time_range
         keep = np.flatnonzero(within_window(times, start, end))
         if not len(keep):
@@ -101,6 +105,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
     times = data[:, 1]
     if time_range is None:  # a window's times were checked, over the whole file, by `_times`
         _check_times(path, times, numbers)
+        _check_rate(path, rate, times)
     positions = data[:, 2:].reshape(len(data), len(names), 3) * UNIT_SCALE[units]
     return Markers(times=times, names=tuple(names), positions=positions)
 
@@ -144,6 +149,8 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
     except ValueError:
         pass
     expected = f"expected {width} (frame, time and 3 x {markers} markers)"
+    # rows written with a trailing tab: one that lost a value still has `width` fields, its last one empty
+    usual = Counter(text.count("\t") + 1 for text in rows).most_common(1)[0][0]
     table_rows = []
     for text, number in zip(rows, numbers):
         fields = text.split("\t")
@@ -155,6 +162,13 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
                 f"{len(fields)} fields, {expected}: a value is missing, so the values "
                 "after it would land in the wrong columns (leave a missing sample as an "
                 "empty field, keeping its tab)",
+                line=number,
+            )
+        if len(fields) < usual:
+            raise DataFormatError(
+                path,
+                f"{len(fields)} fields where the other rows have {usual} (frame, time, 3 x {markers} markers and a "
+                "trailing tab): a value is missing, so the values after it would land in the wrong columns",
                 line=number,
             )
         table_rows.append([field.strip() or "nan" for field in fields[:width]])
@@ -169,6 +183,21 @@ def _data_rows(path: Path, rows: list[str], numbers: list[int], width: int, mark
                 except ValueError:
                     raise DataFormatError(path, f"not a number: {token!r}", line=number) from None
         raise
+
+
+def _check_rate(path: Path, rate: float, times: np.ndarray) -> None:
+    """The header's DataRate against the Time column: they differ a little in real files (subject01_walk1.trc says
+    60 Hz and steps 0.017 s, 2 %), but a rate several times off is a header that belongs to another file."""
+    if len(times) < 3:
+        return
+    step = float(np.median(np.diff(times)))
+    if abs(rate * step - 1.0) > RATE_TOLERANCE:
+        raise DataFormatError(
+            path,
+            f"DataRate says {rate:g} Hz but the Time column steps {step:g} s ({1 / step:.4g} Hz)",
+            line=3,
+            field="DataRate",
+        )
 
 
 def write_trc(path: str | Path, markers: Markers, *, units: str = "m", rate: float | None = None) -> Path:

@@ -8,7 +8,10 @@ few frames fall back to the bounds over all actions (key ``"*"``). With them goe
 from which `biomotion.generation.posture` measures how a person's reference clips deviate from the population: per
 coordinate, a least-squares line through the training clips' mean values against their labelled speed,
 P(v) = P + b (v - v_mean) (running faster bends the knees more: 4.7 deg per m/s on the training runners), or the
-mean of the clips' means where the action's clips do not all carry a speed or share one.
+mean of the clips' means where the action's clips do not all carry a speed or share one. The population amplitude
+is the same line through each clip's standard deviation over time per coordinate, from which
+`biomotion.generation.posture.amplitude_ratio` measures how much more or less than the population a person moves
+each joint (the identity term of `biomotion.guidance.losses.amplitude`).
 """
 
 from __future__ import annotations
@@ -46,6 +49,9 @@ class GuidanceBounds:
     posture: tuple[float, ...] = ()
     posture_slope: tuple[float, ...] = ()
     posture_speed: float = float("nan")
+    amplitude: tuple[float, ...] = ()
+    amplitude_slope: tuple[float, ...] = ()
+    energy: tuple[float, ...] = ()
 
     def to_dict(self) -> dict:
         finite = lambda values: [None if not np.isfinite(v) else v for v in values]
@@ -58,6 +64,9 @@ class GuidanceBounds:
             "posture": finite(self.posture),
             "posture_slope": finite(self.posture_slope),
             "posture_speed": finite([self.posture_speed])[0],
+            "amplitude": finite(self.amplitude),
+            "amplitude_slope": finite(self.amplitude_slope),
+            "energy": finite(self.energy),
         }
 
     @classmethod
@@ -73,6 +82,9 @@ class GuidanceBounds:
             values("posture"),
             values("posture_slope"),
             float("nan") if speed is None else float(speed),
+            values("amplitude"),
+            values("amplitude_slope"),
+            values("energy"),
         )
 
 
@@ -113,10 +125,17 @@ def _bounds(
     com_a: list[np.ndarray],
     clip_means: list[np.ndarray],
     clip_speeds: list[float],
+    clip_stds: list[np.ndarray],
+    clip_energies: list[float],
     per_action: bool,
 ) -> GuidanceBounds:
     v, a = np.concatenate(com_v), np.concatenate(com_a)
-    posture = population_posture(np.stack(clip_means), np.array(clip_speeds, dtype=np.float64), with_speed=per_action)
+    labelled = np.array(clip_speeds, dtype=np.float64)
+    posture = population_posture(np.stack(clip_means), labelled, with_speed=per_action)
+    amplitude, amplitude_slope, _ = population_posture(np.stack(clip_stds), labelled, with_speed=per_action)
+    (energy,), (energy_slope,), _ = population_posture(
+        np.array(clip_energies, dtype=np.float64)[:, None], labelled, with_speed=per_action
+    )
     return GuidanceBounds(
         _p95(np.concatenate(speeds)),
         (float(np.percentile(v, 5)), float(np.percentile(v, 95))),
@@ -124,7 +143,23 @@ def _bounds(
         len(v),
         _p95(np.concatenate(jerks)),
         *posture,
+        amplitude,
+        amplitude_slope,
+        (energy, energy_slope),
     )
+
+
+GRAVITY = 9.80665  # m/s^2, as `biomotion.metrics.smoothness`
+
+
+def com_energy_per_kg(com, rate: float):
+    """[T - 1] mechanical energy of the whole-body COM as a point mass, per kg of body mass (J/kg): 1/2 |c'|^2 +
+    g c_y with forward differences and heights averaged over each frame pair, exactly `biomotion.metrics.smoothness
+    .mechanical_energy` over the body mass (its std over a clip is PG-BIG Sec. 4.2's energy consistency per kg).
+    ``com`` [..., T, 3] (m, y up), a NumPy array or a tensor (differentiable)."""
+    velocity = (com[..., 1:, :] - com[..., :-1, :]) * rate
+    height = 0.5 * (com[..., 1:, 1] + com[..., :-1, 1])
+    return 0.5 * (velocity**2).sum(-1) + GRAVITY * height
 
 
 @torch.no_grad()
@@ -146,15 +181,18 @@ def action_bounds(cache, body, indices: list[int]) -> dict[str, GuidanceBounds]:
         speed = np.abs(np.diff(q, axis=0)) * rate
         speed[:, ~mask] = np.nan
         mean = np.where(mask, q.mean(0), np.nan)
+        amplitude = np.where(mask, q.std(0), np.nan)
         labelled = record["labels"].get("speed")
         jerk = np.abs(np.diff(q, 3, axis=0)) * rate**3
         jerk[:, ~mask] = np.nan
         full = np.where(mask[None], q, defaults[None])
         com = center_of_mass(body, torch.from_numpy(full).to(body.dtype))
         v, a = com_speed(com, rate)[:, 0].numpy(), com_acceleration(com, rate)[:, 0].numpy()
+        energy = float(com_energy_per_kg(com.numpy(), rate).std())
         for key in (record["labels"]["action"], ALL_ACTIONS):
-            bucket = groups.setdefault(key, ([], [], [], [], [], []))
-            for items, value in zip(bucket, (speed, jerk, v, a, mean, np.nan if labelled is None else labelled)):
+            bucket = groups.setdefault(key, ([], [], [], [], [], [], [], []))
+            labelled_speed = np.nan if labelled is None else labelled
+            for items, value in zip(bucket, (speed, jerk, v, a, mean, labelled_speed, amplitude, energy)):
                 items.append(value)
     return {
         k: _bounds(*g, per_action=k != ALL_ACTIONS)
@@ -195,6 +233,34 @@ class GeneratorBundle:
             posture = posture + torch.tensor(own.posture_slope, dtype=torch.float64) * (speed - own.posture_speed)
         return torch.where(torch.isfinite(posture), posture, torch.tensor(everyone.posture, dtype=torch.float64))
 
+    def amplitude(self, action: str, speed: float | None = None) -> torch.Tensor | None:
+        """[39] the action's population amplitude at ``speed`` (each coordinate's standard deviation over a clip,
+        a line in the labelled speed as `posture`; the all-action one where the action never had a coordinate,
+        NaN where no training clip had it), or None for a bundle saved without amplitudes."""
+        own, everyone = self.bounds_for(action), self.bounds[ALL_ACTIONS]
+        if not own.amplitude or not everyone.amplitude:
+            return None
+        amplitude = torch.tensor(own.amplitude, dtype=torch.float64)
+        if speed is not None and np.isfinite(own.posture_speed):
+            amplitude = amplitude + torch.tensor(own.amplitude_slope, dtype=torch.float64) * (speed - own.posture_speed)
+        amplitude = torch.where(
+            torch.isfinite(amplitude), amplitude, torch.tensor(everyone.amplitude, dtype=torch.float64)
+        )
+        return amplitude.clamp_min(0.0)
+
+    def energy(self, action: str, speed: float | None = None) -> float | None:
+        """The action's population COM energy fluctuation at ``speed``: the std over a clip of `com_energy_per_kg`
+        (J/kg), a line in the labelled speed as `posture` (the all-action value where the action has none), or
+        None for a bundle saved without it."""
+        own, everyone = self.bounds_for(action), self.bounds[ALL_ACTIONS]
+        chosen = own if len(own.energy) == 2 and np.isfinite(own.energy[0]) else everyone
+        if len(chosen.energy) != 2 or not np.isfinite(chosen.energy[0]):
+            return None
+        value, slope = chosen.energy
+        if speed is not None and chosen is own and np.isfinite(own.posture_speed):
+            value += slope * (speed - own.posture_speed)
+        return max(float(value), 0.0)
+
     def high(self, action: str, quantity: str = "speed_high") -> torch.Tensor:
         """[39] upper bound of ``quantity`` (``speed_high`` or ``jerk_high``); coordinates never observed for the
         action take the all-action bound, and those never observed at all are unbounded."""
@@ -222,18 +288,16 @@ class GeneratorBundle:
 
     @classmethod
     def load(cls, path: str | Path) -> GeneratorBundle:
-        from safetensors import safe_open
-        from safetensors.torch import load_file
+        from biomotion.io.tensors import read_metadata, read_tensors
 
         path = Path(path)
         if not path.exists():
             raise ModelError(f"generator weights not found: {path}")
-        with safe_open(str(path), framework="pt") as handle:
-            meta = handle.metadata() or {}
+        meta = read_metadata(path, "generator weights")
         if meta.get("format") != FORMAT:
             raise ModelError(f"{path}: not a biomotion generator ({FORMAT}); format is {meta.get('format')!r}")
         prior = ProfileActionPrior(PriorConfig.from_dict(json.loads(meta["config"])))
-        prior.load_state_dict(load_file(str(path)))
+        prior.load_state_dict(read_tensors(path, "generator weights"))
         bounds = {k: GuidanceBounds.from_dict(v) for k, v in json.loads(meta["bounds"]).items()}
         return cls(
             prior.eval(),

@@ -342,15 +342,13 @@ class MotionVQVAE(nn.Module):
         """A model saved by `save`, in eval mode."""
         import json
 
-        from safetensors import safe_open
-        from safetensors.torch import load_file
+        from biomotion.io.tensors import read_metadata, read_tensors
 
-        with safe_open(str(path), framework="pt") as handle:
-            meta = handle.metadata() or {}
+        meta = read_metadata(path, "tokenizer weights")
         if "config" not in meta:
             raise ModelError(f"{path}: no tokenizer config in the safetensors metadata")
         model = cls(VQVAEConfig.from_dict(json.loads(meta["config"])))
-        state = load_file(str(path), device=map_location)
+        state = read_tensors(path, "tokenizer weights", device=map_location)
         state["quantiser.initialised"] = state["quantiser.initialised"].bool()
         model.load_state_dict(state)
         return model.eval()

@@ -16,8 +16,12 @@ class OpenSimPaths:
     """Musculotendon lengths and moment arms of an .osim model from OpenSim (the oracle; needs ``opensim``)."""
 
     def __init__(self, model_path: str | Path) -> None:
+        from biomotion.io.osim import read_osim
         from biomotion.settings import opensim_oracle
 
+        # biomotion's reader first: it refuses entity declarations (OpenSim's parser would expand a "billion laughs")
+        # and names the file and line of what is wrong, where OpenSim raises a C++ exception
+        read_osim(model_path)
         opensim = opensim_oracle()
 
         opensim.Logger.setLevelString("error")

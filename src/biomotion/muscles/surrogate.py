@@ -419,15 +419,13 @@ class MuscleSurrogate(nn.Module):
     def load(cls, path: str | Path, map_location: str = "cpu", body=None) -> MuscleSurrogate:
         """A surrogate saved by `save`, in eval mode; ``body``: the canonical body model, needed by a surrogate
         with contact features (ignored by one without)."""
-        from safetensors import safe_open
-        from safetensors.torch import load_file
+        from biomotion.io.tensors import read_metadata, read_tensors
 
-        with safe_open(str(path), framework="pt") as handle:
-            meta = handle.metadata() or {}
+        meta = read_metadata(path, "muscle-surrogate weights")
         if meta.get("format") != FORMAT or "config" not in meta or "muscles" not in meta:
             raise ModelError(f"{path}: not a muscle-surrogate file (format {meta.get('format')!r})")
         model = cls(json.loads(meta["muscles"]), SurrogateConfig.from_dict(json.loads(meta["config"])), body)
-        model.load_state_dict(load_file(str(path), device=map_location))
+        model.load_state_dict(read_tensors(path, "muscle-surrogate weights", device=map_location))
         return model.eval()
 
     @staticmethod
@@ -448,7 +446,6 @@ class MuscleSurrogate(nn.Module):
     @staticmethod
     def metadata(path: str | Path) -> dict[str, str]:
         """The safetensors metadata of a saved surrogate (config, muscles, and what `save` was given)."""
-        from safetensors import safe_open
+        from biomotion.io.tensors import read_metadata
 
-        with safe_open(str(path), framework="pt") as handle:
-            return dict(handle.metadata() or {})
+        return read_metadata(path, "muscle-surrogate weights")

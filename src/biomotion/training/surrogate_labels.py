@@ -90,16 +90,14 @@ class SurrogateLabels:
 
     @classmethod
     def load(cls, path: str | Path) -> SurrogateLabels:
-        from safetensors import safe_open
-        from safetensors.numpy import load_file
+        from biomotion.io.tensors import read_metadata, read_tensors
 
-        with safe_open(str(path), framework="np") as handle:
-            meta = handle.metadata() or {}
+        meta = read_metadata(path, "surrogate labels")
         if meta.get("format") != FORMAT:
             raise DataFormatError(
                 Path(path), f"not a surrogate-labels file (format {meta.get('format')!r})", field="format"
             )
-        arrays = load_file(str(path))
+        arrays = read_tensors(path, "surrogate labels", numpy=True)
         return cls(
             arrays["activations"],
             arrays["converged"].astype(bool),

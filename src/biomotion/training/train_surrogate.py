@@ -46,7 +46,7 @@ from biomotion.analysis.activation_labels import Labeler
 from biomotion.body.mirror import mirror_coordinates, mirror_ground_vectors, mirror_labels
 from biomotion.data.clips import body_model
 from biomotion.data.registry import DatasetCache
-from biomotion.errors import BiomotionError, ConfigError
+from biomotion.errors import BiomotionError, ConfigError, SettingsError
 from biomotion.guidance.losses import activation
 from biomotion.muscles.surrogate import COM_OUTPUTS, MuscleSurrogate, SurrogateConfig
 from biomotion.muscles.surrogate_scores import COM_LABEL_COLUMNS, evaluate
@@ -256,7 +256,9 @@ def train(
         min_std = float(data_cfg.get("min_label_std", 0.02))
         batch, lr, warmup = int(train_cfg["batch_size"]), float(train_cfg["lr"]), int(train_cfg["warmup"])
     except KeyError as missing:
-        raise ConfigError(f"surrogate config lacks the setting {missing}") from None
+        raise SettingsError(f"surrogate config lacks the setting {missing}") from None
+    except (AttributeError, TypeError, ValueError) as error:  # a section that is no mapping, a word for a number
+        raise SettingsError(f"surrogate config: a setting of the wrong type ({error})") from None
     torch.manual_seed(seed)
     np.random.seed(seed)
     cache = DatasetCache(cache_dir)

@@ -26,7 +26,7 @@ import torch
 from tqdm import tqdm
 
 from biomotion.data.registry import DatasetCache
-from biomotion.errors import BiomotionError, ConfigError
+from biomotion.errors import BiomotionError, SettingsError
 from biomotion.models.foot_contact import FootKinematics
 from biomotion.models.vqvae import N_COORDS, TRANSLATIONS, MotionVQVAE, VQVAEConfig
 from biomotion.training.cards import environment, write_card
@@ -129,7 +129,9 @@ def train(
         data_cfg, train_cfg = config["data"], config["train"]
         window, stride = int(data_cfg["window"]), int(data_cfg["stride"])
     except KeyError as missing:
-        raise ConfigError(f"tokenizer config lacks the setting {missing}") from None
+        raise SettingsError(f"tokenizer config lacks the setting {missing}") from None
+    except (AttributeError, TypeError, ValueError) as error:  # a section that is no mapping, a word for a number
+        raise SettingsError(f"tokenizer config: a setting of the wrong type ({error})") from None
     torch.manual_seed(seed)
     np.random.seed(seed)
     cache = DatasetCache(cache_dir)
