@@ -1,6 +1,7 @@
 """Marker IK and static scaling, side by side with OpenSim 4.6 on the same trials; writes docs/results/ik.md.
 
     python benchmarks/ik.py [--data-root ../shared/data] [--repeats 3] [--threads 1] [--out docs/results/ik.md]
+                            [--json docs/results/ik.json] [--nimble-python PYTHON]
 
 IK: for each trial, OpenSim's ``InverseKinematicsTool`` (fresh, same model, marker weights, coordinate tasks and
 frames; logging off) and `biomotion.ik.solve_ik` read the same TRC file and write a .mot; OpenSim's ``run()`` is
@@ -12,17 +13,26 @@ forward kinematics, and the frames where one objective is lower.
 Scaling: ScaleTool measurement factors from every Fukuchi runner's static C3D against the shipped ScaleSets, and
 the whole static calibration (factors, marker placement, scaled .osim written) against OpenSim's ScaleTool on
 RBDS001.
+
+Peer: with ``--nimble-python``, an interpreter that has nimblephysics (AddBiomechanics' engine; it needs numpy < 2,
+see `benchmarks/nimble_peer.py`), the Fukuchi trials are also solved by nimble on the same markers and model, in
+its own process: time and marker RMS error. ``--json`` writes the figures, ``ik_speedup_vs_opensim_min`` the worst
+trial's ratio.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
 import re
+import subprocess
 import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from biomotion.body.model import BodyModel
@@ -46,6 +56,32 @@ def _cases(root: Path, repeats: int) -> dict[str, dict]:
         cases[f"Fukuchi {runner} 3.5 m/s"] = validate.fukuchi_case(root, runner, repeats)
     cases["Rajagopal walk"] = validate.rajagopal_case(root, repeats)
     return cases
+
+
+def _nimble(root: Path, runner: str, python: str, folder: Path) -> dict:
+    """nimble's solve of a runner's 3.5 m/s trial (`benchmarks/nimble_peer.py` in ``python``), on the markers and
+    window `biomotion.validation.ik.fukuchi_case` uses."""
+    from biomotion.io.setup import read_ik_setup
+
+    base = root / validate.FUKUCHI
+    setup = read_ik_setup(base / runner / f"{runner}_T35_ikSetup.xml")
+    markers = validate.fukuchi_markers(base / "c3d" / f"{runner}runT35.c3d").slice(*setup.time_range)
+    trial = folder / f"{runner}.npz"
+    np.savez(
+        trial,
+        positions=markers.positions,
+        names=np.array(markers.names),
+        weight_names=np.array(list(setup.marker_weights)),
+        weights=np.array(list(setup.marker_weights.values()), dtype=float),
+        model=str(base / runner / f"{runner}_simple.osim"),
+    )
+    done = subprocess.run(
+        [python, str(Path(__file__).with_name("nimble_peer.py")), str(trial)], capture_output=True, text=True
+    )
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode != 0 or not lines:
+        return {"error": f"exit {done.returncode}: {done.stderr.strip().splitlines()[-1:] or done.stdout[-200:]}"}
+    return json.loads(lines[-1])
 
 
 def _opensim_scaletool(root: Path, runner: str, folder: Path) -> float:
@@ -112,7 +148,14 @@ def _scaling(root: Path, repeats: int) -> dict:
     }
 
 
-def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> str:
+def _load() -> str:
+    try:
+        return ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    except OSError:
+        return "unknown"
+
+
+def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace, peers: dict | None = None) -> str:
     lines = [
         "# Marker IK and static scaling vs OpenSim 4.6",
         "",
@@ -122,7 +165,7 @@ def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> s
         f"inside the setup's time range) and write a .mot; OpenSim's `InverseKinematicsTool.run()`, at the "
         f"setup's accuracy, timed once, ours best of {args.repeats}: reading the TRC, solving and "
         f"writing the .mot, and in brackets the solve alone (OpenSim's reading cannot be timed apart). Machine "
-        f"shared with other work: wall times, run interleaved.",
+        f"shared with other work: wall times, run interleaved; load average at the end {_load()}.",
         "",
         "RMSE columns: worst per-coordinate RMSE between the two solutions over all frames, over coordinates some "
         "tracked marker moves (deg for rotations, m for translations). Marker RMSE: all visible (frame, marker) "
@@ -170,6 +213,29 @@ def _table(cases: dict[str, dict], scaling: dict, args: argparse.Namespace) -> s
         f"| RBDS001 placement marker RMS | {scaling['placement_rms']:.4f} m |",
         "",
     ]
+    if peers:
+        lines += [
+            "## Peer: nimblephysics (AddBiomechanics' engine) on the Fukuchi trials",
+            "",
+            "Same markers, window and scaled model; nimble in its own interpreter (`benchmarks/nimble_peer.py`). "
+            "MarkerFitter's pipeline cannot run on these models (its anthropometric step needs bone meshes the data "
+            "leaves out); nimble's own IK solver, frame after frame, can. Its markers weigh 1 (with the setup's "
+            "weights it diverges); ours use the setup's weights.",
+            "",
+            "| trial | frames | nimble IK s | nimble marker RMSE m | biomotion s | biomotion marker RMSE m "
+            "| MarkerFitter |",
+            "|---|---:|---:|---:|---:|---:|---|",
+        ]
+        for name, peer in peers.items():
+            ours = cases[name]
+            ik = peer.get("sequential_ik", {})
+            fitter = peer.get("marker_fitter", {}).get("error") or peer.get("error") or "ran"
+            lines.append(
+                f"| {name} | {peer.get('frames', '-')} | {ik.get('seconds', float('nan')):.2f} | "
+                f"{ik.get('marker_rmse_m', float('nan')):.5f} | {ours['seconds']:.3f} | {ours['ik_marker_rmse_m']:.5f} "
+                f"| {fitter} |"
+            )
+        lines.append("")
     return "\n".join(lines)
 
 
@@ -179,14 +245,38 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", default=str(REPO / "docs" / "results" / "ik.md"))
+    parser.add_argument("--json", help="also write the figures as JSON (ik_speedup_vs_opensim_min: the worst trial)")
+    parser.add_argument(
+        "--nimble-python", help="an interpreter with nimblephysics: adds the peer on the Fukuchi trials"
+    )
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     root = Path(args.data_root)
     cases = _cases(root, args.repeats)
     scaling = _scaling(root, args.repeats)
-    text = _table(cases, scaling, args)
+    peers = {}
+    if args.nimble_python:
+        with tempfile.TemporaryDirectory(prefix="biomotion-nimble-") as folder:
+            for runner in RUNNERS:
+                peers[f"Fukuchi {runner} 3.5 m/s"] = _nimble(root, runner, args.nimble_python, Path(folder))
+    text = _table(cases, scaling, args, peers)
     with atomic_write(args.out) as handle:
         handle.write(text)
+    if args.json:
+        speedups = {name: c["ik_speedup_vs_opensim"] for name, c in cases.items()}
+        figures = {
+            "command": f"python benchmarks/ik.py --repeats {args.repeats} --threads {args.threads}"
+            + (" --nimble-python PYTHON" if args.nimble_python else ""),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores, load average {_load()}",
+            "torch": torch.__version__,
+            "ik_speedup_vs_opensim_min": min(speedups.values()),
+            "ik_speedup_vs_opensim_worst_trial": min(speedups, key=speedups.get),
+            "cases": cases,
+            "scaling": scaling,
+            "nimble_peer": peers,
+        }
+        with atomic_write(args.json) as handle:
+            json.dump(figures, handle, indent=1, default=float)
     print(text)
     return 0
 

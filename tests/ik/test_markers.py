@@ -292,3 +292,31 @@ def test_shoulder_over_its_whole_turn_cut_ends_on_opensims_set_of_angles():
     assert (wrapped[same_minimum] > np.radians(1.0)).sum() <= 4  # measured 2 (was 85)
     tail = ours.motion.values[-50:, model.coordinate_index("arm_add_r")]
     assert np.abs(tail).max() < np.radians(45)  # the anatomical set: measured |add| < 25 deg
+
+
+@pytest.mark.parametrize("factor, passes", [(1.0, True), (0.6, True), (1e3, False), (10.0, False), (1e-2, False)])
+def test_markers_in_a_wrong_length_unit_are_refused_before_ik(factor, passes):
+    """A TRC in millimetres declared as metres put the subject 1.8 km tall and IK fitted it without a word
+    (bad-input corpus case trc-mm-declared-m): the markers' spread is compared with the model's (a small person on
+    the model, 0.6x, passes; 10x, 100x and 1000x unit mistakes do not)."""
+    from biomotion.ik.markers import check_marker_scale
+
+    model = BodyModel.from_osim(data_path(f"{GAIT}/OutputReference/subject01_simbody.osim"))
+    markers = read_trc(data_path(f"{GAIT}/subject01_walk1.trc"))
+    scaled = Markers(times=markers.times, names=markers.names, positions=markers.positions * factor)
+    if passes:
+        check_marker_scale(scaled, model, "walk.trc")
+    else:
+        with pytest.raises(DataFormatError, match=r"walk\.trc: field 'Units': the markers spread .* length unit"):
+            check_marker_scale(scaled, model, "walk.trc")
+
+
+def test_a_start_at_the_solution_finishes_at_once_and_keeps_it():
+    """Frames that meet the tolerance at the first check leave before any step: their solution comes back as given,
+    converged (one static frame started at its own solution used to fail on writing a tensor onto itself)."""
+    model = _model(GAIT_MODEL)
+    markers, q = _synthetic(model, 3, seed=4)
+    first = solve_ik(model, markers)
+    again = solve_ik(model, markers, initial=first.motion)
+    assert again.converged.all() and again.iterations <= 1
+    assert np.abs(again.motion.values - first.motion.values).max() < 1e-9

@@ -43,6 +43,7 @@ import torch
 
 from biomotion.body.kinematics import KinematicTree
 from biomotion.body.model import BodyModel
+from biomotion.body.spatial import cross_frames_last as _cross
 from biomotion.errors import DataFormatError, ModelError
 from biomotion.io.setup import CoordinateTask
 from biomotion.motion import Markers, Motion
@@ -165,6 +166,21 @@ class _Kinematics:
             found.append((tuple(column[c] for c in coordinates), float(slope[middle]), float(intercept[middle])))
         return found
 
+    @classmethod
+    def of(
+        cls, model: BodyModel, markers: Sequence[int], free: Sequence[int], joints: Sequence[int] | None = None
+    ) -> _Kinematics:
+        """`_Kinematics` of these markers and free coordinates, cached on the (immutable) model: a batch solves
+        many trials on one model, and building the structure costs as much as a few evaluations."""
+        key = (tuple(int(m) for m in markers), tuple(int(c) for c in free), None if joints is None else tuple(joints))
+        cache = model.__dict__.get("_ik_kinematics")
+        if cache is None:
+            cache = {}
+            object.__setattr__(model, "_ik_kinematics", cache)  # frozen dataclass: a cache, not a field
+        if key not in cache:
+            cache[key] = cls(model, markers, free, joints)
+        return cache[key]
+
     # coordinates ------------------------------------------------------------------------------------------------
     def coordinates(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Full q [T, n_q] from free z [T, n_z], and d(coupled coordinates)/dz [T, n_dependents, n_z]."""
@@ -184,6 +200,12 @@ class _Kinematics:
             coupled[:, row] = coupler.scale_factor * slope[:, None] * upstream
         return q, coupled
 
+    def task_free(self, columns: torch.Tensor) -> torch.Tensor | None:
+        """The z index of each coordinate in ``columns`` when all of them are free (not coupled), else None."""
+        position = {c: k for k, c in enumerate(self.free.tolist())}
+        found = [position.get(c) for c in columns.tolist()]
+        return None if None in found else torch.tensor(found, dtype=torch.long)
+
     def dq_dz(self, coupled: torch.Tensor) -> torch.Tensor:
         """[T, n_q, n_z] dq/dz: ones for the free coordinates, the couplers' chain rule for the coupled ones."""
         out = self.task_base.expand(coupled.shape[0], -1, -1)
@@ -196,18 +218,18 @@ class _Kinematics:
     def evaluate(self, z: torch.Tensor, twists: bool = True) -> _Pose:
         """Markers in ground and, with ``twists``, every column's ground twist at free coordinates z [T, n_z]: the
         tree's pass (`KinematicTree.axis_values` -> `joint_frames` -> `poses` -> `points`, and `ground_axes` ->
-        `twists`), frames last, turned frames first for the normal equations."""
+        `twists`), frames last as the tree gives them (the normal equations work in that layout)."""
         q, coupled = self.coordinates(z)
         tree = self.tree
         values, slopes, _ = tree.axis_values(q.T)
         frames = tree.joint_frames(values)
         poses = tree.poses(frames)
-        x = tree.points(poses, self.marker_body, self.marker_offsets).permute(2, 0, 1)  # [T, M, 3]
+        x = tree.points(poses, self.marker_body, self.marker_offsets)  # [M, 3, T]
         if not twists:
             return _Pose(x, q, coupled, None, None)
         # omega x p + v is the velocity of a point p per unit rate of the column's coordinate
         omega, velocity = tree.twists(tree.ground_axes(poses, frames), slopes)  # [n_q, 3, T]
-        return _Pose(x, q, coupled, omega[self.columns].permute(2, 0, 1), velocity[self.columns].permute(2, 0, 1))
+        return _Pose(x, q, coupled, omega[self.columns], velocity[self.columns])
 
     def normal_equations(
         self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
@@ -218,43 +240,48 @@ class _Kinematics:
         Summing over markers, each body contributes twist^T G_b twist with the 6x6 G_b = sum_i w_i A_i^T A_i,
         A_i = [-[x_i]x | I]; and the bodies below a joint add up (the composite inertia trick of Featherstone's
         CRBA, "Rigid Body Dynamics Algorithms" ch. 6), so H_cd = twist_c^T G~_j twist_d with j the deeper of the
-        two columns' joints when one is the other's ancestor, 0 otherwise. G~ of each column's joint is one product
-        of the per-marker sums with the tree's [column, marker] "moves" mask.
+        two columns' joints when one is the other's ancestor, 0 otherwise. G~ of each column's joint is one matrix
+        product of the per-marker sums [M, 19, T] with the tree's [column, marker] "moves" mask, frames last so
+        that it is a single GEMM over every frame (batched small products loop over frames on the CPU).
         """
-        x = pose.x
-        wx = weights[..., None] * x
-        sums = torch.cat(
-            [
-                weights[..., None],
-                wx,
-                (wx[..., :, None] * x[..., None, :]).flatten(-2),
-                torch.linalg.cross(wx, residuals, dim=-1),
-                weights[..., None] * residuals,
-            ],
-            dim=-1,
-        )
-        at = self.marker_columns @ sums  # [T, C, 19]
-        w, s1, xx = at[..., 0:1], at[..., 1:4], at[..., 4:13].unflatten(-1, (3, 3))
-        xr, r = at[..., 13:16], at[..., 16:19]
-        omega, velocity = pose.omega, pose.velocity
-        k_omega = xx.diagonal(dim1=-2, dim2=-1).sum(-1, keepdim=True) * omega - (xx @ omega[..., None])[..., 0]
-        top = k_omega + torch.linalg.cross(s1, velocity, dim=-1)
-        bottom = torch.linalg.cross(omega, s1, dim=-1) + w * velocity
-        products = omega @ top.transpose(1, 2) + velocity @ bottom.transpose(1, 2)  # [c, d]: twist_c . G~_d twist_d
+        x = pose.x_last  # [M, 3, T]
+        w = weights.T[:, None, :]  # [M, 1, T]
+        r = residuals.permute(1, 2, 0)  # [M, 3, T]
+        wx = w * x
+        sums = torch.cat([w, wx, (wx[:, :, None] * x[:, None]).flatten(1, 2), _cross(wx, r), w * r], dim=1)
+        count, size, frames = sums.shape
+        at = (self.marker_columns @ sums.reshape(count, size * frames)).view(-1, size, frames)  # [C, 19, T]
+        total, s1, xx = at[:, 0:1], at[:, 1:4], at[:, 4:13].unflatten(1, (3, 3))
+        xr, rr = at[:, 13:16], at[:, 16:19]
+        omega, velocity = pose.omega, pose.velocity  # [C, 3, T]
+        trace = xx[:, 0, 0] + xx[:, 1, 1] + xx[:, 2, 2]
+        k_omega = trace[:, None] * omega - (xx * omega[:, None]).sum(2)
+        top = k_omega + _cross(s1, velocity)
+        bottom = _cross(omega, s1) + total * velocity
+        twist, moment = torch.cat([omega, velocity], 1), torch.cat([top, bottom], 1)  # [C, 6, T]
+        if twist.shape[0] <= 8:  # a few columns (the root alone): products of whole rows beat tiny GEMMs
+            products = (twist[:, None] * moment[None]).sum(2).permute(2, 0, 1).contiguous()
+        else:  # [c, d]: twist_c . G~_d twist_d; contiguous operands (strided ones make bmm loop per frame)
+            products = torch.bmm(twist.permute(2, 0, 1).contiguous(), moment.permute(2, 1, 0).contiguous())
         hessian = torch.where(
             self.ancestor, products, torch.where(self.ancestor.T, products.transpose(1, 2), torch.zeros_like(products))
         )
-        gradient = (omega * xr).sum(-1) + (velocity * r).sum(-1)
+        gradient = ((omega * xr).sum(1) + (velocity * rr).sum(1)).T
         return hessian, gradient
 
 
 @dataclass(frozen=True)
 class _Pose:
-    x: torch.Tensor  # [T, M, 3] markers in ground
+    x_last: torch.Tensor  # [M, 3, T] markers in ground, frames last
     q: torch.Tensor  # [T, n_q]
     coupled: torch.Tensor  # [T, n_dependents, n_z] d(coupled coordinates)/dz
-    omega: torch.Tensor | None  # [T, C, 3] angular part of each column's ground twist
-    velocity: torch.Tensor | None  # [T, C, 3] linear part (velocity of the point at the ground origin)
+    omega: torch.Tensor | None  # [C, 3, T] angular part of each column's ground twist
+    velocity: torch.Tensor | None  # [C, 3, T] linear part (velocity of the point at the ground origin)
+
+    @property
+    def x(self) -> torch.Tensor:
+        """[T, M, 3] markers in ground (a view)."""
+        return self.x_last.permute(2, 0, 1)
 
 
 # --- the least-squares problem ----------------------------------------------------------------------------------
@@ -315,13 +342,21 @@ class _Problem:
         hessian, gradient = h[:, :n_z, :n_z], g[:, :n_z]
         if kin.dependents:  # chain rule through the couplers: columns = [free | coupled]
             f = pose.coupled  # [T, D, n_z]
-            cross = h[:, :n_z, n_z:] @ f
-            hessian = hessian + cross + cross.transpose(1, 2) + f.transpose(1, 2) @ h[:, n_z:, n_z:] @ f
-            gradient = gradient + (f.transpose(1, 2) @ g[:, n_z:, None])[..., 0]
+            f_t = f.transpose(1, 2).contiguous()  # contiguous operands: strided ones make bmm loop per frame
+            cross = h[:, :n_z, n_z:].contiguous() @ f
+            hessian = hessian + cross + cross.transpose(1, 2) + f_t @ (h[:, n_z:, n_z:].contiguous() @ f)
+            gradient = gradient + (f_t @ g[:, n_z:, None])[..., 0]
         if len(self.task_columns):
-            rows = kin.dq_dz(pose.coupled)[:, self.task_columns]  # [T, K, n_z]
-            hessian = hessian + rows.transpose(1, 2) @ (task_scale[..., None] * rows)
-            gradient = gradient + (rows.transpose(1, 2) @ (task_scale * task_error)[..., None])[..., 0]
+            tasks = kin.task_free(self.task_columns)
+            if tasks is not None:  # tasks on free coordinates: rows of dq/dz are unit vectors, add on the diagonal
+                diagonal = torch.zeros_like(gradient).index_add_(1, tasks, task_scale)
+                hessian = hessian + torch.diag_embed(diagonal)
+                gradient = gradient.index_add(1, tasks, task_scale * task_error)
+            else:
+                rows = kin.dq_dz(pose.coupled)[:, self.task_columns]  # [T, K, n_z]
+                rows_t = rows.transpose(1, 2).contiguous()
+                hessian = hessian + rows_t @ (task_scale[..., None] * rows)
+                gradient = gradient + (rows_t @ (task_scale * task_error)[..., None])[..., 0]
         return pose, cost, hessian, gradient
 
 
@@ -343,43 +378,59 @@ def _levenberg_marquardt(
     lam = torch.full((count,), damping, dtype=_F64)
     done = torch.zeros(count, dtype=torch.bool)
     eye = torch.eye(n_z, dtype=_F64)
+    # The frames still iterating are a working set: rows of compact copies (`work` their frame numbers, `live`
+    # which still iterate). Finished frames stay in it, frozen, until fewer than half of its rows are live; then it
+    # is compacted. Gathering and scattering every array at every iteration cost more than the rows they save.
+    work = torch.arange(count)
+    sub, z_w, cost_w, h_w, g_w, lam_w, scale_w = problem, z.clone(), cost.clone(), hessian, gradient, lam, scale
+    live = torch.ones(count, dtype=torch.bool)
     iterations = 0
     for iterations in range(1, max_iterations + 1):
-        active = (~done).nonzero().squeeze(-1)
-        if active.numel() == 0:
+        remaining = int(live.sum())
+        if remaining == 0:
             iterations -= 1
             break
-        za, cost_a, h, g, lam_a = z[active], cost[active], hessian[active], gradient[active], lam[active]
-        blocked = ((za <= lower + 1e-12) & (g > 0)) | ((za >= upper - 1e-12) & (g < 0))
+        if remaining < len(work) // 2:
+            z[work], cost[work] = z_w, cost_w
+            done[work[~live]] = True
+            rows = live.nonzero().squeeze(-1)
+            work = work[rows]
+            sub = problem.frames(work)
+            z_w, cost_w, h_w, g_w, lam_w, scale_w, live = (
+                t[rows] for t in (z_w, cost_w, h_w, g_w, lam_w, scale_w, live)
+            )
+        blocked = ((z_w <= lower + 1e-12) & (g_w > 0)) | ((z_w >= upper - 1e-12) & (g_w < 0))
         keep = (~blocked).to(_F64)
-        diagonal = h.diagonal(dim1=-2, dim2=-1)
-        damped = h * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(
-            lam_a[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True))) * keep + (1.0 - keep)
+        diagonal = h_w.diagonal(dim1=-2, dim2=-1)
+        damped = h_w * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(
+            lam_w[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True))) * keep + (1.0 - keep)
         )
         factor, info = torch.linalg.cholesky_ex(damped)
         if bool((info > 0).any()):  # numerically indefinite: regularise those frames harder
             bad = info > 0
             factor[bad] = torch.linalg.cholesky(damped[bad] + eye * (1.0 + diagonal[bad].amax(-1))[:, None, None])
-        step = -torch.cholesky_solve((g * keep)[..., None], factor)[..., 0]
+        step = -torch.cholesky_solve((g_w * keep)[..., None], factor)[..., 0]
         # the Gauss-Newton model's predicted decrease: frames that cannot gain more than the tolerance stop here
-        predicted = -(g * step).sum(-1) - 0.5 * (step * (h @ step[..., None])[..., 0]).sum(-1)
-        finished = (predicted <= 0.5 * tolerance * cost_a) & (lam_a < 0.1)  # not after rejections
-        done[active[finished]] = True
-        active, za, cost_a, h, g, lam_a, step = (t[~finished] for t in (active, za, cost_a, h, g, lam_a, step))
-        if active.numel() == 0:
+        predicted = -(g_w * step).sum(-1) - 0.5 * (step * (h_w * step[:, None, :]).sum(-1)).sum(-1)
+        finished = live & (predicted <= 0.5 * tolerance * cost_w) & (lam_w < 0.1)  # not after rejections
+        live = live & ~finished
+        if not bool(live.any()):
             break
-        trial = torch.maximum(torch.minimum(za + step, upper), lower)
-        _, cost_new, h_new, g_new = problem.frames(active).evaluate(trial)
-        accept = cost_new <= cost_a
-        small = ((cost_a - cost_new).abs() <= tolerance * cost_a + 1e-15 * scale[active]) | (
-            accept & ((trial - za).abs().amax(-1) <= _STEP_TOLERANCE)
+        trial = torch.maximum(torch.minimum(z_w + step, upper), lower)
+        _, cost_new, h_new, g_new = sub.evaluate(trial)
+        accept = live & (cost_new <= cost_w)
+        small = ((cost_w - cost_new).abs() <= tolerance * cost_w + 1e-15 * scale_w) | (
+            accept & ((trial - z_w).abs().amax(-1) <= _STEP_TOLERANCE)
         )
-        z[active] = torch.where(accept[:, None], trial, za)
-        cost[active] = torch.where(accept, cost_new, cost_a)
-        hessian[active] = torch.where(accept[:, None, None], h_new, h)
-        gradient[active] = torch.where(accept[:, None], g_new, g)
-        lam[active] = torch.where(accept, (lam_a / 3.0).clamp(min=1e-12), lam_a * 8.0)
-        done[active] = small | (lam_a > 1e12)
+        z_w = torch.where(accept[:, None], trial, z_w)
+        cost_w = torch.where(accept, cost_new, cost_w)
+        h_w = torch.where(accept[:, None, None], h_new, h_w)
+        g_w = torch.where(accept[:, None], g_new, g_w)
+        stop = live & (small | (lam_w > 1e12))
+        lam_w = torch.where(live, torch.where(accept, (lam_w / 3.0).clamp(min=1e-12), lam_w * 8.0), lam_w)
+        live = live & ~stop
+    z[work], cost[work] = z_w, cost_w
+    done[work] = ~live
     return z, cost / scale, done, iterations
 
 
@@ -419,7 +470,7 @@ def _root_start(
     root_free = [c for c in model.joints[root].coordinates if c in set(free)]
     if len(on_root) < 3 or not root_free:
         return z0
-    kin = _Kinematics(model, [marker_index[k] for k in on_root], root_free, joints=[root])
+    kin = _Kinematics.of(model, [marker_index[k] for k in on_root], root_free, joints=[root])
     candidates = _root_candidates(model, kin)
     sub = _Problem(
         kin,
@@ -487,7 +538,8 @@ def _propagate(
         improved = False
         for part in (slice(0, len(from_left)), slice(len(from_left), None)):  # each side holds a frame once
             target = frames[part]
-            better = cost_try[part] < cost[target] * (1 - 1e-9)
+            # better by more than the solver's tolerance: a lower cost within it is the same minimum
+            better = cost_try[part] < cost[target] * (1 - tolerance)
             z[target[better]] = z_try[part][better]
             cost[target[better]] = cost_try[part][better]
             improved |= bool(better.any())
@@ -565,6 +617,42 @@ def tracked_markers(
     return model_index, data_index, np.asarray(w, dtype=float)
 
 
+#: The factor by which the markers' spread may differ from the model's before a length unit is taken to be wrong:
+#: people differ from their (generic or scaled) model by far less, a unit mistake is 10x (mm/cm), 100x or 1000x.
+UNIT_FACTOR = 3.0
+
+
+def check_marker_scale(markers: Markers, model: BodyModel, source=None) -> None:
+    """Refuse (`DataFormatError` naming ``source``, the file) markers whose spread about their centre differs from
+    the model's markers' by more than `UNIT_FACTOR`: a file in millimetres declared in metres puts the subject 1.8 km
+    tall, and IK would fit it without a word. Compares the median over frames of the RMS distance of the visible
+    tracked markers from their centroid with the same for the model's markers in its default pose."""
+    from biomotion.body.kinematics import marker_positions
+
+    model_index, data_index, _ = tracked_markers(model, markers, None)
+    if len(model_index) < 3:
+        return
+    frames = markers.positions[:: max(1, markers.n_frames // 50), data_index]  # [F, K, 3], up to ~50 frames
+    spreads = []
+    for frame in frames:
+        visible = frame[np.isfinite(frame).all(axis=-1)]
+        if len(visible) >= 3:
+            spreads.append(np.sqrt(np.mean(np.sum((visible - visible.mean(axis=0)) ** 2, axis=-1))))
+    if not spreads:
+        return
+    with torch.no_grad():
+        points = marker_positions(model, model.defaults[None])[0, model_index].detach().cpu().numpy()
+    expected = float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=-1))))
+    found = float(np.median(spreads))
+    if expected > 0 and not 1 / UNIT_FACTOR <= found / expected <= UNIT_FACTOR:
+        raise DataFormatError(
+            source,
+            f"the markers spread {found:.3g} m about their centre, the model's {expected:.3g} m ({found / expected:.3g}"
+            " times): a length unit is wrong (millimetres declared as metres?)",
+            field="Units",
+        )
+
+
 def _task_targets(
     model: BodyModel, tasks: Sequence[CoordinateTask], times: np.ndarray, coordinate_data: Motion | None
 ) -> tuple[list[int], list[float], np.ndarray]:
@@ -618,7 +706,7 @@ def _setup(
     coordinate_data: Motion | None,
     time_range: tuple[float, float] | None,
 ) -> _Setup:
-    model = model.to(_F64)
+    model = model if model.dtype == _F64 else model.to(_F64)  # the same object keeps its cached kinematic tree
     if time_range is not None:
         markers = within(markers, time_range)
     model_index, data_index, w = tracked_markers(model, markers, weights)
@@ -633,7 +721,7 @@ def _setup(
     visible = torch.isfinite(positions).all(-1)
     observed = torch.where(visible[..., None], positions, torch.zeros_like(positions))
     columns, task_w, targets = _task_targets(model, coordinate_tasks, markers.times, coordinate_data)
-    kinematics = _Kinematics(model, model_index, free)
+    kinematics = _Kinematics.of(model, model_index, free)
     clamped = model.clamped[free] & ~kinematics.full_turn
     infinite = torch.full((len(free),), math.inf, dtype=_F64)
     lower = torch.where(clamped, model.ranges[free, 0].to(_F64), -infinite)
@@ -759,10 +847,16 @@ def _other_set(
     alternative[:, c] = z[:, c] + math.pi
     alternative[:, b] = (math.pi - 2 * intercept) / slope - z[:, b]
     alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
-    _, alt_cost, _, _ = problem.evaluate(alternative, derivatives=False)
-    valid = _in_range(alternative, columns, problem.lower, problem.upper) & (
-        (alt_cost - cost).abs() <= 1e-9 * cost.abs() + 1e-12
-    )
+    valid = _in_range(alternative, columns, problem.lower, problem.upper)
+    kin = problem.kinematics
+    coordinates = {int(kin.free[k]) for k in columns}
+    seen = {int(c) for c in problem.task_columns} | {c.independent for c in kin.couplers}
+    inside = valid.nonzero().squeeze(-1)
+    # the two sets give one pose, so the same marker objective: only coordinate tasks and couplers on the joint's
+    # coordinates can tell them apart, and only in range is it worth asking
+    if inside.numel() and coordinates & seen:
+        _, alt_cost, _, _ = problem.frames(inside).evaluate(alternative[inside], derivatives=False)
+        valid[inside] = (alt_cost - cost[inside]).abs() <= 1e-9 * cost[inside].abs() + 1e-12
     return alternative, valid
 
 

@@ -142,11 +142,12 @@ def solve_static_optimization(
     # the frames still iterating: a frame leaves when balanced, or when its imbalance has not dropped by
     # STALL_GAIN in STALL_ITERATIONS iterations (the bounds cannot balance it); the rest iterate on their own
     live = torch.arange(t)
+    b_l, tau_l = b, torques  # the live frames' problem, gathered again only when frames leave
     best = torch.full((t,), torch.inf, dtype=dtype)
     since_best = torch.zeros(t, dtype=torch.long)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
-        b_l, tau_l, lam_l, s_l, w_l, slope_l = b[live], torques[live], lam[live], s[live], w[live], slope[live]
+        lam_l, s_l, w_l, slope_l = lam[live], s[live], w[live], slope[live]
         gradient = tau_l - _apply(b_l, w_l)  # dual ascent direction
         imbalance = gradient.abs().amax(-1)
         improved = imbalance < (1 - STALL_GAIN) * best[live]
@@ -169,23 +170,30 @@ def solve_static_optimization(
         slope_along = (gradient * step).sum(-1)
         alpha = torch.ones(n, dtype=dtype)
         accepted = torch.zeros(n, dtype=torch.bool)
-        new = (lam_l, s_l, w_l, slope_l)
-        for _ in range(30):  # backtracking on the concave dual; frames accept independently
-            trial = lam_l + alpha[:, None] * step
-            s_trial = _apply_transposed(b_l, trial)
+        new = [lam_l.clone(), s_l.clone(), w_l.clone(), slope_l.clone()]
+        # backtracking on the concave dual; frames accept independently, and only the ones still looking for a
+        # step are evaluated again (one stubborn frame no longer costs the whole batch its halvings)
+        rows = torch.arange(n)
+        pending = (b_l, tau_l, lam_l, step, value, slope_along, imbalance)
+        for _ in range(30):
+            b_p, tau_p, lam_p, step_p, value_p, along_p, imbalance_p = pending
+            a = alpha[rows]
+            trial = lam_p + a[:, None] * step_p
+            s_trial = _apply_transposed(b_p, trial)
             w_trial, slope_trial = _actuator_response(s_trial, lower, upper, exponent)
-            gain = _dual_value(trial, w_trial, s_trial, tau_l, exponent) >= value + 1e-4 * alpha * slope_along
+            gain = _dual_value(trial, w_trial, s_trial, tau_p, exponent) >= value_p + 1e-4 * a * along_p
             # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
-            drop = (tau_l - _apply(b_l, w_trial)).abs().amax(-1) <= 0.5 * imbalance
-            take = (gain | drop) & ~accepted
-            new = tuple(
-                torch.where(take.view(-1, *([1] * (x.dim() - 1))), y, x)
-                for x, y in zip(new, (trial, s_trial, w_trial, slope_trial))
-            )
-            accepted = accepted | take
-            if bool(accepted.all()):
+            drop = (tau_p - _apply(b_p, w_trial)).abs().amax(-1) <= 0.5 * imbalance_p
+            take = gain | drop
+            taken = rows[take]
+            for target, value_t in zip(new, (trial, s_trial, w_trial, slope_trial)):
+                target[taken] = value_t[take]
+            accepted[taken] = True
+            if bool(take.all()):
                 break
-            alpha = torch.where(accepted, alpha, alpha / 2)
+            rows = rows[~take]
+            alpha[rows] = alpha[rows] / 2
+            pending = tuple(x[~take] for x in pending)
         lam[live], s[live], w[live], slope[live] = new
         full = accepted & (alpha == 1)
         damping[live] = torch.where(accepted, torch.where(full, damping_l / 3, damping_l), damping_l * 10).clamp(

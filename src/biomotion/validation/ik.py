@@ -278,6 +278,9 @@ def run_case(
         trc = write_trc(Path(folder) / "markers.trc", markers)
         seconds = solve_seconds = math.inf
         for _ in range(repeats):
+            # a fresh model each run, loaded outside the clock as OpenSim's is: the structures built from it (the
+            # kinematic tree, cached on the model) count, as OpenSim's initSystem inside run() does
+            model = BodyModel.from_osim(model_path)
             began = time.perf_counter()
             trial = read_trc(trc, time_range)
             solving = time.perf_counter()
