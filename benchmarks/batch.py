@@ -41,14 +41,15 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def machine() -> dict:
-    """Load average and the busiest processes (what else was running)."""
+    """Load average and the busiest processes (what else was running): CPU %, elapsed time and the program's name
+    only, no arguments (they carry machine paths)."""
     try:
         load = [round(x, 2) for x in os.getloadavg()]
     except OSError:
         load = None
     try:
         top = subprocess.run(
-            ["ps", "-eo", "pcpu,etime,args", "--sort=-pcpu"], capture_output=True, text=True, timeout=10
+            ["ps", "-eo", "pcpu,etime,comm", "--sort=-pcpu"], capture_output=True, text=True, timeout=10
         ).stdout.splitlines()[1:8]
     except (OSError, subprocess.SubprocessError):
         top = []

@@ -9,6 +9,7 @@ for a given person and action::
     model = bm.BodyModel.from_osim("subject_scaled.osim")
     result = bm.analyze_trial(trial, model=model, forces=bm.read("walk_grf.mot"))
     result.angles, result.torques, result.ground_reaction, result.dynamics.zmp
+    no_plates = bm.analyze_trial(trial, model=model, forces=bm.learned_forces())  # GRF learned from plates
 
 Every name in ``__all__`` is the Python call behind a ``biomotion`` command; each is imported on first use, so
 ``import biomotion`` stays light (no torch until something needs it).
@@ -47,10 +48,18 @@ _API = {
     "analyze": "biomotion.analysis.chain",
     "analyze_trial": "biomotion.analysis.trial",
     "TrialAnalysis": "biomotion.analysis.trial",
+    # a whole study, and verdicts on motion (biomotion batch, check)
+    "batch": "biomotion.analysis.batch",
+    "load_study": "biomotion.analysis.study",
+    "check": "biomotion.analysis.check",
+    "learned_forces": "biomotion.models.ground_forces",
+    "LearnedGroundReaction": "biomotion.models.ground_forces",
     # data, generation, evaluation, validation, viewing
     "DatasetCache": "biomotion.data.registry",
     "build_cache": "biomotion.data.registry",
     "generate": "biomotion.generation.request",
+    "refine": "biomotion.generation.refinement",
+    "Refined": "biomotion.generation.refinement",
     "evaluate": "biomotion.evaluation.harness",
     "eval_generation": "biomotion.evaluation.generation",
     "run_validation": "biomotion.validation.run",

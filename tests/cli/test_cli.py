@@ -298,3 +298,44 @@ def test_analyze_names_motion_columns_the_model_lacks(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "10 column(s) name no coordinate of 3DGaitModel2392 and are ignored: arm_flex_r, arm_add_r" in err
     assert (tmp_path / "torques.sto").exists()
+
+
+def test_argument_errors_are_one_line(capsys):
+    """argparse printed its usage (ten lines for generate) before the error; now one line, as biomotion's own."""
+    for argv, named in (
+        (["generate", "--seconds", "inf"], "argument --seconds: 'inf': must be a finite number"),
+        (["analyze"], "the following arguments are required: trial, --model, --out"),
+        (["frobnicate"], "invalid choice: 'frobnicate'"),
+        (["data", "build", "--rate", "0", "--out", "x"], "argument --rate: 0: must be at least 1"),
+    ):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1 and named in err, err
+
+
+def test_an_output_under_a_file_names_the_output(tmp_path, capsys):
+    """OUTPUT whose folder is a file: the error named the file's parent with OSError's 'File exists'."""
+    (tmp_path / "afile").write_text("a file\n")
+    source = data_path("opensim-models/Pipelines/Gait2392_Simbody/subject01_walk1_ik.mot")
+    assert main(["convert", str(source), str(tmp_path / "afile" / "out.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "afile/out.csv: OUTPUT cannot be written" in err and "is a file, not a folder" in err
+
+
+def test_data_sources_refuse_a_data_root_that_is_no_folder(tmp_path, capsys):
+    """A mistyped --data-root listed every source as absent."""
+    assert main(["data", "sources", "--data-root", str(tmp_path / "nowhere")]) == 2
+    assert "nowhere: --data-root is not a folder" in capsys.readouterr().err
+    assert main(["data", "sources", "--data-root", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.count(" absent ") >= 5
+
+
+def test_a_training_config_error_names_the_config_file(tmp_path, capsys):
+    """'surrogate config lacks the setting ...' did not say which file."""
+    config = tmp_path / "surrogate.yaml"
+    for text, message in (("model: {}\n", "lacks the setting 'data'"), ("data: 3\ntrain: {}\n", "of the wrong type")):
+        config.write_text(text)
+        argv = ["train", "surrogate", "--config", str(config), "--cache", str(tmp_path), "--out", str(tmp_path / "w")]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {config}: surrogate config") and message in err, err

@@ -11,8 +11,9 @@ splines.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -43,7 +44,7 @@ class Analysis:
     motion: Motion  # filtered coordinates in model order (couplers applied)
     velocities: np.ndarray  # [T, n_q] their time derivatives (the ones the torques used)
     torques: np.ndarray  # [T, n_q] generalized forces with the loads used
-    torques_source: str  # "measured" or "inferred"
+    torques_source: str  # "measured", "inferred" or "learned": the force source of the torques
     inferred: GroundReaction  # per foot, from kinematics only
     measured: GroundReaction | None  # per foot, from the plates (assigned to feet), on the motion's frames
     root_residual: np.ndarray  # [T, 6] root generalized force the inferred contact could not supply
@@ -56,6 +57,7 @@ class Analysis:
     contact_points: np.ndarray  # [T, K, 3] foot contact points of the contact model
     contact_loaded: np.ndarray  # [T, K] bool, point carries > 10 N of inferred normal force
     model: BodyModel
+    learned: GroundReaction | None = None  # per foot, from a learned estimator (`GroundForceEstimator`) when given
 
     @property
     def body_weight(self) -> float:
@@ -165,6 +167,58 @@ def assign_to_feet(
     return GroundReaction(times=times, names=("r", "l"), force=out_force, cop=cop, moment=out_moment, bodies=bodies)
 
 
+def measured_loads(forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray) -> GroundReaction:
+    """The plates as loads on the motion's frames: channels that name their body (an ExternalLoads file, a plate
+    override) are applied to it, the others go to the feet frame by frame (`assign_to_feet`); both kinds may be
+    mixed, e.g. one plate overridden and the rest assigned automatically."""
+    named = [name for name, body in zip(forces.names, forces.bodies) if body]
+    if len(named) == forces.n_channels:
+        return loads_on_frames(forces, times)
+    free = [name for name in forces.names if name not in named]
+    feet = assign_to_feet(forces.select(free), model, q, times)
+    if not named:
+        return feet
+    given = loads_on_frames(forces.select(named), times)
+    return GroundReaction(
+        times=times,
+        names=given.names + feet.names,
+        force=np.concatenate([given.force, feet.force], axis=1),
+        cop=np.concatenate([given.cop, feet.cop], axis=1),
+        moment=np.concatenate([given.moment, feet.moment], axis=1),
+        bodies=given.bodies + feet.bodies,
+    )
+
+
+def plate_assignment(
+    forces: GroundReaction, model: BodyModel, q: torch.Tensor, times: np.ndarray, threshold: float = 20.0
+) -> dict[str, dict]:
+    """How each plate channel was put on the feet, for reports: ``{"mode": "given", "body": ...}`` for a channel
+    that names its body, else ``{"mode": "auto", "frames": n, "right": share, "left": share}`` over the ``n``
+    frames where it carries more than ``threshold`` N (the usual stance threshold), from the per-frame rule of
+    `assign_to_feet` (a treadmill's single plate shows both feet; a floor plate one)."""
+    free = [j for j, body in enumerate(forces.bodies) if not body]
+    out: dict[str, dict] = {}
+    if free:
+        _, loaded, nearest_right = _nearest_feet(
+            forces.select([forces.names[j] for j in free]), model, q, times, threshold
+        )
+    for j, (name, body) in enumerate(zip(forces.names, forces.bodies)):
+        if body:
+            out[name] = {"mode": "given", "body": body}
+            continue
+        k = free.index(j)
+        frames = loaded[:, k]
+        count = int(frames.sum())
+        right = float(nearest_right[frames, k].mean()) if count else 0.0
+        out[name] = {
+            "mode": "auto",
+            "frames": count,
+            "right": right if count else 0.0,
+            "left": 1.0 - right if count else 0.0,
+        }
+    return out
+
+
 def loads_on_frames(forces: GroundReaction, times: np.ndarray) -> GroundReaction:
     """Loads whose bodies are already known (e.g. from an ExternalLoads file), on the motion's frames; no load
     outside the recording."""
@@ -203,6 +257,23 @@ def _as_ground_reaction(inferred: InferredForces, times: np.ndarray) -> GroundRe
     )
 
 
+class GroundForceEstimator(Protocol):
+    """A ground reaction estimated from an analysed motion, for the torques (`analyze`'s ``estimator``), such as
+    `biomotion.models.ground_forces.LearnedGroundReaction`. ``name`` is recorded as the torques' force source;
+    ``cutoff_hz`` is the low-pass of the coordinates the estimator was made for (it is given an analysis filtered
+    so, whatever filter the torques use; None: the torques' own); ``check`` raises a one-line
+    `biomotion.errors.BiomotionError` for a motion (in model order, before filtering) the estimator cannot take,
+    before any work is done; ``ground_reaction`` returns per-foot loads naming their bodies, on the analysis's
+    frames."""
+
+    name: str
+    cutoff_hz: float | None
+
+    def check(self, motion: Motion, model: BodyModel) -> None: ...
+
+    def ground_reaction(self, result: Analysis) -> GroundReaction: ...
+
+
 def analyze(
     motion: Motion,
     model: BodyModel,
@@ -210,10 +281,15 @@ def analyze(
     *,
     cutoff_hz: float = 6.0,
     contact: ContactSettings = ContactSettings(),
+    estimator: GroundForceEstimator | None = None,
 ) -> Analysis:
     """Torques, GRF (inferred always; measured plates assigned to feet when given, or applied to the bodies they
-    name when every channel has one), COM, ZMP and energy."""
-    coordinates = unwrapped(model_motion(motion, model), model)
+    name when every channel has one), COM, ZMP and energy. With an ``estimator`` the torques use its ground
+    reaction (kept as ``learned``) and measured plates, when given too, are kept for comparison."""
+    coordinates = model_motion(motion, model)
+    if estimator is not None:
+        estimator.check(coordinates, model)
+    coordinates = unwrapped(coordinates, model)
     if cutoff_hz and coordinates.n_frames > 15:
         coordinates, qd_np, qdd_np = coordinates.smoothed(cutoff_hz)
     else:
@@ -223,11 +299,7 @@ def analyze(
     measured = None
     with torch.no_grad():
         if forces is not None:
-            measured = (
-                loads_on_frames(forces, coordinates.times)
-                if all(forces.bodies)
-                else assign_to_feet(forces, model, q, coordinates.times)
-            )
+            measured = measured_loads(forces, model, q, coordinates.times)
             torques = inverse_dynamics(model, q, qd, qdd, _loads(measured, model.dtype))
         else:
             torques = inferred.torques
@@ -235,7 +307,7 @@ def analyze(
         com = center_of_mass_motion(model, q, qd, qdd, bodies)
         zmp = zero_moment_point(model, q, qd, qdd, bodies=bodies)
         kinetic, potential = mechanical_energy(model, q, qd)
-    return Analysis(
+    result = Analysis(
         motion=coordinates,
         velocities=np.asarray(qd_np),
         torques=torques.numpy(),
@@ -253,6 +325,14 @@ def analyze(
         contact_loaded=(inferred.point_forces[..., 1] > 10.0).numpy(),
         model=model,
     )
+    if estimator is None:
+        return result
+    wanted = estimator.cutoff_hz
+    same = not wanted or wanted == cutoff_hz
+    learned = estimator.ground_reaction(result if same else analyze(motion, model, cutoff_hz=wanted, contact=contact))
+    with torch.no_grad():
+        torques = inverse_dynamics(model, q, qd, qdd, _loads(learned, model.dtype))
+    return replace(result, torques=torques.numpy(), torques_source=estimator.name, learned=learned)
 
 
 def torque_labels(model: BodyModel) -> list[str]:
@@ -328,6 +408,7 @@ def summary(result: Analysis) -> dict:
         "rate_hz": result.motion.rate,
         "duration_s": result.motion.duration,
         "body_mass_kg": float(result.model.total_mass),
+        "force_source": result.torques_source,
         "torques_from": result.torques_source,
         "peak_inferred_vertical_grf_bw": float(inferred_vertical.max() / weight),
         "mean_abs_root_residual": dict(
@@ -341,6 +422,8 @@ def summary(result: Analysis) -> dict:
         "mechanical_energy_std_j": float(np.std(result.kinetic + result.potential)),
         "zmp_inside_support_share": zmp_inside_support(result),
     }
+    if result.learned is not None:
+        out["peak_learned_vertical_grf_bw"] = float(result.learned.force[..., 1].sum(1).max() / weight)
     if result.measured is not None:
         keep = plate_frames(result)
         measured_vertical = result.measured.force[..., 1].sum(1)
@@ -352,6 +435,10 @@ def summary(result: Analysis) -> dict:
         out["com_baseline_vs_measured_vertical"] = vertical_agreement(
             com_estimate[keep], measured_vertical[keep], weight
         )
+        if result.learned is not None:
+            out["learned_vs_measured_vertical"] = vertical_agreement(
+                result.learned.force[keep, :, 1].sum(1), measured_vertical[keep], weight
+            )
         out["peak_measured_vertical_grf_bw"] = float(measured_vertical.max() / weight)
         distance = zmp_to_plate_cop(result, keep)
         out["zmp_vs_plate_cop"] = {
@@ -435,6 +522,11 @@ def write_analysis(
     files["grf_inferred_loads"] = write_external_loads_xml(
         out / f"{Path(grf_file).stem}_loads.xml", result.inferred, grf_file
     )
+    if result.learned is not None:
+        files["grf_learned"] = write_ground_reaction(out / "grf_learned.mot", result.learned, name="grf_learned")
+        files["grf_learned_loads"] = write_external_loads_xml(
+            out / "grf_learned_loads.xml", result.learned, "grf_learned.mot"
+        )
     if result.measured is not None:
         files["grf_measured"] = write_ground_reaction(
             out / "grf_measured_by_foot.mot", result.measured, name="grf_measured_by_foot"

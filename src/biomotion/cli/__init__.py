@@ -19,15 +19,39 @@ from importlib import import_module
 from biomotion.cli._common import DATA_ROOT_VARIABLE, default_data_root
 
 #: Verbs in the order ``biomotion --help`` lists them, each the name of its module in this package.
-VERBS = ("analyze", "generate", "scale", "retarget", "convert", "inspect", "view", "eval", "validate", "data", "train")
+VERBS = (
+    "analyze",
+    "batch",
+    "check",
+    "generate",
+    "refine",
+    "scale",
+    "retarget",
+    "convert",
+    "inspect",
+    "view",
+    "eval",
+    "validate",
+    "data",
+    "train",
+)
 _MODULES = {"eval": "evaluate"}
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line, as biomotion prints its own (``error: <what> (<where>)``); the usage
+    argparse would print first is one ``--help`` away. Every verb's parser is one too (subparsers take the class
+    of their parent)."""
+
+    def error(self, message: str):
+        self.exit(2, f"error: {message} (`{self.prog} --help` lists the arguments)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The whole command-line interface (every verb's arguments)."""
     from biomotion import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="biomotion",
         description="Personalized, biomechanically plausible human motion: read captured motion, analyse it on a "
         "musculoskeletal model, generate motion for a person and an action, evaluate and view it.",
@@ -68,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         return done.code if isinstance(done.code, int) else 2
     import warnings
 
-    from biomotion.errors import BiomotionError
+    from biomotion.errors import BiomotionError, SettingsError
 
     try:
         from biomotion.body.kinematics import torch_threads
@@ -78,6 +102,9 @@ def main(argv: list[str] | None = None) -> int:
             warnings.showwarning = _one_line_warnings(warnings.showwarning)
             return int(args.run(args) or 0)
     except BiomotionError as error:
+        config = getattr(args, "config", None)
+        if isinstance(error, SettingsError) and config is not None:  # a setting of the --config file: name it
+            error = f"{config}: {error}"
         print(f"error: {error}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -14,7 +14,10 @@ DESCRIPTION = (
     "reaction inferred from the kinematics alone (always) and, with --grf, the measured plates assigned to the feet "
     "and used for the torques. Writes torques.sto, grf_inferred.mot (+ ExternalLoads XML), com_zmp.sto, "
     "coordinates_filtered.mot, summary.json, viewer.html and plots (joint angles, GRF, COM/ZMP) into --out; with "
-    "--muscles also activations.sto (static optimization of those torques). TRIAL may be captured motion too: "
+    "--muscles also activations.sto (static optimization of those torques). --forces learned (without plates) takes "
+    "the torques from the ground reaction a network trained on force plates predicts from the kinematics "
+    "(checkpoints/ground_forces.md; grf_learned.mot); summary.json's force_source says which forces the torques "
+    "used (measured, inferred or learned). TRIAL may be captured motion too: "
     "markers (.trc, .c3d) are first solved by inverse kinematics on MODEL (with --setup's weights, tasks and time "
     "range), a skeleton (.bvh, .bvh.gz) is retargeted onto MODEL (the generic model, scaled to the skeleton), "
     "exactly as `biomotion retarget` does; with --static and --scale-setup a generic MODEL is first scaled to the "
@@ -72,6 +75,27 @@ def add_parser(verbs) -> None:
     )
     parser.add_argument("--grf", type=Path, help="measured ground reaction (.mot external loads or .c3d)")
     parser.add_argument(
+        "--plates",
+        metavar="SPEC",
+        help="which foot each --grf plate carries: CHANNEL=right|left|none|BODY,... (e.g. 1=right,2=left,3=none; a "
+        "channel by number or name); plates not named are assigned to the feet automatically, per frame, and the "
+        "assignment is printed and kept in summary.json",
+    )
+    parser.add_argument(
+        "--forces",
+        choices=("measured", "inferred", "learned"),
+        help="ground reaction of the torques: measured (the --grf plates), inferred (the contact model, from the "
+        "kinematics alone) or learned (a network trained on force plates, from the kinematics; with --grf the "
+        "plates are kept for comparison) (default: measured with --grf, else inferred)",
+    )
+    parser.add_argument(
+        "--forces-model",
+        type=Path,
+        metavar="WEIGHTS",
+        help="--forces learned: a .safetensors file from `biomotion train ground-forces` (default: the shipped "
+        "checkpoints/ground_forces.safetensors)",
+    )
+    parser.add_argument(
         "--forces-trim",
         action="store_true",
         help="analyse only the frames the --grf file covers when it is shorter than the motion "
@@ -118,6 +142,12 @@ def _check_options(args: argparse.Namespace, captured: bool) -> None:
             "--static scales the model, which needs the measurements of an OpenSim Scale setup: give "
             "--scale-setup XML too (`biomotion scale --help`)"
         )
+    if args.forces == "measured" and args.grf is None:
+        raise ConfigError("--forces measured needs the plates: give --grf FILE")
+    if args.forces == "inferred" and args.grf is not None:
+        raise ConfigError("--forces inferred takes the torques from the kinematics alone: leave out --grf")
+    if args.forces_model is not None and args.forces != "learned":
+        raise ConfigError("--forces-model is the weights of --forces learned")
     skeleton = args.trial.name.lower().endswith(SKELETON_SUFFIXES)
     if skeleton and (args.setup is not None or args.scale_setup is not None):
         raise ConfigError(f"{args.trial} is a skeleton: IK and Scale setups weigh and measure markers")
@@ -136,6 +166,14 @@ def _forces(args: argparse.Namespace):
     forces = getattr(data, "forces", data)
     if forces is None or not hasattr(forces, "force"):
         raise DataFormatError(args.grf, "holds no force-plate data")
+    if args.plates:
+        from biomotion.analysis.study import parse_plates, plate_bodies
+
+        overrides = plate_bodies(forces.names, parse_plates(args.plates, "--plates"))
+        kept = [name for name in forces.names if overrides.get(name, "") is not None]
+        if not kept:
+            raise DataFormatError(args.grf, "--plates leaves no plate to use")
+        forces = forces.assign([overrides.get(n, b) for n, b in zip(forces.names, forces.bodies)]).select(kept)
     return forces
 
 
@@ -199,6 +237,12 @@ def _analyze(args: argparse.Namespace, captured: bool, scratch: Path):
         check = check_paths(paths, label, model_path, model.coordinate_names)
         if check.warning:
             print(f"warning: {check.warning}", file=sys.stderr)
+    if args.forces == "learned":  # the plates, if any, stay on the trial for comparison
+        from dataclasses import replace
+
+        from biomotion.models.ground_forces import learned_forces
+
+        trial, forces = replace(trial, forces=forces), learned_forces(args.forces_model)
     result = analyze_trial(
         trial,
         model=model,
@@ -209,6 +253,14 @@ def _analyze(args: argparse.Namespace, captured: bool, scratch: Path):
         muscle_model=model_path,
         cutoff_hz=args.cutoff,
     )
+    if forces is not None and result.dynamics.measured is not None:
+        import torch
+
+        from biomotion.analysis.chain import plate_assignment
+
+        dynamics = result.dynamics
+        q = torch.as_tensor(dynamics.motion.values, dtype=dynamics.model.dtype)
+        extra["plates"] = plate_assignment(forces, dynamics.model, q, dynamics.motion.times)
     files: dict[str, Path] = {}
     coordinates, analysed_model = args.trial, model_path
     if result.fit is not None:
@@ -287,13 +339,20 @@ def _figures(args: argparse.Namespace, coordinates: Path, model: Path, result, f
         )
     }
     out["plot_joint_angles"] = plot_joint_angles(dynamics.motion, scratch / "joint_angles")[0]
-    reaction = dynamics.measured if dynamics.measured is not None else dynamics.inferred
+    if dynamics.learned is not None:  # the learned forces the torques used, against the plates or the inferred
+        compared = "measured" if dynamics.measured is not None else "inferred"
+        reaction, label, other = dynamics.learned, "learned", getattr(dynamics, compared)
+    elif dynamics.measured is not None:
+        reaction, label, other, compared = dynamics.measured, "measured", dynamics.inferred, "inferred"
+    else:
+        reaction, label, other, compared = dynamics.inferred, "inferred", None, "inferred"
     out["plot_grf"] = plot_ground_reaction(
         reaction,
         scratch / "grf",
         body_weight=dynamics.body_weight,
-        inferred=dynamics.inferred if dynamics.measured is not None else None,
-        label="measured" if dynamics.measured is not None else "inferred",
+        inferred=other,
+        label=label,
+        other_label=compared,
     )[0]
     out["plot_balance"] = plot_balance(
         dynamics.com,
@@ -324,6 +383,20 @@ def _report(figures: dict, extra: dict, model_name: str, solution, files: dict) 
             f"  vertical GRF from kinematics vs plates: R2 {ours['r2']:.3f}, RMSE {ours['rmse_bw']:.3f} BW "
             f"(COM baseline: R2 {base['r2']:.3f}, RMSE {base['rmse_bw']:.3f} BW)"
         )
+    if "learned_vs_measured_vertical" in figures:
+        learned = figures["learned_vs_measured_vertical"]
+        print(f"  learned vertical GRF vs plates: R2 {learned['r2']:.3f}, RMSE {learned['rmse_bw']:.3f} BW")
+    if extra.get("plates"):
+        parts = []
+        for channel, a in extra["plates"].items():
+            if a["mode"] == "given":
+                parts.append(f"{channel} -> {a['body']} (given)")
+            elif a["frames"]:
+                shares = "/".join(f"{side} {100 * a[side]:.0f}%" for side in ("right", "left") if a[side])
+                parts.append(f"{channel} -> {shares} of {a['frames']} loaded frames (auto)")
+            else:
+                parts.append(f"{channel}: never loaded")
+        print(f"  plates: {'; '.join(parts)}")
     if solution is not None:
         muscles = extra["muscles"]
         print(

@@ -14,8 +14,12 @@ DESCRIPTION = (
     "dataset cache) and, with --ref, compares it with reference motion (PG-BIG Table 2 / PhysPT Table 1 layout). "
     "`biomotion eval reference` scores every source of the dataset registry under --data-root per source and "
     "action: the Reference column. `biomotion eval generation` generates for every unseen subject of --data-root "
-    "and tabulates PG-BIG Tables 2-3. Every mode works on any folder laid out like ../shared/data, whoever is in "
-    "it. Python: biomotion.evaluate, biomotion.eval_generation."
+    "and tabulates PG-BIG Tables 2-3. `biomotion eval ground-forces` scores the learned ground reaction on people it "
+    "never saw: leave-subject-out folds over the Fukuchi runners of --data-root (each fold trained on the others), "
+    "and the shipped weights on OpenCap per activity, beside m(g + a_COM) and the contact model. Every mode works "
+    "on any folder laid out like ../shared/data, whoever is in "
+    "it. Python: biomotion.evaluate, biomotion.eval_generation, "
+    "biomotion.evaluation.ground_forces.eval_ground_forces."
 )
 
 
@@ -28,12 +32,20 @@ def add_parser(verbs) -> None:
     parser.add_argument(
         "mode",
         nargs="?",
-        choices=("reference", "generation"),
+        choices=("reference", "generation", "ground-forces", "refine"),
         help="reference: score the real data (reference table); generation: generate for every "
         "unseen subject of --data-root and tabulate PG-BIG Tables 2-3 (full model, w/o "
         "guidance, w/o personalization, population baseline), the identity probe and the "
-        "profile-manipulation study",
+        "profile-manipulation study; ground-forces: the learned ground reaction, leave-subject-out on the "
+        "Fukuchi runners and the shipped weights on OpenCap; refine: the PhysPT refiner on corrupted clips of "
+        "the subjects it never saw (against a tuned low-pass), on PG-BIG's generated clips, and its speed",
     )
+    parser.add_argument(
+        "--refiner",
+        type=Path,
+        help="refine: refiner weights (default: checkpoints/refiner.safetensors); --checkpoints names the generator",
+    )
+    parser.add_argument("--no-generated", action="store_true", help="refine: skip the generated clips (no generator)")
     parser.add_argument("--pred", nargs="+", type=Path, help="predicted motion: files or one folder")
     parser.add_argument("--ref", nargs="+", type=Path, help="reference motion: files or one folder")
     add_data_root(
@@ -41,10 +53,44 @@ def add_parser(verbs) -> None:
     )
     parser.add_argument("--json", type=Path, help="JSON report to write")
     parser.add_argument("--md", type=Path, help="Markdown table to write (--pred: printed when not given)")
-    parser.add_argument("--plots", type=Path, help="folder for per-clip distribution plots")
+    parser.add_argument(
+        "--plots",
+        type=Path,
+        help="folder for per-clip distribution plots (ground-forces: a figure of example trials)",
+    )
     parser.add_argument("--physics", action="store_true", help="also full-body energy and ZMP-in-support (slower)")
     parser.add_argument("--no-physics", action="store_true", help="reference: skip the slower physics metrics")
-    parser.add_argument("--checkpoints", type=Path, help="generation: folder of trained weights (default: shipped)")
+    parser.add_argument(
+        "--checkpoints",
+        type=Path,
+        help="generation, ground-forces: folder of trained weights (default: shipped); ground-forces reads its "
+        "ground_forces.safetensors",
+    )
+    parser.add_argument(
+        "--folds",
+        type=number(2, 1000, integer=True),
+        default=None,
+        help="generation: cross-validate by subject in this many folds, every fold's models trained without "
+        "its subjects (biomotion.evaluation.generation_cv); ground-forces: leave-subject-out folds over the "
+        "Fukuchi runners, at most one per runner (default: 5)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="generation: the cross-validation's quick variant (two folds of a few subjects, models trained for "
+        "a few iterations; proves the protocol runs, its figures mean nothing)",
+    )
+    parser.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=None,
+        help="generation --folds: where the fold models are kept and found again (default: ~/.cache/biomotion)",
+    )
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="ground-forces: YAML training config of the fold models (default: the one recorded in the weights)",
+    )
     parser.add_argument(
         "--max-seconds",
         type=number(0.5, 600),
@@ -80,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.json, args.md):
         if path is not None:
             writable_file(path, "--json/--md")
+    if args.mode == "generation" and (args.folds is not None or args.quick):
+        return _generation_cv(args)
     if args.mode == "generation":
         from biomotion.evaluation.generation import eval_generation
 
@@ -105,6 +153,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {'–' if value is None else 'met' if value else 'NOT met':8s} {bar}")
         print(f"wrote {args.json}" + (f" and {args.md}" if args.md else ""))
         return 0
+    if args.mode == "ground-forces":
+        return _ground_forces(args)
+    if args.mode == "refine":
+        return _refine(args)
     if args.mode == "reference":
         from biomotion.evaluation.harness import reference_command
 
@@ -135,4 +187,113 @@ def run(args: argparse.Namespace) -> int:
     written = [str(path) for path in (args.json, args.md) if path is not None]
     if written:
         print(f"wrote {' and '.join(written)}")
+    return 0
+
+
+def _ground_forces(args: argparse.Namespace) -> int:
+    import yaml
+
+    from biomotion.errors import ConfigError, DataFormatError
+    from biomotion.evaluation.ground_forces import eval_ground_forces
+
+    if args.json is None:
+        raise ConfigError("eval ground-forces needs --json FILE")
+    if not args.data_root.is_dir():
+        raise ConfigError(f"{args.data_root}: --data-root is not a folder")
+    config = None
+    if args.config is not None:
+        if not args.config.is_file():
+            raise ConfigError(f"{args.config}: --config is not a file")
+        try:
+            config = yaml.safe_load(args.config.read_text())
+        except yaml.YAMLError as error:
+            raise DataFormatError(args.config, f"not valid YAML: {getattr(error, 'problem', error)}") from None
+    weights = args.checkpoints / "ground_forces.safetensors" if args.checkpoints is not None else None
+    report = eval_ground_forces(
+        args.data_root,
+        args.json,
+        args.md,
+        folds=5 if args.folds is None else args.folds,
+        checkpoint=weights,
+        config=config,
+        seed=args.seed,
+        command=command_line(),
+        plots=args.plots,
+        log=print,
+    )
+    for key in (
+        "grf_learned_vertical_rmse_bw",
+        "grf_learned_vertical_rmse_bw_mean",
+        "grf_learned_to_com_baseline",
+        "grf_learned_vertical_rmse_bw_opencap",
+    ):
+        value = report.get(key)
+        verdict = report["bars"].get(key)
+        mark = "" if verdict is None else " (met)" if verdict else " (NOT met)"
+        print(f"  {key}: {'–' if value is None else f'{value:.4f}'}{mark}")
+    for line in report["skipped"]:
+        print(f"  skipped {line}")
+    print(f"wrote {args.json}" + (f" and {args.md}" if args.md else ""))
+    return 0
+
+
+def _generation_cv(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from biomotion.errors import ConfigError
+    from biomotion.evaluation.generation_cv import QUICK, CVSettings, eval_generation_cv
+    from biomotion.training.folds import train_fold  # the evaluation layer cannot import training: handed in
+
+    if args.json is None:
+        raise ConfigError("eval generation --folds needs --json FILE")
+    settings = QUICK if args.quick else CVSettings()
+    settings = replace(
+        settings,
+        folds=settings.folds if args.folds is None else args.folds,
+        repeats=settings.repeats if args.quick else args.repeats,
+        max_seconds=settings.max_seconds if args.quick else args.max_seconds,
+        seed=args.seed,
+    )
+    report = eval_generation_cv(
+        args.data_root,
+        args.json,
+        args.md,
+        checkpoints=args.checkpoints,
+        settings=settings,
+        cache_dir=args.cache_dir,
+        trainer=train_fold,
+        command=command_line(),
+    )
+    print(f"cross-validated {report['subjects']} subjects in {len(report['folds'])} folds ({report['seconds']:.0f} s)")
+    for key, met in report["bars"].items():
+        values = ", ".join("–" if v is None else f"{v:.2f}" for v in report["per_fold"][key])
+        worst = report[key]
+        print(
+            f"  {'–' if met is None else 'met' if met else 'NOT met':8s} {key}: worst "
+            f"{'–' if worst is None else f'{worst:.2f}'} (per fold {values})"
+        )
+    print(f"wrote {args.json}" + (f" and {args.md}" if args.md else ""))
+    return 0
+
+
+def _refine(args: argparse.Namespace) -> int:
+    from biomotion.evaluation.refine import eval_refine
+
+    json_path = args.json or Path("docs/results/eval_refine.json")
+    md_path = args.md or (json_path.with_suffix(".md") if args.json is None else None)
+    writable_file(json_path, "--json")
+    report = eval_refine(
+        args.data_root,
+        json_path,
+        md_path,
+        refiner_path=args.refiner,
+        checkpoints=args.checkpoints,
+        seed=args.seed,
+        generated=not args.no_generated,
+        command=command_line(),
+    )
+    for key, row in report["bars"].items():
+        value = "–" if row["value"] is None else f"{row['value']:.3f}"
+        print(f"  {'–' if row['met'] is None else 'met' if row['met'] else 'NOT met':8s} {key}: {value} ({row['bar']})")
+    print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
     return 0

@@ -22,7 +22,7 @@ FITTING = (
 def add_parser(verbs) -> None:
     train = verbs.add_parser(
         "train",
-        help="train the tokenizer, generator and muscle surrogate; label the cache; "
+        help="train the tokenizer, generator, muscle surrogate and learned ground forces; label the cache; "
         "fit muscle paths and ANSUR segment lines",
         description="Fit biomotion's learned parts from data. Each writes .safetensors weights "
         "and a model card (.json, .md) beside them. " + FITTING,
@@ -126,6 +126,57 @@ def add_parser(verbs) -> None:
     segments.add_argument("--out", type=Path, required=True, help="output .json")
     segments.set_defaults(run=_segments)
 
+    forces = models.add_parser(
+        "ground-forces",
+        help="the learned ground reaction (GRF and CoP from kinematics), supervised by force plates",
+        description="Train the network that corrects m(g + a_COM) into per-foot ground forces and centres of "
+        "pressure from the kinematics, on every Fukuchi treadmill trial with its force plate under --data-root "
+        "(analysed once and cached under ~/.cache/biomotion/ground_forces). Minutes on one CPU thread; fixed "
+        "iterations and seed. Held-out figures: `biomotion eval ground-forces`. "
+        "Python: biomotion.training.train_ground_forces.train.",
+    )
+    forces.add_argument("--config", type=Path, required=True, help="YAML config (configs/ground_forces.yaml)")
+    add_data_root(forces, "folder with fukuchi-running/ (runners with running C3D, model and IK)")
+    forces.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    forces.add_argument(
+        "--exclude-subjects",
+        nargs="+",
+        default=[],
+        metavar="RUNNER",
+        help="runners to leave out of training (e.g. RBDS001), to score them held out",
+    )
+    forces.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
+    forces.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
+    forces.add_argument("--quiet", action="store_true", help="no progress lines")
+    forces.set_defaults(run=_ground_forces)
+
+    refiner = models.add_parser(
+        "refiner",
+        help="the PhysPT refiner (noisy motion -> physically consistent motion, torques, contact forces)",
+        description="Train the PhysPT refiner self-supervised on a dataset cache (`biomotion data build`): real "
+        "clips corrupted like markerless capture (jitter, drift, foot sliding, root bounce, dropped frames) "
+        "must come back clean, with force, contact and Euler-Lagrange losses through the body model (Zhang et "
+        "al. 2024, Sec. 3.2). Fixed iterations and seed; the contact QP of every clean clip is computed once "
+        "and cached under ~/.cache/biomotion/refiner. Python: biomotion.training.train_refiner.train.",
+    )
+    refiner.add_argument("--config", type=Path, required=True, help="YAML training config (configs/refiner.yaml)")
+    refiner.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    refiner.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    add_data_root(refiner, "folder with opensim-models/ (the canonical Rajagopal model)")
+    refiner.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
+    refiner.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
+    refiner.add_argument(
+        "--threads",
+        type=number(1, 256, integer=True),
+        help="torch CPU threads (default: the config's train.threads); results depend on it only by rounding",
+    )
+    refiner.add_argument("--quiet", action="store_true", help="no progress bar")
+    refiner.set_defaults(run=_refiner)
+
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, required=True, help="YAML training config (configs/)")
@@ -184,6 +235,7 @@ def _tokenizer(args: argparse.Namespace) -> int:
 def _generator(args: argparse.Namespace) -> int:
     import json
 
+    from biomotion.io.tensors import read_metadata
     from biomotion.training.train_generator import refresh_statistics, train
 
     config = _config(args)
@@ -191,6 +243,7 @@ def _generator(args: argparse.Namespace) -> int:
         card = refresh_statistics(config, args.cache, args.data_root, args.out, command=command_line())
         print(f"{args.out}: statistics recomputed, SHA-256 {card['sha256']}")
         return 0
+    read_metadata(args.tokenizer, "tokenizer weights")  # a wrong file fails now, not after the cache is read
     card = train(
         config,
         args.cache,
@@ -211,9 +264,12 @@ def _surrogate(args: argparse.Namespace) -> int:
     import json
 
     from biomotion.body.kinematics import torch_threads
+    from biomotion.io.tensors import read_metadata
     from biomotion.training.train_surrogate import train
 
     config = _config(args)
+    if args.labels is not None:  # a wrong file fails now, not after the cache is read
+        read_metadata(args.labels, "surrogate labels")
     with torch_threads(args.threads):
         card = train(
             config,
@@ -284,4 +340,48 @@ def _segments(args: argparse.Namespace) -> int:
         json.dump(fit_lines(args.data_root / ANSUR_MEN), handle, indent=1)
         handle.write("\n")
     print(f"wrote {args.out}")
+    return 0
+
+
+def _ground_forces(args: argparse.Namespace) -> int:
+    import json
+
+    from biomotion.training.train_ground_forces import train
+
+    config = _config(args)
+    card = train(
+        config,
+        args.data_root,
+        args.out,
+        exclude_subjects=args.exclude_subjects,
+        iterations=args.iterations,
+        seed=args.seed,
+        command=command_line(),
+        log=None if args.quiet else print,
+    )
+    print(json.dumps({"train_frames": card["data"]["frames"], "fit_on_training_frames": card["metrics_train"]}))
+    for line in card["data"]["skipped"]:
+        print(f"  skipped {line}")
+    print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')})")
+    return 0
+
+
+def _refiner(args: argparse.Namespace) -> int:
+    import json
+
+    from biomotion.training.train_refiner import train
+
+    config = _config(args)
+    card = train(
+        config,
+        args.cache,
+        args.out,
+        data_root=args.data_root,
+        iterations=args.iterations,
+        seed=args.seed,
+        threads=args.threads,
+        progress=not args.quiet,
+        command=command_line(),
+    )
+    print(json.dumps({"val": card["val"]["means"], "lowpass_cutoff_hz": card["val"]["lowpass_cutoff_hz"]}, indent=1))
     return 0

@@ -20,6 +20,7 @@ from pathlib import Path
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.osim_file import ScaleResult, write_scale_set, write_scaled_osim
 from biomotion.errors import ConfigError
+from biomotion.ik.markers import check_marker_scale
 from biomotion.ik.retarget import MARKER_SUFFIXES, read_markers
 from biomotion.ik.scaling import scale_static
 from biomotion.io.atomic import atomic_write
@@ -93,6 +94,8 @@ def calibrate(
         markers = read_markers(static_path)
         markers = markers.filtered(filter_hz) if filter_hz else markers
     generic = BodyModel.from_osim(generic_path)
+    if markers is not None:
+        check_marker_scale(markers, generic, static_path)
     result = scale_static(generic, markers, setup, mass=mass)
     name = name or setup.name
     out = Path(out)

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from biomotion.body.model import BodyModel
 from biomotion.errors import BiomotionError, ConfigError
-from biomotion.ik.markers import solve_ik
+from biomotion.ik.markers import check_marker_scale, solve_ik
 from biomotion.ik.skeleton import FILTER_HZ, JointMap, joint_positions, retarget_skeleton, write_scaled_model
 from biomotion.io.bvh import read_bvh
 from biomotion.io.c3d import read_c3d_markers
@@ -138,10 +138,13 @@ def retarget_markers(
     weights: Mapping[str, float] | None = None,
     filter_hz: float | None = None,
     setup: IKSetup | None = None,
+    source: str | Path | None = None,
 ) -> Retargeted:
     """Inverse kinematics of ``markers`` on ``model`` (the subject's scaled model), after an optional
     ``filter_hz`` low-pass of the markers; an OpenSim IK ``setup`` adds its coordinate tasks (``from_file`` values
-    from its coordinate file) and its time range, as OpenSim's InverseKinematicsTool does."""
+    from its coordinate file) and its time range, as OpenSim's InverseKinematicsTool does. Markers whose size is
+    not the model's (a wrong length unit, `check_marker_scale`) are refused, naming ``source``, their file."""
+    check_marker_scale(markers, model, source)
     tasks, data, time_range = (), None, None
     if setup is not None:
         tasks, time_range = setup.coordinate_tasks, setup.time_range
@@ -193,7 +196,7 @@ def _retarget_markers(
     # the filter runs over the whole capture (its edges are not the window's), so only unfiltered reads are cut
     time_range = setup.time_range if setup is not None else None
     markers = read_markers(path, None if filter_hz else time_range)
-    result = retarget_markers(markers, model, weights=weights, filter_hz=filter_hz, setup=setup)
+    result = retarget_markers(markers, model, weights=weights, filter_hz=filter_hz, setup=setup, source=path)
     output = write_motion(out / f"{name}.mot", result.motion)
     return result.summary(name, output.name)
 

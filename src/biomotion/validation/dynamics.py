@@ -1,7 +1,7 @@
 """``biomotion validate kinematics|dynamics``: the body model against OpenSim 4.6, and GRF from kinematics against
 force plates.
 
-Figures (keys of the JSON report, issue 3):
+Figures (keys of the JSON report):
 - ``fk_max_err_m``: max body-origin (and marker) error vs OpenSim over random in-range poses of every model found;
 - ``id_solver_max_err_nm``: our inverse dynamics vs OpenSim's InverseDynamicsSolver given identical q, q̇, q̈ and
   external loads (gait2392 subject01 walk, the trials of OpenCap Subject4 and of any other subject under
@@ -12,13 +12,19 @@ Figures (keys of the JSON report, issue 3):
   kinematics vs the plates, over all evaluated frames of the Fukuchi T35 runners (their shipped IK, or for a
   runner with only captures, the C3D solved by the source's own chain) and the OpenCap trials;
 - ``*_plates_filtered``: the same against the plates' vertical force low-passed exactly as the coordinates are
-  (`Motion.smoothed` at the evaluation's cutoff). The issue states its runner-1 baseline (R² 0.976, RMSE 0.152 BW
-  at 10 Hz) without saying what it did to the plates; on RBDS001 the baseline reads 0.172 BW against the raw
-  plates and 0.158 against plates filtered this way, so that figure was most likely measured against filtered
-  plates. The bar figures above stay on the raw plates, the measurement itself; these are beside them.
+  (`Motion.smoothed` at the evaluation's cutoff). The GRF bar's runner-1 baseline (R² 0.976, RMSE 0.152 BW
+  at 10 Hz) is stated without saying what was done to the plates; on RBDS001 the baseline reads 0.172 BW against
+  the raw plates and 0.158 against plates filtered this way, so that figure was most likely measured against
+  filtered plates. The bar figures above stay on the raw plates, the measurement itself; these are beside them.
+- ``grf_learned_shipped_*``: the same vertical GRF from the shipped learned ground reaction
+  (`biomotion.models.ground_forces`, ``checkpoints/ground_forces.safetensors``) on the same frames, beside the
+  physics-only rows: ``_held_out`` pools the trials of people it was never trained on (OpenCap, and any Fukuchi
+  runner missing from its ``train_subjects``), ``_trained_on`` the Fukuchi runners it was trained on, where it is
+  not a held-out figure (``biomotion eval ground-forces`` gives the leave-subject-out ones). Left out, and said
+  so, when no shipped weights are present.
 - ``zmp_cop_rmse_m`` (and ``zmp_cop_rmse_m_per_source``): the ZMP from kinematics against the plates' combined
   centre of pressure on the same trials (`biomotion.analysis.chain.zmp_to_plate_cop`), the real-data check of the ZMP
-  that the balance metrics use. Not an issue bar.
+  that the balance metrics use. Not a bar.
 
 Clock rule: IK and plates share the capture clock in both sources (Fukuchi IK times come from the C3D, OpenCap's
 ``_ik.mot`` and ``_grf.mot`` share their time base), so no offset is applied or estimated. (Checked without the
@@ -29,13 +35,14 @@ physical lag explains both, and taking it from the plates would fit the test fra
 contact point within 2 cm of its rest height, vertical speed below 0.2 m/s) or a level where that foot stood
 still for 0.1 s without load on the plates (the drop-jump box) — carries < 20 N on the plates are left out: that
 foot is beside the plates (overground walking) or on something they do not measure, so the plate total is
-incomplete there. The rule uses no fitted quantity. Sit-to-stand trials are not in the GRF comparison (the issue
-lists drop jumps, squats and walking): the chair carries weight that no plate measures and that a feet-only
+incomplete there. The rule uses no fitted quantity. Sit-to-stand trials are not in the GRF comparison (the bar
+names drop jumps, squats and walking): the chair carries weight that no plate measures and that a feet-only
 contact model cannot place.
 """
 
 from __future__ import annotations
 
+import hashlib
 import tempfile
 import time
 from pathlib import Path
@@ -71,7 +78,7 @@ from biomotion.io.mot import (
 from biomotion.motion import GroundReaction, Motion
 from biomotion.validation.oracle import Oracle, opensim, random_poses, run_inverse_dynamics_tool
 
-#: Models the issue names, as globs under the data root (whatever subjects are present are used).
+#: Models the kinematics check covers, as globs under the data root (whatever subjects are present are used).
 MODEL_GLOBS = (
     "opensim-models/Models/Rajagopal/Rajagopal2016.osim",
     "opensim-models/Models/Rajagopal/RajagopalLaiUhlrich2023.osim",
@@ -340,11 +347,34 @@ def _grf_cases(data_root: Path) -> tuple[list[tuple[str, Path, object, object]],
     return cases, skipped
 
 
+def _shipped_learned(skipped: list[str]):
+    """The shipped learned ground reaction, or None (and a line in ``skipped``) when its weights are absent."""
+    from biomotion.models.ground_forces import SHIPPED, LearnedGroundReaction
+
+    if not SHIPPED.is_file():
+        skipped.append(f"learned GRF row: no shipped weights at {SHIPPED}")
+        return None
+    return LearnedGroundReaction.load(SHIPPED)
+
+
+def _learned_vertical(learned, result, motion: Motion, model: BodyModel, cutoff_hz: float) -> np.ndarray:
+    """[T] total vertical force (N) of the learned ground reaction on ``result``'s frames (its features computed
+    at the cutoff the weights were trained with)."""
+    from biomotion.analysis.ground_features import ground_features
+
+    source = result if learned.cutoff_hz == cutoff_hz else analyze(motion, model, cutoff_hz=learned.cutoff_hz)
+    return learned.predict(ground_features(source)).vertical_bw * result.body_weight
+
+
 def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bool = True) -> dict:
-    """Vertical GRF inferred from kinematics vs plates, per trial and pooled over all evaluated frames."""
+    """Vertical GRF inferred from kinematics vs plates, per trial and pooled over all evaluated frames; the shipped
+    learned ground reaction beside it (module docstring)."""
     rows, pooled = [], {"ours": [], "base": [], "plates": [], "filtered": []}
     zmp_distances: dict[str, list[np.ndarray]] = {}
     cases, skipped = _grf_cases(data_root)
+    learned_model = _shipped_learned(skipped)
+    trained_on = (learned_model.train_subjects or set()) if learned_model is not None else set()
+    learned_pooled: dict[bool, dict[str, list[np.ndarray]]] = {True: {"l": [], "p": []}, False: {"l": [], "p": []}}
     for name, model_path, load_motion, load_forces in tqdm(
         cases, desc="GRF vs plates", unit="trial", disable=not progress
     ):
@@ -369,6 +399,18 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
         a_f, b_f = vertical_agreement(ours, filtered, weight), vertical_agreement(base, filtered, weight)
         zmp = zmp_to_plate_cop(result, keep)
         zmp_distances.setdefault(name.split("/")[0], []).append(zmp)
+        learned_row = {}
+        if learned_model is not None:
+            held_out = "/".join(name.split("/")[:2]) not in trained_on
+            learned = _learned_vertical(learned_model, result, motion, model, cutoff_hz)[keep]
+            agreement = vertical_agreement(learned, plates, weight)
+            learned_row = {
+                "learned_r2": agreement["r2"],
+                "learned_rmse_bw": agreement["rmse_bw"],
+                "learned_held_out": held_out,
+            }
+            learned_pooled[held_out]["l"].append(learned / weight)
+            learned_pooled[held_out]["p"].append(plates / weight)
         rows.append(
             {
                 "trial": name,
@@ -383,6 +425,7 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
                 "zmp_cop_frames": int(zmp.size),
                 "zmp_cop_rmse_m": _rms(zmp),
                 "analysis_seconds": seconds,
+                **learned_row,
             }
         )
         for key, value in (
@@ -406,6 +449,18 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
     base = vertical_agreement(np.concatenate(pooled["base"]), plates, 1.0)
     ours_f = vertical_agreement(np.concatenate(pooled["ours"]), filtered, 1.0)
     base_f = vertical_agreement(np.concatenate(pooled["base"]), filtered, 1.0)
+    learned_figures = {}
+    if learned_model is not None:
+        every = {k: learned_pooled[True][k] + learned_pooled[False][k] for k in ("l", "p")}
+        for suffix, parts in (("", every), ("_held_out", learned_pooled[True]), ("_trained_on", learned_pooled[False])):
+            agreement = (
+                vertical_agreement(np.concatenate(parts["l"]), np.concatenate(parts["p"]), 1.0) if parts["l"] else {}
+            )
+            learned_figures[f"grf_learned_shipped_vertical_r2{suffix}"] = agreement.get("r2")
+            learned_figures[f"grf_learned_shipped_vertical_rmse_bw{suffix}"] = agreement.get("rmse_bw")
+        learned_figures["grf_learned_shipped_weights_sha256"] = hashlib.sha256(
+            learned_model.path.read_bytes()
+        ).hexdigest()
     return {
         "grf_vertical_r2": ours["r2"],
         "grf_vertical_rmse_bw": ours["rmse_bw"],
@@ -419,6 +474,7 @@ def check_ground_reaction(data_root: Path, cutoff_hz: float = 10.0, progress: bo
         "grf_frames": int(len(plates)),
         "zmp_cop_rmse_m": _rms(np.concatenate([d for ds in zmp_distances.values() for d in ds])),
         "zmp_cop_rmse_m_per_source": {source: _rms(np.concatenate(ds)) for source, ds in zmp_distances.items()},
+        **learned_figures,
         "grf_trials": rows,
         "skipped": skipped,
     }

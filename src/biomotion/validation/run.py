@@ -103,6 +103,20 @@ ZMP_NOTE = (
 )
 
 
+LEARNED_NOTE = (
+    "Learned: the shipped learned ground reaction (`checkpoints/ground_forces.safetensors`, "
+    "`biomotion.models.ground_forces`) on the same frames. It was trained on the Fukuchi runners of this folder, so "
+    "their rows (marked *trained on*) are not held-out figures; OpenCap was never trained on. Held-out figures "
+    "(leave-subject-out folds over the runners): `biomotion eval ground-forces`, docs/results/eval_ground_forces.md."
+)
+
+
+def _learned_cell(row: dict) -> str:
+    if row.get("learned_rmse_bw") is None:
+        return "–"
+    return f"{row['learned_rmse_bw']:.3f}" + ("" if row.get("learned_held_out") else " (trained on)")
+
+
 def _cm(value: float | None) -> str:
     return "–" if value is None else f"{100.0 * value:.1f}"
 
@@ -123,23 +137,27 @@ def markdown(report: dict, command: str) -> str:
     scalars = [(k, v) for k, v in report.items() if isinstance(v, (int, float)) and k != "seconds"]
     lines += ["| figure | value |", "|---|---|"] + [f"| `{k}` | {v:.6g} |" for k, v in scalars] + [""]
     if report.get("grf_trials"):
+        learned = any("learned_rmse_bw" in r for r in report["grf_trials"])
         lines += [
             "## Vertical GRF inferred from kinematics vs force plates",
             "",
             (
                 "| trial | frames | left out | R² | RMSE (BW) | COM baseline R² | COM baseline RMSE (BW) "
                 "| RMSE against plates filtered as the coordinates, ours / baseline (BW) "
-                "| ZMP to plate CoP RMS (cm), frames |"
+                "| ZMP to plate CoP RMS (cm), frames |" + (" learned RMSE (BW), shipped weights |" if learned else "")
             ),
-            "|---|---|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|---|" + ("---|" if learned else ""),
         ]
         lines += [
             f"| {r['trial']} | {r['frames']} | {r['frames_left_out']} | {r['r2']:.3f} | {r['rmse_bw']:.3f} | "
             f"{r['baseline_r2']:.3f} | {r['baseline_rmse_bw']:.3f} | "
             f"{_bw(r.get('rmse_bw_plates_filtered'))} / {_bw(r.get('baseline_rmse_bw_plates_filtered'))} | "
             f"{_cm(r.get('zmp_cop_rmse_m'))}, {r.get('zmp_cop_frames', 0)} |"
+            + (f" {_learned_cell(r)} |" if learned else "")
             for r in report["grf_trials"]
         ]
+        if learned:
+            lines += ["", LEARNED_NOTE]
         if report.get("zmp_cop_rmse_m_per_source"):
             lines += [
                 "",

@@ -187,13 +187,14 @@ def plot_ground_reaction(
     body_weight: float | None = None,
     title: str | None = None,
     label: str = "measured",
+    other_label: str = "inferred",
 ) -> tuple[Path, Path]:
     """Ground reaction force components over time, one column per channel (plate or foot), one row per axis.
 
     ``inferred`` (e.g. forces inferred from kinematics) is drawn dashed over ``measured``; ``pairs`` lists
     (measured channel, inferred channel) names (default: channels in order). ``body_weight`` (N) expresses forces
     in body weights. ``label`` names the first set in the legend (``"inferred"`` when only inferred forces are
-    drawn).
+    drawn); ``other_label`` names the dashed set (e.g. ``"measured"`` under learned forces).
     """
     if inferred is not None and pairs is None:
         pairs = list(zip(measured.names, inferred.names))
@@ -216,7 +217,7 @@ def plot_ground_reaction(
                     color="tab:red",
                     linewidth=1.3,
                     linestyle="--",
-                    label=f"inferred {pairs[c][1]}",
+                    label=f"{other_label} {pairs[c][1]}",
                 )
             ax.grid(alpha=0.3)
             if c == 0:
@@ -224,7 +225,9 @@ def plot_ground_reaction(
         axes[0, c].set_title(channel, fontsize=10)
         axes[0, c].legend(fontsize=7, loc="upper right")
         axes[2, c].set_xlabel("time (s)")
-    figure.suptitle(title or ("inferred vs measured ground reaction" if inferred is not None else "ground reaction"))
+    figure.suptitle(
+        title or (f"{other_label} vs {label} ground reaction" if inferred is not None else "ground reaction")
+    )
     return save_figure(figure, path)
 
 

@@ -56,6 +56,7 @@ def write_viewer(
     title: str | None = None,
     compare_mode: str = "overlay",
     follow: bool | None = None,
+    plotly_src: str | None = None,
 ) -> Path:
     """Write the viewer of ``scene`` (and ``compare``, drawn over it or beside it) to ``path``; returns the path.
 
@@ -64,8 +65,12 @@ def write_viewer(
         compare_mode: ``"overlay"`` (one 3D view) or ``"side"`` (two views with linked cameras); the page can
             switch between them.
         follow: keep the camera on the figure (default: when it travels farther than one view's width).
+        plotly_src: a relative URL of plotly.js to load instead of embedding it, for many pages sharing one copy
+            beside them (a batch's trials); the page then needs that file to open, still offline.
     """
-    text = viewer_html(scene, compare=compare, title=title, compare_mode=compare_mode, follow=follow)
+    text = viewer_html(
+        scene, compare=compare, title=title, compare_mode=compare_mode, follow=follow, plotly_src=plotly_src
+    )
     path = Path(path)
     with atomic_write(path) as handle:
         handle.write(text)
@@ -79,6 +84,7 @@ def viewer_html(
     title: str | None = None,
     compare_mode: str = "overlay",
     follow: bool | None = None,
+    plotly_src: str | None = None,
 ) -> str:
     """The viewer page as a string (see `write_viewer`)."""
     if compare_mode not in COMPARE_MODES:
@@ -109,11 +115,16 @@ def viewer_html(
     blob = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
     parts = {
         "TITLE": html.escape(title or scene.name),
-        "PLOTLY": plotly_js(),
+        "PLOTLY": "" if plotly_src else plotly_js(),
         "DATA": blob,
         "VIEWER": _resource("viewer.js"),
     }
-    return re.sub(r"\{\{(TITLE|PLOTLY|DATA|VIEWER)\}\}", lambda m: parts[m[1]], _resource("viewer_template.html"))
+    template = _resource("viewer_template.html")
+    if plotly_src:
+        template = template.replace(
+            "<script>{{PLOTLY}}</script>", f'<script src="{html.escape(plotly_src, quote=True)}"></script>'
+        )
+    return re.sub(r"\{\{(TITLE|PLOTLY|DATA|VIEWER)\}\}", lambda m: parts[m[1]], template)
 
 
 def _resource(name: str) -> str:
@@ -383,6 +394,7 @@ def view_command(
     compare_mode: str = "overlay",
     title: str | None = None,
     geometry: Sequence[str | Path] = (),
+    plotly_src: str | None = None,
 ) -> Path:
     """``biomotion view``: read the files, build the scenes, write the viewer to ``out``; returns its path.
 
@@ -390,7 +402,7 @@ def view_command(
     bars, ``com_zmp`` (``.sto``, see `read_com_zmp`) the COM, ZMP and support polygon; ``compare`` is a second
     motion file of any supported kind, drawn over the first or beside it. An OpenSim coordinate file (``.mot``)
     needs ``model``; ``geometry`` adds folders to look for its ``.vtp`` meshes in (bodies without one are drawn as
-    capsules between their joints).
+    capsules between their joints). ``plotly_src``: see `write_viewer`.
     """
     scene = read_scene(motion_path, model=model, geometry=geometry)
     if grf is not None:
@@ -400,4 +412,4 @@ def view_command(
     if com_zmp is not None:
         scene = scene.with_balance(**read_com_zmp(com_zmp))
     other = None if compare is None else read_scene(compare, model=model, geometry=geometry)
-    return write_viewer(scene, out, compare=other, title=title, compare_mode=compare_mode)
+    return write_viewer(scene, out, compare=other, title=title, compare_mode=compare_mode, plotly_src=plotly_src)
