@@ -51,8 +51,11 @@ def number(low: float | None = None, high: float | None = None, *, integer: bool
 
 
 def command_line(argv: list[str] | None = None) -> str:
-    """The command as typed, for the records and reports that say how they were made."""
-    return "biomotion " + " ".join(shlex.quote(a) for a in (sys.argv[1:] if argv is None else argv))
+    """The command as typed, for the records and reports that say how they were made (paths portable:
+    `biomotion.io.paths.portable`)."""
+    from biomotion.io.paths import portable
+
+    return "biomotion " + " ".join(shlex.quote(portable(a)) for a in (sys.argv[1:] if argv is None else argv))
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:

@@ -98,6 +98,13 @@ def add_parser(verbs) -> None:
         "level and lowers muscle-limit violations, at a little more foot sliding "
         "(docs/results/dev_guidance_skim.md). Default: off",
     )
+    parser.add_argument(
+        "--refine",
+        action="store_true",
+        help="pass each guided sample through the PhysPT refiner (`biomotion refine`) before the files are "
+        "written: steadier speed and energy, feet that stay planted (docs/results/eval_refine.md)",
+    )
+    parser.add_argument("--refiner", type=Path, help="refiner weights for --refine (default: the shipped ones)")
     parser.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
     parser.add_argument("--no-figures", action="store_true", help="no plots or viewer")
     parser.add_argument(
@@ -138,6 +145,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give either --profile or --subject-table/--subject-id, not both")
     if (args.subject_table is None) != (args.subject_id is None):
         raise ConfigError("--subject-table and --subject-id go together")
+    if args.refiner is not None and not args.refine:
+        raise ConfigError("--refiner names the weights of --refine: give --refine too")
+    if args.refiner is not None and not args.refiner.is_file():
+        raise ConfigError(f"{args.refiner}: --refiner is not a file")
     references = args.reference or ()
     if args.reference_action and len(args.reference_action) != len(references):
         raise ConfigError(
@@ -173,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
             command=command_line(),
             threads=args.threads,
             smooth_hz=args.smooth,
+            refine=args.refine,
+            refiner=args.refiner,
         )
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")

@@ -21,6 +21,30 @@ from biomotion.io.profiles import person
 GENERATION_THREADS = 2
 
 
+def profile_record(profile) -> dict | None:
+    """Every field of the profile a request used (None without one), as JSON values: what metrics.json records."""
+    import json
+
+    return None if profile is None else json.loads(json.dumps(profile.to_dict(), default=str))
+
+
+def versions() -> dict[str, str]:
+    """biomotion's, torch's, NumPy's and Python's versions, recorded with every generated clip."""
+    import platform
+
+    import numpy
+    import torch
+
+    from biomotion import __version__
+
+    return {
+        "biomotion": __version__,
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "python": platform.python_version(),
+    }
+
+
 def generate(
     *,
     action: str,
@@ -41,6 +65,8 @@ def generate(
     command: str = "",
     threads: int | None = None,
     smooth_hz: float | None = None,
+    refine: bool = False,
+    refiner: Path | None = None,
 ) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
@@ -52,7 +78,11 @@ def generate(
     machine's cores); the rest runs as the caller set it. Results differ between thread counts only by float
     rounding.
 
-    ``smooth_hz``: low-pass the guided coordinates at this cutoff before planting (`GuidanceConfig.smooth_hz`)."""
+    ``smooth_hz``: low-pass the guided coordinates at this cutoff before planting (`GuidanceConfig.smooth_hz`).
+
+    ``refine``: pass every sample through the PhysPT refiner after guidance (`biomotion.models.refiner`; weights
+    ``refiner``, default the shipped ones); the files then describe the refined motion, and metrics.json's
+    ``foot_planting`` change counts the refiner's change to the legs too."""
     from biomotion.body.kinematics import torch_threads
     from biomotion.data.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
@@ -113,6 +143,17 @@ def generate(
             biodata=chosen.biodata,
             guidance_config=GuidanceConfig(smooth_hz=smooth_hz),
         )
+    if refine:
+        from dataclasses import replace
+
+        import torch
+
+        from biomotion.generation.refinement import load_refiner
+
+        model = load_refiner(refiner, data_root)
+        every = torch.ones(generated.q.shape[-1], dtype=torch.bool)
+        refined = torch.stack([model.refine(clip.float(), every).q for clip in generated.q.detach()])
+        generated = replace(generated, q=refined.to(generated.q.dtype))
     done = time.perf_counter()
     files = write_generation(
         out,
@@ -128,12 +169,23 @@ def generate(
             "seed": seed,
             "guidance": guidance,
             "smooth_hz": smooth_hz,
+            "refined": bool(refine),
             "personalised": personalised,
             "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None else str(checkpoints),
             "biodata_used": personalised and chosen.biodata and profile is not None,
             "references": [str(p) for p in references],
             "reference_actions": list(reference_actions),
             "notes": notes,
+            "inputs": {
+                "profile": None if profile_file is None else str(profile_file),
+                "subject_table": None if subject_table is None else str(subject_table),
+                "subject_id": subject_id,
+                "references": [str(p) for p in references],
+                "data_root": str(data_root),
+                "checkpoints": str(chosen.checkpoints),
+            },
+            "profile": profile_record(profile),
+            "versions": versions(),
         },
     )
     return {
