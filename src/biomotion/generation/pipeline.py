@@ -33,7 +33,7 @@ from biomotion.body.kinematics import apply_couplers
 from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
 from biomotion.errors import BiomotionWarning, ConfigError
-from biomotion.generation.posture import centring_shift, posture_offset
+from biomotion.generation.posture import amplitude_ratio, centring_shift, posture_offset
 from biomotion.guidance.refine import GuidanceConfig, Guide
 from biomotion.guidance.tempo import warp, warp_factor
 from biomotion.models.actions import ActionRequest
@@ -201,6 +201,27 @@ class Generator:
             latents, valid = torch.zeros(1, code_dim), torch.zeros(1, dtype=torch.bool)
         return Condition(latents[None], valid[None], bio[None], metadata[None], act[None]), prime, offset
 
+    def person_amplitude(
+        self,
+        action: ActionRequest,
+        profile: Profile | None,
+        references: Sequence[Motion],
+        reference_actions: Sequence[str | None] = (),
+        reference_speeds: Sequence[float | None] = (),
+    ) -> torch.Tensor | None:
+        """[39] the person's amplitude for the request: the population's (`GeneratorBundle.amplitude`) times the
+        references' ratio to the population (`biomotion.generation.posture.amplitude_ratio`); NaN where unknown,
+        None without references or population amplitudes."""
+        population = self.bundle.amplitude(action.action, action.speed)
+        if population is None or not references:
+            return None
+        height = profile.height if profile is not None else None
+        with warnings.catch_warnings():  # `condition` warned about a flexion-negative reference already
+            warnings.simplefilter("ignore", BiomotionWarning)
+            placed = [reference_motion(motion, self.body, height) for motion in references]
+        ratio = amplitude_ratio(placed, self.bundle, reference_actions, reference_speeds)
+        return None if ratio is None else population * ratio
+
     def generate(
         self,
         action: ActionRequest,
@@ -268,6 +289,9 @@ class Generator:
         bundle = self.bundle
         frames = round(seconds * self.rate)
         shift, played_shift, target, offset = None, None, None, offset if posture else None
+        amplitude = None
+        if guidance and posture and personalised and config.w_amplitude > 0:
+            amplitude = self.person_amplitude(action, profile, references, reference_actions, reference_speeds)
         z_plain = z0[:, :n_plain]  # the sample as the prior drew it for this length (what --no-guidance returns)
         tempo, played = None, None
         if tempo_range is not None:
@@ -294,6 +318,8 @@ class Generator:
                 target,
                 factor,
                 frames,
+                amplitude,
+                bundle.energy(action.action, action.speed) if config.w_com_energy > 0 else None,
             )
 
         # coupled coordinates (the patella's knee _beta) set from their independent ones, as OpenSim's coupler

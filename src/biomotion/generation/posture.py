@@ -89,6 +89,43 @@ def posture_offset(
     return torch.where(count > 0, total / count.clamp_min(1), float("nan"))
 
 
+#: Ratios of a person's amplitude to the population's are clamped to this range, and measured only where the
+#: population moves the coordinate by at least ``MIN_AMPLITUDE`` rad (std over a clip): below it the ratio is noise.
+AMPLITUDE_RATIO_RANGE = (0.5, 2.0)
+MIN_AMPLITUDE = 0.01
+
+
+def amplitude_ratio(
+    references: Sequence[tuple[torch.Tensor, torch.Tensor]],
+    bundle: GeneratorBundle,
+    actions: Sequence[str | None] = (),
+    speeds: Sequence[float | None] = (),
+) -> torch.Tensor | None:
+    """[39] how much more or less than the population the person moves each coordinate: the mean over references
+    of (std over time of the reference) / (population amplitude for the reference's action and speed,
+    `GeneratorBundle.amplitude`), clamped to `AMPLITUDE_RATIO_RANGE`; NaN where no reference has the coordinate,
+    where the population barely moves it, and on the coordinates that are not posture (`POSTURE_COORDINATES`).
+    None when the bundle has no population amplitudes. The person's amplitude for a request is the population's
+    for it times this ratio, as the posture target is the population's plus `posture_offset`: the speed of a
+    reference does not leak into it (knees swing wider at 4.5 m/s than at 2.5 for everyone). Arguments as
+    `posture_offset`."""
+    total = torch.zeros(len(CANONICAL_COORDINATES), dtype=torch.float64)
+    count = torch.zeros_like(total)
+    for k, (q, mask) in enumerate(references):
+        mean = q.double().mean(0)
+        action = actions[k] if k < len(actions) and actions[k] is not None else nearest_action(mean, mask, bundle)
+        population = None if action is None else bundle.amplitude(action, speeds[k] if k < len(speeds) else None)
+        if population is None:
+            continue
+        use = mask & POSTURE_COORDINATES & torch.isfinite(population) & (population >= MIN_AMPLITUDE)
+        ratio = (q.double().std(0) / population.clamp_min(MIN_AMPLITUDE)).clamp(*AMPLITUDE_RATIO_RANGE)
+        total += torch.where(use, ratio, 0.0)
+        count += use.double()
+    if not count.any():
+        return None
+    return torch.where(count > 0, total / count.clamp_min(1), float("nan"))
+
+
 def centring_shift(q: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """[B, 39] what to add to every frame of clips ``q`` [B, T, 39] so that each clip's mean is ``target`` [39]
     where ``target`` is finite (0 elsewhere)."""

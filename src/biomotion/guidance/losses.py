@@ -20,8 +20,17 @@ contact points [B, T, K, 3] and COM [B, T, 3] (m, y up, ground y = 0), activatio
 - `locomotion_speed`: not in the paper; (||mean horizontal pelvis velocity|| - target)^2, the requested speed.
   Without it guidance found the cheapest way to stop a sliding stance foot: slowing the whole body down (guided
   runs asked for 3.5 m/s came out at 1.7-2.5 m/s).
+- `locomotion_pace`: not in the paper; `locomotion_speed` held in every window of W frames, 1/N sum_n (s_n -
+  target)^2 with s_n the horizontal pelvis speed over window n. The clip-mean form is met as well by a clip that
+  runs 2.5 m/s for three seconds and 4.5 m/s for three more as by a steady 3.5 m/s, and guidance found such surges:
+  the COM's kinetic energy then swings with them (PG-BIG Sec. 4.2's energy consistency).
 - `posture`: not in the paper; sum_j (mean_t q_tj - target_j)^2 over the coordinates with a target, the person's
   posture (`biomotion.generation.posture`), so guidance does not pull the clip back to the population's.
+- `amplitude`: not in the paper; sum_j (std_t q_tj - target_j)^2, each coordinate's amplitude held at the
+  person's, the other half of the person's coordinate statistics with `posture` (the identity term:
+  docs/decisions/generation-unseen-people.md).
+- `com_energy`: not in Table 1; PG-BIG Sec. 4.2's energy consistency E_var as a guidance term: the std over the
+  clip of the COM's mechanical energy per kg, above the population's for the action and speed, squared.
 - `zmp_support`: not in PG-BIG; HUMOS Sec. 3.4's dynamic stability as a hinge: the distance (m) by which the
   zero-moment point lies outside the support of the stance points, mean over the frames the ground carries.
 - `proximity`: mean squared distance of the latents to the unguided sample's (Sec. 3.3, A.1 schedule).
@@ -33,6 +42,7 @@ import torch
 
 from biomotion.metrics.bounds import bound_excess
 from biomotion.metrics.stability import signed_distance_to_hull
+from biomotion.models.bundle import com_energy_per_kg
 from biomotion.models.foot_contact import mean_horizontal_speed
 
 
@@ -94,10 +104,39 @@ def locomotion_speed(q: torch.Tensor, rate: float, target: torch.Tensor) -> torc
     return (mean_horizontal_speed(q, rate) - target).pow(2)
 
 
+def window_speeds(q: torch.Tensor, rate: float, window: int) -> torch.Tensor:
+    """[B, N] horizontal pelvis speed (m/s) over every window of ``window`` frames of clips q [B, T, 39] (start
+    frames 0 .. T - window; the whole clip when it is shorter)."""
+    horizontal = q[..., [3, 5]]
+    window = min(window, q.shape[1] - 1)
+    if window < 1:
+        return torch.zeros(q.shape[0], 1, dtype=q.dtype)
+    return (horizontal[:, window:] - horizontal[:, :-window]).norm(dim=-1) * rate / window
+
+
+def locomotion_pace(q: torch.Tensor, rate: float, target: torch.Tensor, window: int) -> torch.Tensor:
+    """1/N sum_n (s_n - target)^2 per clip: `window_speeds` against the target speed [B] (m/s)."""
+    return (window_speeds(q, rate, window) - target[:, None]).pow(2).mean(-1)
+
+
 def posture(q: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """sum_j (mean_t q_tj - target_j)^2 over the coordinates whose target [39] is finite."""
     known = torch.isfinite(target)
     return ((q[..., known].mean(1) - target[known]) ** 2).sum(-1)
+
+
+def amplitude(q: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """sum_j (std_t q_tj - target_j)^2 over the coordinates whose target [39] is finite: each coordinate's amplitude
+    (standard deviation over the clip) held at the person's (`biomotion.generation.posture.amplitude_ratio`)."""
+    known = torch.isfinite(target)
+    return ((q[..., known].std(1, correction=0) - target[known]) ** 2).sum(-1)
+
+
+def com_energy(com: torch.Tensor, rate: float, high: float) -> torch.Tensor:
+    """max(0, std_t e_t - high)^2 per clip, e_t the COM's mechanical energy per kg (J/kg,
+    `biomotion.models.bundle.com_energy_per_kg`) of ``com`` [B, T, 3]: PG-BIG Sec. 4.2's energy consistency as a
+    one-sided bound, ``high`` the population's fluctuation for the action and speed (`GeneratorBundle.energy`)."""
+    return torch.relu(com_energy_per_kg(com, rate).std(-1, correction=0) - high).pow(2)
 
 
 def zmp_support(zmp: torch.Tensor, loaded: torch.Tensor, feet: torch.Tensor, contact: torch.Tensor) -> torch.Tensor:

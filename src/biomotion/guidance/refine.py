@@ -78,6 +78,8 @@ TERMS = (
     "angular_jerk",
     "locomotion_speed",
     "posture",
+    "amplitude",
+    "com_energy",
     "zmp",
     "foot_skim",
 )
@@ -101,7 +103,10 @@ class GuidanceConfig:
     w_ground: float = 100.0
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 1000.0
+    pace_window: float | None = None  # s: a requested speed held in every window this long (`losses.locomotion_pace`)
     w_posture: float = 3000.0
+    w_amplitude: float = 0.0  # each coordinate's std over the clip held at the person's (`losses.amplitude`)
+    w_com_energy: float = 0.0  # COM energy fluctuation above the population's (`losses.com_energy`); 0 skips it
     w_zmp: float = 0.0  # ZMP outside the stance support (`losses.zmp_support`, HUMOS Sec. 3.4); 0 skips the term
     w_foot_skim: float = 10.0  # horizontal speed of foot points near the floor (`losses.foot_skim`); 0 skips it
     contact_height: float = 0.05  # m: a foot point of the unguided sample this low and ... (`stance_mask`)
@@ -160,6 +165,8 @@ class Guide:
         posture_target: torch.Tensor | None = None,
         tempo: torch.Tensor | None = None,
         frames: int | None = None,
+        amplitude_target: torch.Tensor | None = None,
+        energy_high: float | None = None,
     ) -> None:
         from biomotion.body.contact import foot_points
 
@@ -182,6 +189,8 @@ class Guide:
         self.rotational = torch.tensor([not n.startswith("pelvis_t") for n in self.body.coordinate_names])
         self.posture_shift = None if posture_shift is None else posture_shift.to(torch.float32)  # [B, 39]
         self.posture_target = None if posture_target is None else posture_target.to(torch.float32)  # [39]
+        self.amplitude_target = None if amplitude_target is None else amplitude_target.to(torch.float32)  # [39]
+        self.energy_high = energy_high  # J/kg: the population's COM energy fluctuation (`losses.com_energy`)
         if tempo is not None and frames is None:
             raise ValueError("a tempo needs the number of frames to play")
         self.tempo, self.frames = tempo, frames  # [B] playback factors (`biomotion.guidance.tempo`), output frames
@@ -229,10 +238,14 @@ class Guide:
             return points_in_contact(k.contact.detach() > 0.5, self.contact_members)
         return stance_mask(k.feet, k.q, self.rate, c.contact_height, c.stance_speed_ratio, c.stance_speed_floor)
 
-    def terms(self, k: Kinematics, contact: torch.Tensor, speed: torch.Tensor) -> dict[str, torch.Tensor]:
+    def terms(
+        self, k: Kinematics, contact: torch.Tensor, speed: torch.Tensor, paced: bool = False
+    ) -> dict[str, torch.Tensor]:
         """Each guidance term [B] (PG-BIG Table 1 + ground, jerk and speed); ``speed`` [B] the target locomotion
-        speed (m/s, canonical size)."""
+        speed (m/s, canonical size), held over every window of ``pace_window`` when ``paced`` (a requested speed),
+        else on the clip's mean."""
         b = self.bounds
+        window = None if not paced or self.config.pace_window is None else round(self.config.pace_window * self.rate)
         out = {
             "angular_velocity": losses.angular_velocity(k.q, self.rate, self.speed_high),
             "foot_contact": losses.foot_contact(k.feet, self.rate, contact),
@@ -240,10 +253,18 @@ class Guide:
             "com_acceleration": losses.com_acceleration(k.com, self.rate, *b.com_acceleration),
             "ground": losses.ground(k.feet, contact),
             "angular_jerk": losses.angular_jerk(k.q, self.rate, self.jerk_high),
-            "locomotion_speed": losses.locomotion_speed(k.q, self.rate, speed),
+            "locomotion_speed": (
+                losses.locomotion_speed(k.q, self.rate, speed)
+                if window is None
+                else losses.locomotion_pace(k.q, self.rate, speed, window)
+            ),
         }
         if self.posture_target is not None:
             out["posture"] = losses.posture(k.q, self.posture_target)
+        if self.amplitude_target is not None and self.config.w_amplitude > 0:
+            out["amplitude"] = losses.amplitude(k.q, self.amplitude_target)
+        if self.energy_high is not None and self.config.w_com_energy > 0:
+            out["com_energy"] = losses.com_energy(k.com, self.rate, self.energy_high)
         if k.zmp is not None:
             out["zmp"] = losses.zmp_support(k.zmp, k.loaded, k.feet, contact)
         if self.config.w_foot_skim > 0:
@@ -292,7 +313,7 @@ class Guide:
         history = []
         for k in range(c.iterations):
             used = self._quantised(z) if c.quantize_at is not None and k >= c.quantize_at else z
-            terms = self.terms(self.kinematics(used), contact, target)
+            terms = self.terms(self.kinematics(used), contact, target, paced=speed is not None)
             guide = sum(weights[t] * v for t, v in terms.items())
             loss = (c.w_proximity * losses.proximity(used, z0) + c.alpha(k) * guide).sum()
             optimiser.zero_grad(set_to_none=True)

@@ -40,7 +40,7 @@ from tqdm import tqdm
 
 from biomotion.body.mirror import mirror_coordinates
 from biomotion.data.registry import DatasetCache
-from biomotion.errors import ConfigError
+from biomotion.errors import ConfigError, SettingsError
 from biomotion.models.actions import ActionRequest, ActionVocabulary
 from biomotion.models.bundle import GeneratorBundle, action_bounds
 from biomotion.models.conditioning import (
@@ -284,15 +284,21 @@ def train(
     seed: int = 0,
     progress: bool = True,
     command: str = "",
+    stop_at: int | None = None,
 ) -> dict:
-    """Train the prior from ``config`` (YAML dict); save `GeneratorBundle` weights + card next to ``out``."""
+    """Train the prior from ``config`` (YAML dict); save `GeneratorBundle` weights + card next to ``out``.
+    ``stop_at`` ends training after that many iterations with the learning-rate schedule still spanning
+    ``iterations`` (the config's by default): the same run as the full one, cut short (the cross-validated
+    evaluation trains its fold models so, `biomotion.training.folds`)."""
     from biomotion.data.clips import body_model
 
     try:
         model_cfg, train_cfg = dict(config.get("model", {})), config["train"]
         crop, refs, max_latents = int(train_cfg["crop"]), int(train_cfg["references"]), int(train_cfg["max_latents"])
     except KeyError as missing:
-        raise ConfigError(f"generator config lacks the setting {missing}") from None
+        raise SettingsError(f"generator config lacks the setting {missing}") from None
+    except (AttributeError, TypeError, ValueError) as error:  # a section that is no mapping, a word for a number
+        raise SettingsError(f"generator config: a setting of the wrong type ({error})") from None
     torch.manual_seed(seed)
     cache = DatasetCache(cache_dir)
     tokenizer = MotionVQVAE.load(tokenizer_path)
@@ -325,7 +331,7 @@ def train(
     step = 0
     bar = tqdm(range(total), desc="population prior" if population else "generator", unit="it", disable=not progress)
     for step in bar:
-        if time.monotonic() > deadline:
+        if time.monotonic() > deadline or (stop_at is not None and step >= stop_at):
             break
         lr = train_cfg["lr"] * min(1.0, (step + 1) / train_cfg["warmup"])
         lr *= 0.5 * (1 + math.cos(math.pi * step / total))
@@ -422,8 +428,9 @@ def _same_bounds(old, new) -> bool:
 def refresh_statistics(
     config: dict, cache_dir: str | Path, data_root: str | Path, out: str | Path, *, command: str = ""
 ) -> dict:
-    """Recompute the per-action statistics of the trained bundle ``out`` (bounds and population postures) from
-    the `statistics_indices` clips of ``cache_dir``, as `train` does, keep its weights, and update its card.
+    """Recompute the per-action statistics of the trained bundle ``out`` (bounds, population postures and
+    amplitudes, COM energy) from the `statistics_indices` clips of ``cache_dir``, as `train` does, keep its
+    weights, and update its card.
     Raises `ConfigError`, writing nothing, when the bounds the bundle had do not come out the same."""
     from biomotion.data.clips import body_model
 
@@ -469,7 +476,8 @@ def _markdown(card: dict) -> str:
         f"- tokenizer: `{card['tokenizer']}` (SHA-256 `{card['tokenizer_sha256']}`)\n"
         f"- command: `{card['command']}`\n"
         + (
-            f"- per-action statistics (bounds, population postures) recomputed: `{card['statistics_command']}`\n"
+            f"- per-action statistics (bounds, population postures and amplitudes, COM energy) recomputed: "
+            f"`{card['statistics_command']}`\n"
             if card.get("statistics_command")
             else ""
         )
