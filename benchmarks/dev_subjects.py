@@ -31,6 +31,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+import torch
+
 from biomotion.body.kinematics import torch_threads
 from biomotion.data.clips import body_model
 from biomotion.data.registry import DatasetCache
@@ -43,6 +46,7 @@ from biomotion.evaluation.generation import (
     score_variants,
     unseen_targets,
 )
+from biomotion.evaluation.refine import root_residual
 from biomotion.generation.pipeline import Generator
 from biomotion.guidance.planting import PlantingConfig
 from biomotion.guidance.refine import GuidanceConfig
@@ -60,6 +64,8 @@ COLUMNS = (
     ("speed_error", "speed error (m/s)"),
     ("zmp_in_support", "ZMP in support (%)"),
     ("zmp_in_support_measured_trunk", "ZMP in support, measured trunk (%)"),
+    ("energy_body", "body energy std (J)"),
+    ("root_residual", "root residual (BW)"),
 )
 
 
@@ -102,6 +108,7 @@ def dev_rows(
     configs: dict[str, GuidanceConfig | None],
     repeats: int = 1,
     sources: Sequence[str] = (),
+    refine: bool = False,
 ) -> tuple[list[str], dict]:
     """Per variant ("reference" and each named guidance config; None: unguided): the identity probe (mean over
     repeats) and the mean of each column over the clips of all repeats; only targets of ``sources`` when given."""
@@ -113,7 +120,12 @@ def dev_rows(
         for t in unseen_targets(cache, seen, 6.0)
         if t.subject in train and (not sources or cache.records[t.index]["source"] in sources)
     ]
-    tables, identities = [], []
+    if refine:
+        from biomotion.generation.refinement import load_refiner
+
+        refiner, every = load_refiner(None, data_root), torch.ones(39, dtype=torch.bool)
+    tables, identities, residuals = [], [], {}
+    model = body_model(data_root)
     for r in range(repeats):
         variants = {"reference": [t.motion for t in targets]}
         for name, config in configs.items():
@@ -134,12 +146,19 @@ def dev_rows(
                 )
                 for k, t in enumerate(targets)
             ]
+            if refine:
+                variants[f"{name}+refine"] = [
+                    m.with_values(refiner.refine(torch.from_numpy(m.values).float(), every).q.double().numpy())
+                    for m in variants[name]
+                ]
         identities.append(identity_accuracy(generator.tokenizer, targets, variants))
         records = [cache.records[t.index] for t in targets]
+        for name, motions in variants.items():
+            residuals.setdefault(name, []).extend(root_residual(model, m)[2] for m in motions)
         tables.append(
             score_variants(
                 variants,
-                body_model(data_root),
+                model,
                 generator.surrogate,
                 generator.rate,
                 [rec["clip_id"] for rec in records],
@@ -149,7 +168,12 @@ def dev_rows(
         )
     table, identity = combine_repeats(tables), combine_identity(identities)
     rows = {
-        v: {"identity": identity.get(v), **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]}} for v in table
+        v: {
+            "identity": identity.get(v),
+            **{k: table[v][k]["mean"] for k, _ in COLUMNS if k in table[v]},
+            "root_residual": float(np.mean(residuals[v])),
+        }
+        for v in table
     }
     subjects = sorted({t.subject for t in targets})
     repeated = f", {repeats} repeats" if repeats > 1 else ""
@@ -186,6 +210,7 @@ def main(argv: list[str] | None = None) -> None:
         help="a variant: default guidance with these GuidanceConfig fields changed (repeatable)",
     )
     parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--refine", action="store_true", help="also every variant through the PhysPT refiner")
     parser.add_argument(
         "--source",
         action="append",
@@ -212,7 +237,7 @@ def main(argv: list[str] | None = None) -> None:
     started = time.perf_counter()
     with torch_threads(args.threads):
         for bundle in bundles:
-            notes, rows = dev_rows(bundle, cache, args.data_root, configs, args.repeats, args.source)
+            notes, rows = dev_rows(bundle, cache, args.data_root, configs, args.repeats, args.source, args.refine)
             lines.append(f"- `{bundle.as_posix()}`: {notes[0]}")
             for variant, row in rows.items():
                 cells = [f"{row[k]:.3g}" if row.get(k) is not None else "–" for k, _ in COLUMNS]

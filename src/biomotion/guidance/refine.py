@@ -103,10 +103,10 @@ class GuidanceConfig:
     w_ground: float = 100.0
     w_angular_jerk: float = 0.01
     w_locomotion_speed: float = 1000.0
-    pace_window: float | None = None  # s: a requested speed held in every window this long (`losses.locomotion_pace`)
+    pace_window: float | None = 1.0  # s: a requested speed held in every window this long (`losses.locomotion_pace`)
     w_posture: float = 3000.0
-    w_amplitude: float = 0.0  # each coordinate's std over the clip held at the person's (`losses.amplitude`)
-    w_com_energy: float = 0.0  # COM energy fluctuation above the population's (`losses.com_energy`); 0 skips it
+    w_amplitude: float = 1000.0  # each coordinate's std over the clip held at the person's (`losses.amplitude`)
+    w_com_energy: float = 100.0  # COM energy fluctuation above the population's (`losses.com_energy`); 0 skips it
     w_zmp: float = 0.0  # ZMP outside the stance support (`losses.zmp_support`, HUMOS Sec. 3.4); 0 skips the term
     w_foot_skim: float = 10.0  # horizontal speed of foot points near the floor (`losses.foot_skim`); 0 skips it
     contact_height: float = 0.05  # m: a foot point of the unguided sample this low and ... (`stance_mask`)
