@@ -55,7 +55,13 @@ def command_line(argv: list[str] | None = None) -> str:
     `biomotion.io.paths.portable`)."""
     from biomotion.io.paths import portable
 
-    return "biomotion " + " ".join(shlex.quote(portable(a)) for a in (sys.argv[1:] if argv is None else argv))
+    def quoted(argument: str) -> str:
+        argument = portable(argument)
+        if argument.startswith("~/"):  # the shell expands ~ only outside quotes
+            return "~/" + shlex.quote(argument[2:])
+        return shlex.quote(argument)
+
+    return "biomotion " + " ".join(quoted(a) for a in (sys.argv[1:] if argv is None else argv))
 
 
 def add_overwrite(parser: argparse.ArgumentParser) -> None:
