@@ -26,6 +26,7 @@ from biomotion.errors import BiomotionError
 from biomotion.metrics.base import DESCRIPTION, Metric, Tensor, pair_mask, summarize
 from biomotion.metrics.clip_set import ClipSet
 from biomotion.metrics.contact import Floating, FootContactVelocity, Penetration, SkateRatio
+from biomotion.metrics.distribution import distribution_metrics
 from biomotion.metrics.fidelity import Diversity, Fidelity, GaussianFidelity, MotionEntropy
 from biomotion.metrics.plausibility import JointRangeViolation
 from biomotion.metrics.reconstruction import JointError, ProcrustesJointError
@@ -146,6 +147,12 @@ def diversity_features(s: ClipSet) -> torch.Tensor:
 
 DIVERSITY = Diversity(unit="m")
 """The diversity of a set: ``DIVERSITY.score(diversity_features(clips))`` gives the distances of all clip pairs."""
+
+
+DISTRIBUTION = tuple(distribution_metrics())
+"""The distribution metrics (FID, R-precision top-1/2/3, diversity, multimodality; `biomotion.metrics.distribution`):
+scored on the motion-text evaluator's embeddings of whole sets by `biomotion.evaluation.distribution`, not from a
+`ClipSet`."""
 
 
 def paired_metrics(root: int = 0) -> list[ClipSetMetric]:
