@@ -68,6 +68,7 @@ from biomotion.evaluation.generation import (
     unseen_targets,
 )
 from biomotion.guidance.refine import GuidanceConfig
+from biomotion.io.paths import portable
 from biomotion.motion import Motion
 
 #: Variants every fold generates (order of the report); named guidance settings come after them.
@@ -709,12 +710,12 @@ def eval_generation_cv(
         "command": command,
         "protocol": "subject-level cross-validation (biomotion.evaluation.generation_cv)",
         "targets_of": targets,
-        "checkpoints": str(checkpoints),
+        "checkpoints": portable(checkpoints),
         "settings": asdict(settings),
         "guidance": {name: _config_dict(c) for name, c in {"full": GuidanceConfig(), **guidance}.items()},
         "subjects": len(subjects),
         "folds": [list(f) for f in folds],
-        "fold_models": str(root),
+        "fold_models": portable(root),
         "seconds": round(time.monotonic() - started, 1),
         **{k: v for k, v in keys.items()},
         "pooled_table": pooled,

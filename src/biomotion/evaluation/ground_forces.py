@@ -42,6 +42,7 @@ from biomotion.data.plate_trials import (
 )
 from biomotion.errors import ConfigError
 from biomotion.io.atomic import atomic_write
+from biomotion.io.paths import portable
 from biomotion.models import ground_forces, ground_forces_fit
 from biomotion.models.ground_forces import SHIPPED, GroundForcesConfig, LearnedGroundReaction
 from biomotion.models.ground_forces_fit import FitSettings, fit, parse_config
@@ -309,7 +310,7 @@ def eval_ground_forces(
     shipped = LearnedGroundReaction.load(checkpoint)
     trained_on = shipped.train_subjects or set()
     report["shipped"] = {
-        "weights": str(checkpoint),
+        "weights": portable(checkpoint),
         "sha256": hashlib.sha256(checkpoint.read_bytes()).hexdigest(),
         "train_subjects": len(trained_on),
     }
