@@ -41,6 +41,7 @@ _API = {
     "read_profile": "biomotion.io.profiles",
     # the body and the lab chain (biomotion scale, retarget, analyze)
     "BodyModel": "biomotion.body.model",
+    "Shape": "biomotion.body.shape",
     "read_ik_setup": "biomotion.io.setup",
     "solve_ik": "biomotion.ik.markers",
     "calibrate": "biomotion.ik.calibrate",
@@ -54,6 +55,7 @@ _API = {
     "check": "biomotion.analysis.check",
     "learned_forces": "biomotion.models.ground_forces",
     "LearnedGroundReaction": "biomotion.models.ground_forces",
+    "ShapeAdapter": "biomotion.models.shape_vae",
     # data, generation, evaluation, validation, viewing
     "DatasetCache": "biomotion.data.registry",
     "build_cache": "biomotion.data.registry",

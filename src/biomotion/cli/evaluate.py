@@ -18,8 +18,11 @@ DESCRIPTION = (
     "never saw: leave-subject-out folds over the Fukuchi runners of --data-root (each fold trained on the others), "
     "and the shipped weights on OpenCap per activity, beside m(g + a_COM) and the contact model. Every mode works "
     "on any folder laid out like ../shared/data, whoever is in "
-    "it. Python: biomotion.evaluate, biomotion.eval_generation, "
-    "biomotion.evaluation.ground_forces.eval_ground_forces."
+    "it. `biomotion eval shape` puts one Fukuchi runner's motion on another's body at the same treadmill speed and "
+    "compares it with the other's own (HUMOS real pairs), the shape adapter against the copy baseline on pairs of "
+    "runners the adapter never saw. "
+    "Python: biomotion.evaluate, biomotion.eval_generation, "
+    "biomotion.evaluation.ground_forces.eval_ground_forces, biomotion.evaluation.shape.eval_shape."
 )
 
 
@@ -32,13 +35,15 @@ def add_parser(verbs) -> None:
     parser.add_argument(
         "mode",
         nargs="?",
-        choices=("reference", "generation", "ground-forces", "refine"),
+        choices=("reference", "generation", "ground-forces", "refine", "shape"),
         help="reference: score the real data (reference table); generation: generate for every "
         "unseen subject of --data-root and tabulate PG-BIG Tables 2-3 (full model, w/o "
         "guidance, w/o personalization, population baseline), the identity probe and the "
         "profile-manipulation study; ground-forces: the learned ground reaction, leave-subject-out on the "
         "Fukuchi runners and the shipped weights on OpenCap; refine: the PhysPT refiner on corrupted clips of "
-        "the subjects it never saw (against a tuned low-pass), on PG-BIG's generated clips, and its speed",
+        "the subjects it never saw (against a tuned low-pass), on PG-BIG's generated clips, and its speed; shape: "
+        "real pairs of Fukuchi runners at the same speed, A's motion on B's body against B's own (HUMOS; the "
+        "shape adapter against the copy baseline, on runners the adapter never saw)",
     )
     parser.add_argument(
         "--refiner",
@@ -117,6 +122,17 @@ def add_parser(verbs) -> None:
         default=8,
         help="generation: clips per profile in the manipulation study, 0 skips it (default: %(default)s)",
     )
+    parser.add_argument(
+        "--partners",
+        type=number(1, 100, integer=True),
+        default=None,
+        help="shape: runners B paired with each runner A at each speed (default: 3)",
+    )
+    parser.add_argument(
+        "--adapter",
+        help="shape: shape-adapter weights (`biomotion train shape-adapter`; default: "
+        "checkpoints/shape_adapter.safetensors when present), or 'none' for the copy baseline alone",
+    )
     parser.set_defaults(run=run)
 
 
@@ -157,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
         return _ground_forces(args)
     if args.mode == "refine":
         return _refine(args)
+    if args.mode == "shape":
+        return _shape(args)
     if args.mode == "reference":
         from biomotion.evaluation.harness import reference_command
 
@@ -295,5 +313,46 @@ def _refine(args: argparse.Namespace) -> int:
     for key, row in report["bars"].items():
         value = "–" if row["value"] is None else f"{row['value']:.3f}"
         print(f"  {'–' if row['met'] is None else 'met' if row['met'] else 'NOT met':8s} {key}: {value} ({row['bar']})")
+    print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
+    return 0
+
+
+SHIPPED_ADAPTER = "checkpoints/shape_adapter.safetensors"
+
+
+def _shape(args: argparse.Namespace) -> int:
+    from biomotion.errors import ConfigError
+    from biomotion.evaluation.shape import PARTNERS, eval_shape, load_adapter
+
+    if not args.data_root.is_dir():
+        raise ConfigError(f"{args.data_root}: --data-root is not a folder")
+    json_path = args.json or Path("docs/results/eval_shape.json")
+    md_path = args.md or (json_path.with_suffix(".md") if args.json is None else None)
+    writable_file(json_path, "--json")
+    adapter = args.adapter
+    if adapter is None and Path(SHIPPED_ADAPTER).is_file():
+        adapter = SHIPPED_ADAPTER
+    adapt, trained, info = (None, (), None) if adapter in (None, "none") else load_adapter(Path(adapter))
+    report = eval_shape(
+        args.data_root,
+        json_path,
+        md_path,
+        adapt=adapt,
+        trained=trained,
+        adapter_info=info,
+        partners=PARTNERS if args.partners is None else args.partners,
+        command=command_line(),
+    )
+    print(f"{report['pairs']} pairs of {report['subjects']} runners")
+    keys = ("shape_copy_dtw", "shape_copy_stride_rel_err", "shape_copy_cadence_rel_err")
+    if adapt is not None:
+        keys += ("shape_adapted_dtw", "shape_adapted_cadence_rel_err", "shape_dtw_gain_vs_copy", "shape_stride_rel_err")
+    for key in keys:
+        value = report[key]
+        print(f"  {key}: {'–' if value is None else f'{value:.4f}'}")
+    for key, why in report["not_measured"].items():
+        print(f"  {key}: – ({why})")
+    for line in report["skipped"]:
+        print(f"  skipped {line}")
     print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
     return 0

@@ -177,6 +177,53 @@ def add_parser(verbs) -> None:
     refiner.add_argument("--quiet", action="store_true", help="no progress bar")
     refiner.set_defaults(run=_refiner)
 
+    evaluator = models.add_parser(
+        "evaluator",
+        help="the motion-text evaluator of the distribution metrics (FID, R-precision; T2M-style)",
+        description="Train the contrastive motion and text encoders (T2M, Guo et al. 2022, Sec. 5) behind FID, "
+        "R-precision, diversity and multimodality on the training split of a dataset cache only (no val or test "
+        "subject is read for training); texts through the offline MiniLM encoder. Fixed iterations and seed; "
+        "minutes on one CPU thread. Python: biomotion.training.train_evaluator.train.",
+    )
+    evaluator.add_argument("--config", type=Path, required=True, help="YAML training config (configs/evaluator.yaml)")
+    evaluator.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    evaluator.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    evaluator.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
+    evaluator.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
+    evaluator.add_argument(
+        "--threads",
+        type=number(1, 256, integer=True),
+        default=1,
+        help="torch CPU threads for training (default: %(default)s)",
+    )
+    evaluator.add_argument("--quiet", action="store_true", help="no progress lines")
+    evaluator.set_defaults(run=_evaluator)
+
+    adapter = models.add_parser(
+        "shape-adapter",
+        help="the shape-conditioned motion c-VAE (HUMOS-style: a gait moved onto another body)",
+        description="Train the shape adapter on the gait clips of the training split of a dataset cache (Fukuchi, "
+        "Schreiber-Moissenet, Hamner; OpenCap kept out), each subject with the Shape of its own scaled model under "
+        "--data-root, without paired data: reconstruction with the own shape, cycle consistency A -> B -> A and a "
+        "foot-sliding term by forward kinematics (HUMOS Sec. 3). Fixed iterations and seed; minutes on one CPU "
+        "thread. Python: biomotion.training.train_shape_vae.train.",
+    )
+    adapter.add_argument("--config", type=Path, required=True, help="YAML training config (configs/shape_adapter.yaml)")
+    adapter.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    adapter.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    add_data_root(adapter, "folder with the subjects' scaled models (fukuchi-running/, Hamner2013/, ...)")
+    adapter.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
+    adapter.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
+    adapter.add_argument(
+        "--threads", type=number(1, 256, integer=True), default=1, help="torch CPU threads (default: %(default)s)"
+    )
+    adapter.add_argument("--quiet", action="store_true", help="no progress lines")
+    adapter.set_defaults(run=_shape_adapter)
+
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, required=True, help="YAML training config (configs/)")
@@ -384,4 +431,50 @@ def _refiner(args: argparse.Namespace) -> int:
         command=command_line(),
     )
     print(json.dumps({"val": card["val"]["means"], "lowpass_cutoff_hz": card["val"]["lowpass_cutoff_hz"]}, indent=1))
+    return 0
+
+
+def _evaluator(args: argparse.Namespace) -> int:
+    import json
+
+    from biomotion.body.kinematics import torch_threads
+    from biomotion.training.train_evaluator import train
+
+    config = _config(args)
+    with torch_threads(args.threads):
+        card = train(
+            config,
+            args.cache.expanduser(),  # a card's command quotes "~/..." (`command_line`): it still runs as shown
+            args.out,
+            iterations=args.iterations,
+            seed=args.seed,
+            progress=not args.quiet,
+            command=command_line(),
+        )
+    print(
+        json.dumps({"held_out": card["figures_held_out"], "fid_held_out_halves": card["fid_held_out_halves"]}, indent=1)
+    )
+    print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')})")
+    return 0
+
+
+def _shape_adapter(args: argparse.Namespace) -> int:
+    import json
+
+    from biomotion.training.train_shape_vae import train
+
+    config = _config(args)
+    card = train(
+        config,
+        args.cache.expanduser(),
+        args.out,
+        data_root=args.data_root,
+        iterations=args.iterations,
+        seed=args.seed,
+        threads=args.threads,
+        progress=not args.quiet,
+        command=command_line(),
+    )
+    print(json.dumps(card["figures_training_subjects"], indent=1))
+    print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')})")
     return 0
