@@ -85,7 +85,11 @@ def markdown(report: dict) -> str:
         "",
         f"**{report['bad_inputs_cases']} cases: {report['bad_inputs_clean']} clean, {report['bad_inputs_silent']} "
         f"silent, {report['bad_inputs_traceback']} traceback, {report['bad_inputs_hang']} hang.** Argument errors "
-        f"answer in at most {report['argument_error_max_s']:.2f} s (bar: {ARGUMENT_BAR_S:g} s).",
+        + (
+            f"answer in at most {report['argument_error_max_s']:.2f} s (bar: {ARGUMENT_BAR_S:g} s)."
+            if report["argument_error_max_s"] is not None
+            else "(no argument-error case in this run)."
+        ),
         "",
         "clean: one `error:` line naming the file or argument, exit 2 (or, for the valid requests marked ok, the "
         "right output; for interrupted runs, exit 130 and nothing left behind); silent: a wrong result without "
