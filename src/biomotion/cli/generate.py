@@ -88,6 +88,14 @@ def add_parser(verbs) -> None:
         default=0,
         help="random seed; the same seed gives the same files (default: %(default)s)",
     )
+    parser.add_argument(
+        "--generator",
+        choices=("pgbig", "flexmotion"),
+        default="pgbig",
+        help="pgbig (default) or flexmotion: one 2.1 s window per sample with torques_generated.sto, "
+        "grf_generated.mot, activations_generated.sto as generated and their agreement with inverse dynamics "
+        "in metrics.json (biomotion.generation.flexmotion)",
+    )
     parser.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
     parser.add_argument(
         "--smooth",
@@ -164,6 +172,22 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"{path}: {flag} is not a file")
     from biomotion.generation.request import generate
 
+    if args.generator == "flexmotion":
+        with fresh_folder(args.out, args.overwrite) as scratch:
+            result = generate(
+                action=args.action, out=scratch, data_root=args.data_root, checkpoints=args.checkpoints,
+                profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
+                references=args.reference or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
+                personalised=not args.no_profile, command=command_line(), smooth_hz=args.smooth,
+                refine=args.refine, generator="flexmotion",
+            )  # fmt: skip
+        print(f"generated {args.samples} FlexMotion clip(s) in {result['generate_seconds']:.2f} s -> {args.out}")
+        for k, files in enumerate(result["files"]):
+            for role, path in files.items():
+                print(
+                    f"  {f'sample_{k}/' if len(result['files']) > 1 else ''}{role:12s} {moved(path, scratch, args.out)}"
+                )
+        return 0
     with fresh_folder(args.out, args.overwrite) as scratch:
         result = generate(
             action=args.action,

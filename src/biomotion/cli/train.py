@@ -224,6 +224,31 @@ def add_parser(verbs) -> None:
     adapter.add_argument("--quiet", action="store_true", help="no progress lines")
     adapter.set_defaults(run=_shape_adapter)
 
+    flexmotion = models.add_parser(
+        "flexmotion",
+        help="FlexMotion: multimodal autoencoder + latent diffusion (motion with its torques, GRF, activations)",
+        description="Build (or read) the multimodal windows of the training split (coordinates, velocities, "
+        "torques by inverse dynamics with the contact solve's ground reaction, activations of the muscle "
+        "surrogate), train the physics-aware autoencoder (reconstruction + Euler-Lagrange term) and then the "
+        "text- and profile-conditioned latent diffusion (FlexMotion Sec. 3). Fixed iterations and seed. Python: "
+        "biomotion.training.train_flexmotion.train.",
+    )
+    flexmotion.add_argument("--config", type=Path, required=True, help="YAML training config (configs/flexmotion.yaml)")
+    flexmotion.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    flexmotion.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    add_data_root(flexmotion, "folder with opensim-models/ (the canonical Rajagopal model)")
+    flexmotion.add_argument(
+        "--surrogate",
+        type=Path,
+        default=Path("checkpoints/surrogate.safetensors"),
+        help="muscle surrogate giving the activations (default: %(default)s)",
+    )
+    flexmotion.add_argument(
+        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    )
+    flexmotion.add_argument("--quiet", action="store_true", help="no progress lines")
+    flexmotion.set_defaults(run=_flexmotion)
+
 
 def _common(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, required=True, help="YAML training config (configs/)")
@@ -477,4 +502,25 @@ def _shape_adapter(args: argparse.Namespace) -> int:
     )
     print(json.dumps(card["figures_training_subjects"], indent=1))
     print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')})")
+    return 0
+
+
+def _flexmotion(args: argparse.Namespace) -> int:
+    from biomotion.errors import ConfigError
+    from biomotion.training.train_flexmotion import train
+
+    config = _config(args)
+    if not args.surrogate.is_file():
+        raise ConfigError(f"{args.surrogate}: --surrogate is not a file")
+    card = train(
+        config,
+        args.cache.expanduser(),
+        args.out,
+        data_root=args.data_root,
+        surrogate=args.surrogate,
+        seed=args.seed,
+        progress=not args.quiet,
+        command=command_line(),
+    )
+    print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')}); seconds {card['seconds']}")
     return 0

@@ -67,6 +67,7 @@ def generate(
     smooth_hz: float | None = None,
     refine: bool = False,
     refiner: Path | None = None,
+    generator: str = "pgbig",
 ) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
@@ -82,7 +83,23 @@ def generate(
 
     ``refine``: pass every sample through the PhysPT refiner after guidance (`biomotion.models.refiner`; weights
     ``refiner``, default the shipped ones); the files then describe the refined motion, and metrics.json's
-    ``foot_planting`` change counts the refiner's change to the legs too."""
+    ``foot_planting`` change counts the refiner's change to the legs too.
+
+    ``generator``: ``"pgbig"`` (the above) or ``"flexmotion"`` (`biomotion.generation.flexmotion.generate`: one
+    window per sample with its torques, ground reaction and activations as generated; the profile is read as here,
+    references, guidance, smoothing and refinement do not apply)."""
+    if generator not in ("pgbig", "flexmotion"):
+        raise ConfigError(f"--generator {generator!r}: choose pgbig or flexmotion")
+    if generator == "flexmotion":
+        from biomotion.generation import flexmotion
+
+        if references or refine or smooth_hz is not None:
+            raise ConfigError("--generator flexmotion takes no --reference, --refine or --smooth")
+        chosen_profile = person(profile_file, subject_table, subject_id) if personalised else None
+        return flexmotion.generate(
+            action=action, out=Path(out), data_root=Path(data_root), checkpoints=checkpoints,
+            profile=chosen_profile, seed=seed, samples=samples, seconds=seconds, command=command,
+        )  # fmt: skip
     from biomotion.body.kinematics import torch_threads
     from biomotion.data.clips import MODEL_FILE
     from biomotion.generation.outputs import write_generation
