@@ -60,6 +60,7 @@ _API = {
     "DatasetCache": "biomotion.data.registry",
     "build_cache": "biomotion.data.registry",
     "generate": "biomotion.generation.request",
+    "Control": "biomotion.guidance.control",
     "refine": "biomotion.generation.refinement",
     "Refined": "biomotion.generation.refinement",
     "evaluate": "biomotion.evaluation.harness",

@@ -98,6 +98,13 @@ def add_parser(verbs) -> None:
     )
     parser.add_argument("--no-guidance", action="store_true", help="skip biomechanical guidance (ablation)")
     parser.add_argument(
+        "--control",
+        type=Path,
+        metavar="FILE",
+        help="control spec (YAML, examples/control/): targets on vertical GRF, joint angles or COM height, met "
+        "through guidance (biomotion.guidance.control)",
+    )
+    parser.add_argument(
         "--smooth",
         type=number(0, low_open=True),
         metavar="HZ",
@@ -179,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
                 profile_file=args.profile, subject_table=args.subject_table, subject_id=args.subject_id,
                 references=args.reference or (), seconds=args.seconds, seed=args.seed, samples=args.samples,
                 personalised=not args.no_profile, command=command_line(), smooth_hz=args.smooth,
-                refine=args.refine, generator="flexmotion",
+                refine=args.refine, generator="flexmotion", control=args.control,
             )  # fmt: skip
         print(f"generated {args.samples} FlexMotion clip(s) in {result['generate_seconds']:.2f} s -> {args.out}")
         for k, files in enumerate(result["files"]):
@@ -210,6 +217,7 @@ def run(args: argparse.Namespace) -> int:
             smooth_hz=args.smooth,
             refine=args.refine,
             refiner=args.refiner,
+            **({} if args.control is None else {"control": args.control}),
         )
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")

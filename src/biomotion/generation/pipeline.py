@@ -34,6 +34,7 @@ from biomotion.data.placement import GENERIC_HEIGHT, place_clip
 from biomotion.data.sources import to_canonical
 from biomotion.errors import BiomotionWarning, ConfigError
 from biomotion.generation.posture import amplitude_ratio, centring_shift, posture_offset
+from biomotion.guidance.control import Control
 from biomotion.guidance.refine import GuidanceConfig, Guide
 from biomotion.guidance.tempo import warp, warp_factor
 from biomotion.models.actions import ActionRequest
@@ -241,13 +242,16 @@ class Generator:
         top_k: int | None = 20,
         guidance_config: GuidanceConfig | None = None,
         biodata: bool = True,
+        control: Control | None = None,
     ) -> Generated:
         """Sample ``samples`` clips of ``seconds`` for the request; guided unless ``guidance`` is False. With
         reference clips and ``prime``, the prior's context starts with the end of the first reference (its
         codes), so the sample continues the person's own movement pattern under the requested action; with
         ``posture``, each decoded clip is centred on the person's posture (`biomotion.generation.posture`;
         ``reference_actions`` and ``reference_speeds``: the references' labels, inferred where not given);
-        ``biodata`` False masks the profile's biodata in the prior's condition (`condition`)."""
+        ``biodata`` False masks the profile's biodata in the prior's condition (`condition`). ``control``: targets
+        met through one more guidance term (`biomotion.guidance.control`; FlexMotion Sec. 3.3's controls by
+        PG-BIG Sec. 3.3's guidance); ignored without guidance."""
         if seconds <= 0:
             raise ConfigError(f"--seconds must be positive, got {seconds}")
         if round(seconds * self.rate) < MIN_FRAMES:
@@ -258,6 +262,8 @@ class Generator:
             )
         if samples < 1:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
+        if control is not None:
+            control.check(seconds)
         speed = None
         if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
             height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT
@@ -320,6 +326,7 @@ class Generator:
                 frames,
                 amplitude,
                 bundle.energy(action.action, action.speed) if config.w_com_energy > 0 else None,
+                control,
             )
 
         # coupled coordinates (the patella's knee _beta) set from their independent ones, as OpenSim's coupler

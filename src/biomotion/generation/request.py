@@ -68,6 +68,7 @@ def generate(
     refine: bool = False,
     refiner: Path | None = None,
     generator: str = "pgbig",
+    control: Path | None = None,
 ) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
@@ -87,9 +88,19 @@ def generate(
 
     ``generator``: ``"pgbig"`` (the above) or ``"flexmotion"`` (`biomotion.generation.flexmotion.generate`: one
     window per sample with its torques, ground reaction and activations as generated; the profile is read as here,
-    references, guidance, smoothing and refinement do not apply)."""
+    references, guidance, smoothing and refinement do not apply).
+
+    ``control``: a control spec file (`biomotion.guidance.control`), met through guidance (PG-BIG only)."""
     if generator not in ("pgbig", "flexmotion"):
         raise ConfigError(f"--generator {generator!r}: choose pgbig or flexmotion")
+    spec = None
+    if control is not None:
+        from biomotion.guidance.control import Control
+
+        if generator != "pgbig" or not guidance:
+            raise ConfigError("--control is met through guidance: it needs --generator pgbig and guidance on")
+        spec = Control.load(control)
+        spec.check(seconds)
     if generator == "flexmotion":
         from biomotion.generation import flexmotion
 
@@ -159,6 +170,7 @@ def generate(
             personalised=personalised,
             biodata=chosen.biodata,
             guidance_config=GuidanceConfig(smooth_hz=smooth_hz),
+            **({} if spec is None else {"control": spec}),
         )
     if refine:
         from dataclasses import replace
@@ -187,6 +199,7 @@ def generate(
             "guidance": guidance,
             "smooth_hz": smooth_hz,
             "refined": bool(refine),
+            **({} if control is None else {"control": str(control)}),
             "personalised": personalised,
             "bundle": ("full-body" if chosen.full_body else "lab") if checkpoints is None else str(checkpoints),
             "biodata_used": personalised and chosen.biodata and profile is not None,

@@ -41,6 +41,9 @@ evidence is in docs/decisions/guidance-weights.md and the pages it links):
 - no low-pass (``smooth_hz`` None; ours): the guided coordinates may be low-passed before planting (zero-lag
   Butterworth, `biomotion.motion.lowpass`, the filter the real clips went through at their source), ``biomotion
   generate --smooth HZ``: less jerk and fewer muscle-limit violations, a little more foot sliding.
+- user targets (``control``, ours after FlexMotion Sec. 3.3's controls: `biomotion.guidance.control`): with a
+  control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets); without
+  one nothing changes.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -167,6 +170,7 @@ class Guide:
         frames: int | None = None,
         amplitude_target: torch.Tensor | None = None,
         energy_high: float | None = None,
+        control=None,
     ) -> None:
         from biomotion.body.contact import foot_points
 
@@ -194,6 +198,7 @@ class Guide:
         if tempo is not None and frames is None:
             raise ValueError("a tempo needs the number of frames to play")
         self.tempo, self.frames = tempo, frames  # [B] playback factors (`biomotion.guidance.tempo`), output frames
+        self.control = control  # `biomotion.guidance.control.Control`: user targets, one more term (weights inside)
 
     def kinematics(self, z: torch.Tensor) -> Kinematics:
         """Decode latents [B, N, D], play them at the tempo when one is set, add the posture shift and put each
@@ -274,6 +279,8 @@ class Guide:
             heights = {"heights": k.feet[..., 1]} if self.surrogate_reads_feet else {}
             activations = self.surrogate(k.q, **heights)
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
+        if self.control is not None:
+            out["control"] = self.control.loss(k.q, k.com, self.rate, self.frames)
         return out
 
     def smoothed(self, q: torch.Tensor, cutoff_hz: float) -> torch.Tensor:
@@ -309,7 +316,7 @@ class Guide:
             if speed is None
             else torch.full((len(z0),), float(speed))
         )
-        weights = {t: getattr(c, f"w_{t}") for t in TERMS}
+        weights = {t: getattr(c, f"w_{t}") for t in TERMS} | {"control": 1.0}  # the control weighs its targets
         history = []
         for k in range(c.iterations):
             used = self._quantised(z) if c.quantize_at is not None and k >= c.quantize_at else z
