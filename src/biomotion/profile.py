@@ -43,7 +43,7 @@ def _shown(value: Any) -> str:
 
 
 def _text(value: Any, name: str) -> str | None:
-    """A text field as text: numbers and dates (YAML reads ``2015-03-01`` as a date) become their text; anything
+    """A text field as text: numbers and dates (YAML reads an unquoted ISO date as a date) become their text; anything
     else (a list, a mapping) is refused."""
     if value is None or isinstance(value, str):
         return value

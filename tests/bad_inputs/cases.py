@@ -323,10 +323,10 @@ def tokenizer_config(edit: Callable[[str], str]) -> Maker:
 
 
 def data_root_with(relative: str, maker: Callable[[bytes], bytes]) -> Maker:
-    """A data root in ``{t}/root`` holding only ``relative``, damaged by ``maker``."""
+    """A data root in ``{t}/datadir`` holding only ``relative``, damaged by ``maker``."""
 
     def make(t: Path, d: Path) -> None:
-        path = t / "root" / relative
+        path = t / "datadir" / relative
         path.parent.mkdir(parents=True)
         path.write_bytes(maker((d / relative).read_bytes()))
 
@@ -1699,12 +1699,12 @@ CASES: list[Case] = [
     # ----- validate -----
     Case(
         "validate-data-root-is-a-file",
-        ("validate", "kinematics", "--data-root", "{t}/root", "--json", "{t}/k.json"),
+        ("validate", "kinematics", "--data-root", "{t}/datadir", "--json", "{t}/k.json"),
         "clean",
         "verb validate (inputs)",
         "--data-root names a file",
-        "root",
-        make=write("root", "a file\n"),
+        "datadir",
+        make=write("datadir", "a file\n"),
     ),
     Case(
         "validate-json-is-a-folder",
@@ -1816,12 +1816,12 @@ CASES: list[Case] = [
     ),
     Case(
         "data-sources-root-is-a-file",
-        ("data", "sources", "--data-root", "{t}/root"),
+        ("data", "sources", "--data-root", "{t}/datadir"),
         "clean",
         "verb data sources (inputs)",
         "--data-root names a file",
-        "root",
-        make=write("root", "a file\n"),
+        "datadir",
+        make=write("datadir", "a file\n"),
     ),
     # ----- train tokenizer | generator | surrogate | labels | paths | segments -----
     Case(
@@ -1954,7 +1954,7 @@ CASES: list[Case] = [
     ),
     Case(
         "train-segments-ansur-truncated",
-        ("train", "segments", "--data-root", "{t}/root", "--out", "{t}/segments.json"),
+        ("train", "segments", "--data-root", "{t}/datadir", "--out", "{t}/segments.json"),
         "clean",
         "reader ANSUR II .csv; verb train segments",
         "the ANSUR II table cut in the middle of a row",

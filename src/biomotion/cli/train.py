@@ -161,20 +161,14 @@ def add_parser(verbs) -> None:
         "al. 2024, Sec. 3.2). Fixed iterations and seed; the contact QP of every clean clip is computed once "
         "and cached under ~/.cache/biomotion/refiner. Python: biomotion.training.train_refiner.train.",
     )
-    refiner.add_argument("--config", type=Path, required=True, help="YAML training config (configs/refiner.yaml)")
-    refiner.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
-    refiner.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
-    add_data_root(refiner, "folder with opensim-models/ (the canonical Rajagopal model)")
-    refiner.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
-    refiner.add_argument(
-        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    _model_args(
+        refiner, "refiner.yaml", "folder with opensim-models/ (the canonical Rajagopal model)", quiet="no progress bar"
     )
     refiner.add_argument(
         "--threads",
         type=number(1, 256, integer=True),
         help="torch CPU threads (default: the config's train.threads); results depend on it only by rounding",
     )
-    refiner.add_argument("--quiet", action="store_true", help="no progress bar")
     refiner.set_defaults(run=_refiner)
 
     evaluator = models.add_parser(
@@ -185,20 +179,13 @@ def add_parser(verbs) -> None:
         "subject is read for training); texts through the offline MiniLM encoder. Fixed iterations and seed; "
         "minutes on one CPU thread. Python: biomotion.training.train_evaluator.train.",
     )
-    evaluator.add_argument("--config", type=Path, required=True, help="YAML training config (configs/evaluator.yaml)")
-    evaluator.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
-    evaluator.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
-    evaluator.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
-    evaluator.add_argument(
-        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
-    )
+    _model_args(evaluator, "evaluator.yaml")
     evaluator.add_argument(
         "--threads",
         type=number(1, 256, integer=True),
         default=1,
         help="torch CPU threads for training (default: %(default)s)",
     )
-    evaluator.add_argument("--quiet", action="store_true", help="no progress lines")
     evaluator.set_defaults(run=_evaluator)
 
     adapter = models.add_parser(
@@ -210,18 +197,12 @@ def add_parser(verbs) -> None:
         "foot-sliding term by forward kinematics (HUMOS Sec. 3). Fixed iterations and seed; minutes on one CPU "
         "thread. Python: biomotion.training.train_shape_vae.train.",
     )
-    adapter.add_argument("--config", type=Path, required=True, help="YAML training config (configs/shape_adapter.yaml)")
-    adapter.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
-    adapter.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
-    add_data_root(adapter, "folder with the subjects' scaled models (fukuchi-running/, Hamner2013/, ...)")
-    adapter.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
-    adapter.add_argument(
-        "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
+    _model_args(
+        adapter, "shape_adapter.yaml", "folder with the subjects' scaled models (fukuchi-running/, Hamner2013/, ...)"
     )
     adapter.add_argument(
         "--threads", type=number(1, 256, integer=True), default=1, help="torch CPU threads (default: %(default)s)"
     )
-    adapter.add_argument("--quiet", action="store_true", help="no progress lines")
     adapter.set_defaults(run=_shape_adapter)
 
     flexmotion = models.add_parser(
@@ -233,21 +214,38 @@ def add_parser(verbs) -> None:
         "text- and profile-conditioned latent diffusion (FlexMotion Sec. 3). Fixed iterations and seed. Python: "
         "biomotion.training.train_flexmotion.train.",
     )
-    flexmotion.add_argument("--config", type=Path, required=True, help="YAML training config (configs/flexmotion.yaml)")
-    flexmotion.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
-    flexmotion.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
-    add_data_root(flexmotion, "folder with opensim-models/ (the canonical Rajagopal model)")
+    _model_args(
+        flexmotion, "flexmotion.yaml", "folder with opensim-models/ (the canonical Rajagopal model)", iterations=False
+    )
     flexmotion.add_argument(
         "--surrogate",
         type=Path,
         default=Path("checkpoints/surrogate.safetensors"),
         help="muscle surrogate giving the activations (default: %(default)s)",
     )
-    flexmotion.add_argument(
+    flexmotion.set_defaults(run=_flexmotion)
+
+
+def _model_args(
+    parser: argparse.ArgumentParser,
+    config: str,
+    data_root: str | None = None,
+    iterations: bool = True,
+    quiet: str = "no progress lines",
+) -> None:
+    """--config, --cache, --out, (--data-root), (--iterations), --seed and --quiet: what every model's training
+    takes; each subcommand adds its own options after them."""
+    parser.add_argument("--config", type=Path, required=True, help=f"YAML training config (configs/{config})")
+    parser.add_argument("--cache", type=Path, required=True, help="cache folder from `biomotion data build`")
+    parser.add_argument("--out", type=Path, required=True, help="weights file to write (.safetensors)")
+    if data_root is not None:
+        add_data_root(parser, data_root)
+    if iterations:
+        parser.add_argument("--iterations", type=number(1, integer=True), help="override the config's train.iterations")
+    parser.add_argument(
         "--seed", type=number(0, 2**63 - 1, integer=True), default=0, help="random seed (default: %(default)s)"
     )
-    flexmotion.add_argument("--quiet", action="store_true", help="no progress lines")
-    flexmotion.set_defaults(run=_flexmotion)
+    parser.add_argument("--quiet", action="store_true", help=quiet)
 
 
 def _common(parser: argparse.ArgumentParser) -> None:
