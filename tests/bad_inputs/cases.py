@@ -1400,8 +1400,19 @@ CASES: list[Case] = [
         fast=False,
     ),
     Case(
-        "generate-interrupted",
-        (*GENERATE, "--out", "{t}/out"),
+        "generate-interrupted",  # guided and 3 s long: still computing when the signal comes
+        (
+            "generate",
+            "--action",
+            "run at 3.5 m/s",
+            "--seconds",
+            "3",
+            "--no-figures",
+            "--data-root",
+            "{d}",
+            "--out",
+            "{t}/out",
+        ),
         "interrupt",
         "verb generate (interrupted run)",
         "SIGINT while generating: exit 130, no --out, no scratch folder left",
