@@ -73,14 +73,22 @@ def fields(case: Case, folder: Path, data: Path) -> dict[str, str]:
 
 def run_subprocess(case: Case, root: Path, data: Path, timeout: float = TIMEOUT) -> Outcome:
     """``python -m biomotion ARGV`` in the case's folder, ``$BIOMOTION_DATA_ROOT`` set to ``data``. An interrupt
-    case whose command finished before the signal could be sent tested nothing: it runs again, signalled sooner
-    (`INTERRUPT_WAITS`), and counts as such only if it never could be interrupted."""
+    case whose command had finished its work before the signal reached it (ended before it could be sent, or
+    exited 0 with its output complete and in place) tested nothing: it runs again, signalled sooner
+    (`INTERRUPT_WAITS`). The last try signals as soon as the scratch folder appears, while the work has only
+    begun, so a command that ignores Ctrl-C still fails there."""
     for wait in INTERRUPT_WAITS if case.expect == "interrupt" else (None,):
         shutil.rmtree(root / case.id, ignore_errors=True)
         outcome, signalled = _run_once(case, root, data, timeout, wait)
-        if case.expect != "interrupt" or signalled:
+        if case.expect != "interrupt" or (signalled and not _finished_first(outcome, root, data)):
             break
     return outcome
+
+
+def _finished_first(outcome: Outcome, root: Path, data: Path) -> bool:
+    """Whether an interrupted run had already done its work: exit 0 with its output folder in place."""
+    folder = root / outcome.case.id
+    return outcome.returncode == 0 and Path(outcome.case.out.format(**fields(outcome.case, folder, data))).is_dir()
 
 
 #: Seconds between the scratch folder appearing and Ctrl-C, one try each: into the work, then sooner for a
