@@ -71,6 +71,7 @@ def record(outcome: Outcome, root: Path, data: Path) -> dict:
         "reason": outcome.reason,
         "argument_error": case.argument,
         "fast": case.fast,
+        **({"interrupt_tries": outcome.tries} if outcome.tries else {}),
     }
 
 

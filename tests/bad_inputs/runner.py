@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 from contextlib import redirect_stderr, redirect_stdout
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from tests.bad_inputs.cases import Case, unwritable
@@ -46,6 +46,8 @@ class Outcome:
     stderr: str
     verdict: str = ""
     reason: str = ""
+    #: interrupt cases: one "wait W s: signalled|ended first" per try, in order
+    tries: list[str] = field(default_factory=list)
 
     @property
     def first_error_line(self) -> str:
@@ -77,11 +79,21 @@ def run_subprocess(case: Case, root: Path, data: Path, timeout: float = TIMEOUT)
     exited 0 with its output complete and in place) tested nothing: it runs again, signalled sooner
     (`INTERRUPT_WAITS`). The last try signals as soon as the scratch folder appears, while the work has only
     begun, so a command that ignores Ctrl-C still fails there."""
+    tries = []
     for wait in INTERRUPT_WAITS if case.expect == "interrupt" else (None,):
         shutil.rmtree(root / case.id, ignore_errors=True)
         outcome, signalled = _run_once(case, root, data, timeout, wait)
-        if case.expect != "interrupt" or (signalled and not _finished_first(outcome, root, data)):
+        if wait is None:
             break
+        finished = _finished_first(outcome, root, data)
+        tries.append(
+            f"wait {wait} s: "
+            + ("not signalled (ended first)" if not signalled else f"exit {outcome.returncode}")
+            + (", output complete" if finished else "")
+        )
+        if signalled and not finished:
+            break
+    outcome.tries = tries
     return outcome
 
 

@@ -24,6 +24,7 @@ VERBS = (
     "batch",
     "check",
     "generate",
+    "adapt",
     "refine",
     "scale",
     "retarget",
@@ -92,39 +93,53 @@ def main(argv: list[str] | None = None) -> int:
         return done.code if isinstance(done.code, int) else 2
     import warnings
 
+    from biomotion.cli._common import interrupted, remembering_interrupts
+
+    with remembering_interrupts():
+        try:
+            from biomotion.body.kinematics import torch_threads
+
+            # many small batched tensor ops: one intra-op thread per process is fastest (docs/results/dynamics.md)
+            with torch_threads(1), warnings.catch_warnings():
+                warnings.showwarning = _one_line_warnings(warnings.showwarning)
+                status = int(args.run(args) or 0)
+        except KeyboardInterrupt:
+            return _interrupted()
+        except Exception as error:  # noqa: BLE001 - every failure is reported on one line (see `_failed`)
+            return _interrupted() if interrupted() else _failed(error, args, debug)
+    return _interrupted() if interrupted() else status
+
+
+def _interrupted() -> int:
+    print("interrupted", file=sys.stderr)
+    return 130
+
+
+def _failed(error: Exception, args: argparse.Namespace, debug: bool) -> int:
+    """One line on stderr for ``error`` and the exit status: 2 for bad input (`BiomotionError`) and what the file
+    system refused, 141 for a closed pipe, 1 for anything else (a bug; re-raised with ``--debug``)."""
     from biomotion.errors import BiomotionError, SettingsError
 
-    try:
-        from biomotion.body.kinematics import torch_threads
-
-        # many small batched tensor ops: one intra-op thread per process is fastest (docs/results/dynamics.md)
-        with torch_threads(1), warnings.catch_warnings():
-            warnings.showwarning = _one_line_warnings(warnings.showwarning)
-            return int(args.run(args) or 0)
-    except BiomotionError as error:
+    if isinstance(error, BiomotionError):
         config = getattr(args, "config", None)
         if isinstance(error, SettingsError) and config is not None:  # a setting of the --config file: name it
             error = f"{config}: {error}"
         print(f"error: {error}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:  # `biomotion inspect X | head`: the reader left; say nothing more
+    if isinstance(error, BrokenPipeError):  # `biomotion inspect X | head`: the reader left; say nothing more
         sys.stdout = open(os.devnull, "w")
         return 141
-    except OSError as error:  # the file system refused: a full disk, a permission, a path that is too long
+    if isinstance(error, OSError):  # the file system refused: a full disk, a permission, a path that is too long
         if debug:
-            raise
+            raise error
         where = f"{error.filename}: " if error.filename else ""
         print(f"error: {where}{error.strerror or error}", file=sys.stderr)
         return 2
-    except Exception as error:  # noqa: BLE001 - the last resort: one line, not a traceback, unless --debug
-        if debug:
-            raise
-        print(
-            f"internal error: {type(error).__name__}: {error} (a bug in biomotion; rerun with --debug for the "
-            "traceback and report it)",
-            file=sys.stderr,
-        )
-        return 1
+    if debug:
+        raise error
+    print(
+        f"internal error: {type(error).__name__}: {error} (a bug in biomotion; rerun with --debug for the "
+        "traceback and report it)",
+        file=sys.stderr,
+    )
+    return 1

@@ -1,5 +1,5 @@
 """What several verbs share: the data-root default, numeric argument types with documented ranges, the command
-line as recorded in reports, and output folders that appear whole or not at all.
+line as recorded in reports, output folders that appear whole or not at all, and Ctrl-C that is never lost.
 
 Only the standard library is imported here: the parser must answer ``--help`` and argument errors before torch or
 scipy load.
@@ -12,13 +12,16 @@ import math
 import os
 import shlex
 import shutil
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 DATA_ROOT_VARIABLE = "BIOMOTION_DATA_ROOT"
+_CTRL_C = threading.Event()
 
 
 def default_data_root() -> Path:
@@ -96,6 +99,8 @@ def fresh_folder(out: Path, overwrite: bool) -> Iterator[Path]:
         raise ConfigError(f"{out}: cannot create the output folder here: {error.strerror or error}") from None
     try:
         yield scratch
+        if interrupted():  # Ctrl-C that a library swallowed: the run stops all the same
+            raise KeyboardInterrupt
     except BaseException:
         shutil.rmtree(scratch, ignore_errors=True)
         raise
@@ -128,3 +133,34 @@ def writable_file(path: Path, what: str = "--out") -> Path:
     if parent.exists() and not os.access(parent, os.W_OK):
         raise ConfigError(f"{path}: {what} is not writable (no permission on {parent})")
     return path
+
+
+@contextmanager
+def remembering_interrupts() -> Iterator[None]:
+    """Within the block, Ctrl-C (SIGINT) raises `KeyboardInterrupt` as Python's own handler does and is also
+    remembered (`interrupted`). A KeyboardInterrupt can be lost on its way up: one that lands while a C extension
+    initialises comes out as ``ImportError: initialization failed``, which a library's optional import catches and
+    goes on. The CLI asks `interrupted` instead, so an interrupted command still exits 130 and `fresh_folder` still
+    discards its scratch folder. Outside the main thread, or where SIGINT is not Python's default handler (ignored,
+    or someone else's), the handler is left as it is."""
+    _CTRL_C.clear()
+    if threading.current_thread() is not threading.main_thread() or (
+        signal.getsignal(signal.SIGINT) is not signal.default_int_handler
+    ):
+        yield
+        return
+
+    def remember(signum, frame):
+        _CTRL_C.set()
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, remember)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def interrupted() -> bool:
+    """Whether Ctrl-C came during the current `remembering_interrupts` block, whatever became of its exception."""
+    return _CTRL_C.is_set()
