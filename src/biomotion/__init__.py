@@ -60,6 +60,8 @@ _API = {
     "DatasetCache": "biomotion.data.registry",
     "build_cache": "biomotion.data.registry",
     "generate": "biomotion.generation.request",
+    "adapt": "biomotion.generation.adapt",
+    "read_body": "biomotion.generation.adapt",
     "Control": "biomotion.guidance.control",
     "refine": "biomotion.generation.refinement",
     "Refined": "biomotion.generation.refinement",

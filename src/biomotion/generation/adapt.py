@@ -1,0 +1,375 @@
+"""`adapt`: a motion of one body moved onto another body the way that body would move (HUMOS, ``humos.md``), as a
+request end to end: the two bodies, the shape adapter, the motion on the target's scaled model, and its files.
+
+HUMOS ("Method Summary") decodes an identity-agnostic motion latent conditioned on the target identity; here the
+trained `biomotion.models.shape_vae.ShapeAdapter` does it for a gait (its module docstring: which coordinates it
+moves, how the stride time follows the target's shape). This module wraps it for a user:
+
+- **Bodies** (`read_body`): a scaled OpenSim model (``.osim``: its `Shape` by `Shape.from_model`, segment lengths
+  in metres as the adapter reads them) or a shape file (YAML/JSON, `SHAPE_FILE_KEYS`): explicit measures
+  ``height`` (m) and ``mass`` (kg), optionally ``sex``, through the ANSUR II segment lines
+  (`Shape.from_measures`), or the fields of a `Shape` itself (``reference``, ``scales``, ``mass``, ``masses``,
+  ``height``, ``lengths``, ``sex``, as `Shape.as_dict` writes them). A shape file's scaled model is its generic
+  model (``generic``, a path relative to the file; default the caller's ``generic``, else Rajagopal 2016 under the
+  data root) scaled by `Shape.to_model`, the round trip `Shape.write_osim` writes. A model without a head or a
+  torso (a lower-limb model) has no standing height, which the adapter needs: give it (``height``).
+- **Knee sign**: the motion's knee flexion sign is read from its values
+  (`biomotion.generation.pipeline.knee_flexion_negative`: Fukuchi ``_simple`` and Hamner models flex negative);
+  the target model's from its knee range (`knee_negative`: a range within (-inf, 0] flexes negative). The output
+  carries the target's sign.
+- **On the target model**: the adapted columns are put in the target model's coordinate order; coordinates the
+  motion lacks take the model's defaults (named in `Adapted.filled`), couplers are applied.
+- **Floor**: the adapter keeps the pelvis translations, so on a longer or shorter body the feet would sink or hover.
+  ``pelvis_ty`` is shifted so the 5th percentile over frames of the lowest foot contact point
+  (`biomotion.body.contact.lowest_foot_heights`, `biomotion.body.contact.GROUND_PERCENTILE`) is where the source
+  motion's is on the source model: the adapted body stands on the source's floor (`Adapted.floor_shift_m`).
+
+`write_adapted` writes ``motion.mot`` (degrees), ``model.osim`` (the target's scaled model), ``motion.bvh``
+(`biomotion.body.bvh_export.motion_to_bvh`), ``viewer.html`` (the adapted motion on the target beside the source on
+its own body, `biomotion.viz.viewer.write_viewer`) and ``record.json`` (inputs, both shapes, the adapter's file and
+SHA-256, stride times, versions). Contract: inputs are not changed; bad bodies and motions raise a one-line
+`biomotion.errors.ConfigError` or `biomotion.errors.DataFormatError` naming the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from biomotion.body.canonical import KNEE_COORDINATES
+from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
+from biomotion.body.kinematics import apply_couplers
+from biomotion.body.model import BodyModel
+from biomotion.body.shape import Shape, segment_lengths
+from biomotion.errors import ConfigError, DataFormatError
+from biomotion.io.atomic import atomic_write
+from biomotion.motion import Motion
+
+ADAPTER_FILE = "shape_adapter.safetensors"
+OSIM_SUFFIXES = (".osim",)
+SHAPE_SUFFIXES = (".yaml", ".yml", ".json")
+SHAPE_FILE_KEYS = (
+    "height",
+    "mass",
+    "sex",
+    "generic",
+    "generic_height",
+    "reference",
+    "scales",
+    "masses",
+    "lengths",
+)
+"""Keys a shape file may hold (module docstring)."""
+
+
+@dataclass(frozen=True)
+class Body:
+    """A body a motion is moved from or onto: its `Shape`, its scaled model, and where they came from: ``osim`` the
+    scaled model file given, or ``generic`` the generic model file a shape file is scaled from (one is set)."""
+
+    shape: Shape
+    model: BodyModel
+    source: Path
+    osim: Path | None = None
+    generic: Path | None = None
+
+    def write_osim(self, out: str | Path) -> Path:
+        """The scaled model as an .osim at ``out``: a copy of the file given, or the generic model scaled by the
+        shape (`Shape.write_osim`, named after the shape file)."""
+        out = Path(out)
+        if self.osim is not None:
+            with atomic_write(out, "wb") as handle:
+                handle.write(self.osim.read_bytes())
+        else:
+            self.shape.write_osim(self.generic, out, name=self.source.stem)
+        return out
+
+    @property
+    def geometry(self) -> list[Path]:
+        """Folders holding the model's meshes (`biomotion.viz.scene.geometry_folders` of its file)."""
+        from biomotion.viz.scene import geometry_folders
+
+        return geometry_folders(self.osim or self.generic)
+
+
+@dataclass(frozen=True)
+class Adapted:
+    """A motion moved onto ``target`` (module docstring): ``motion`` in the target model's coordinate order,
+    ``source_motion`` as given; the adapter's file and SHA-256; what was done to fit the target."""
+
+    motion: Motion
+    source_motion: Motion
+    source: Body
+    target: Body
+    adapter_file: Path
+    adapter_sha256: str
+    knee_negative: dict[str, bool]
+    filled: tuple[str, ...]
+    floor_shift_m: float | None
+    stride_time_s: dict[str, float]
+
+
+def knee_negative(model: BodyModel) -> bool:
+    """True when ``model``'s knee flexion is negative: its knee coordinates' ranges lie within (-inf, 0]
+    (Fukuchi ``_simple``: [-120°, 0]; Rajagopal 2016: [0, 120°])."""
+    knees = [model.coordinate_index(n) for n in KNEE_COORDINATES if n in model.coordinate_names]
+    return bool(knees) and all(float(model.ranges[k, 1]) <= 0.0 for k in knees)
+
+
+def _default_generic(data_root: str | Path | None) -> Path:
+    from biomotion.data.clips import MODEL_FILE
+    from biomotion.settings import default_data_root
+
+    return Path(data_root if data_root is not None else default_data_root()) / MODEL_FILE
+
+
+def _read_mapping(path: Path) -> dict:
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"{path}: cannot read the shape file: {error.strerror or error}") from None
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        raise DataFormatError(
+            path,
+            f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
+            line=None if mark is None else mark.line + 1,
+        ) from None
+    if not isinstance(data, dict):
+        raise DataFormatError(path, "a shape file holds a mapping: height and mass, or the fields of a Shape")
+    unknown = sorted(set(data) - set(SHAPE_FILE_KEYS))
+    if unknown:
+        raise DataFormatError(path, f"unknown keys {unknown}; a shape file holds {list(SHAPE_FILE_KEYS)}")
+    return data
+
+
+def _shape_file(path: Path, height: float | None, generic: Path | None, data_root: str | Path | None) -> Body:
+    data = _read_mapping(path)
+    generic_file = (path.parent / data["generic"]) if data.get("generic") else generic or _default_generic(data_root)
+    if not Path(generic_file).is_file():
+        raise ConfigError(f"{path}: its generic model {generic_file} is not a file (give `generic:` in the file)")
+    generic_model = BodyModel.from_osim(generic_file)
+    try:
+        if "scales" in data:
+            fields = {k: data.get(k) for k in ("scales", "mass", "masses", "height", "sex")}
+            shape = Shape(
+                reference=data.get("reference") or generic_model.name, lengths=data.get("lengths") or {}, **fields
+            )
+        else:
+            missing = [k for k in ("height", "mass") if data.get(k) is None]
+            if missing:
+                raise ConfigError(f"no {' or '.join(missing)}: give height (m) and mass (kg), or a Shape's scales")
+            shape = Shape.from_measures(
+                data["height"],
+                data["mass"],
+                data.get("sex"),
+                generic=generic_model,
+                generic_height=data.get("generic_height"),
+            )
+        if height is not None:
+            shape = dataclasses.replace(shape, height=height)
+        model = shape.to_model(generic_model)
+        shape = dataclasses.replace(shape, lengths={**segment_lengths(model), **shape.lengths})
+    except (ConfigError, TypeError) as error:
+        raise DataFormatError(path, str(error)) from None
+    return Body(shape, model, path, generic=Path(generic_file))
+
+
+def read_body(
+    path: str | Path,
+    *,
+    height: float | None = None,
+    generic: str | Path | None = None,
+    data_root: str | Path | None = None,
+    what: str = "body",
+) -> Body:
+    """The `Body` of a scaled ``.osim`` or of a shape file (module docstring). ``height`` (m) sets or replaces the
+    body's standing height; ``generic`` is the generic .osim a shape file without ``generic:`` is scaled from
+    (default Rajagopal 2016 under ``data_root``); ``what`` names the argument in errors ("--to")."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: {what} is not a file (a scaled .osim or a shape file .yaml/.json)")
+    suffix = path.suffix.lower()
+    if suffix in OSIM_SUFFIXES:
+        model = BodyModel.from_osim(path)
+        generic_model = BodyModel.from_osim(generic) if generic is not None else None
+        try:
+            shape = Shape.from_model(model, generic_model, height=height)
+        except ConfigError as error:
+            raise ConfigError(f"{path}: {error}") from None
+        body = Body(shape, model, path, osim=path)
+    elif suffix in SHAPE_SUFFIXES:
+        body = _shape_file(path, height, None if generic is None else Path(generic), data_root)
+    else:
+        raise ConfigError(
+            f"{path}: {what} must be a scaled OpenSim model (.osim) or a shape file (.yaml/.yml/.json), "
+            f"not {suffix or 'a file without a suffix'}"
+        )
+    if body.shape.height is None:
+        raise ConfigError(
+            f"{path}: {what} has no head or torso to measure a standing height from; give its height in metres "
+            f"({what}-height)"
+        )
+    if not any(name.startswith("calcn") for name in body.model.body_names):
+        raise ConfigError(f"{path}: {what} has no calcn_r/calcn_l body: the shape adapter reads feet")
+    return body
+
+
+def _on_model(motion: Motion, model: BodyModel) -> tuple[Motion, tuple[str, ...]]:
+    """``motion`` in ``model``'s coordinate order, absent coordinates at the model's defaults, couplers applied;
+    and the names of those filled in (coupled ones excepted)."""
+    selected = motion.select(model.coordinate_names)
+    dependent = {model.coordinate_names[c.dependent] for c in model.couplers}
+    values = torch.as_tensor(selected.values, dtype=model.dtype)
+    absent = ~torch.as_tensor(selected.mask)
+    values[:, absent] = model.defaults[absent]
+    values = apply_couplers(model, values)
+    filled = tuple(n for n, a in zip(model.coordinate_names, absent.tolist()) if a and n not in dependent)
+    mask = np.ones(len(model.coordinate_names), dtype=bool)
+    return Motion(times=selected.times, names=selected.names, values=values.numpy(), mask=mask), filled
+
+
+def _floor(model: BodyModel, motion: Motion) -> float:
+    return float(np.percentile(lowest_foot_heights(model, motion.values.astype(np.float64)), GROUND_PERCENTILE))
+
+
+def _load_adapter(adapter):
+    from biomotion.generation.pipeline import CHECKPOINTS
+    from biomotion.models.shape_vae import ShapeAdapter
+
+    path = Path(CHECKPOINTS / ADAPTER_FILE if adapter is None else adapter)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no shape adapter weights (`biomotion train shape-adapter` writes them)")
+    return ShapeAdapter.load(path), path
+
+
+def adapt(
+    motion: Motion,
+    source: Body | str | Path,
+    target: Body | str | Path,
+    *,
+    adapter: str | Path | None = None,
+    source_height: float | None = None,
+    target_height: float | None = None,
+    generic: str | Path | None = None,
+    data_root: str | Path | None = None,
+) -> Adapted:
+    """``motion`` of the body ``source`` moved onto the body ``target`` (each a `Body`, a scaled .osim or a shape
+    file, `read_body`) by the shape adapter at ``adapter`` (default the shipped
+    ``checkpoints/shape_adapter.safetensors``); see the module docstring for the knee sign, the coordinates and the
+    floor. ``source_height`` / ``target_height`` (m) give a body's standing height where its model has none."""
+    from biomotion.generation.pipeline import knee_flexion_negative
+    from biomotion.models.shape_vae import motion_features, stride_time
+
+    if not isinstance(source, Body):
+        source = read_body(source, height=source_height, generic=generic, data_root=data_root, what="--from")
+    if not isinstance(target, Body):
+        target = read_body(target, height=target_height, generic=generic, data_root=data_root, what="--to")
+    model, path = _load_adapter(adapter)
+    flipped = knee_flexion_negative(motion)
+    moved = model.adapt(motion, source.shape, target.shape, knee_flipped=flipped)
+    negative = knee_negative(target.model)
+    if negative != flipped:
+        values = moved.values.copy()
+        for name in (n for n in KNEE_COORDINATES if n in moved.names):
+            values[:, moved.index(name)] *= -1.0
+        moved = moved.with_values(values)
+    on_target, filled = _on_model(moved, target.model)
+    shift = None
+    if "pelvis_ty" in target.model.coordinate_names and "pelvis_ty" in motion.names:
+        on_source, _ = _on_model(motion, source.model)
+        shift = _floor(source.model, on_source) - _floor(target.model, on_target)
+        values = on_target.values.copy()
+        values[:, on_target.index("pelvis_ty")] += shift
+        on_target = on_target.with_values(values)
+    strides = {  # as the adapter's stride detector measures them in the source and in the output
+        "source": stride_time(motion_features(motion, knee_flipped=flipped), motion.rate),
+        "adapted": stride_time(motion_features(moved, knee_flipped=negative), moved.rate),
+    }
+    return Adapted(
+        motion=on_target,
+        source_motion=motion,
+        source=source,
+        target=target,
+        adapter_file=path,
+        adapter_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        knee_negative={"source": flipped, "target": negative},
+        filled=filled,
+        floor_shift_m=shift,
+        stride_time_s=strides,
+    )
+
+
+def _finite(value):
+    """JSON-ready: non-finite floats as None, containers walked."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
+def write_adapted(
+    adapted: Adapted,
+    out: str | Path,
+    *,
+    viewer: bool = True,
+    inputs: dict | None = None,
+    command: str | None = None,
+) -> dict[str, Path]:
+    """Write ``adapted``'s files into the folder ``out`` (module docstring); returns them by role. ``inputs`` (what
+    the user gave) and ``command`` are copied into ``record.json``."""
+    from biomotion.body.bvh_export import motion_to_bvh
+    from biomotion.generation.request import versions
+    from biomotion.io.bvh import write_bvh
+    from biomotion.io.mot import write_motion
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = {
+        "motion": write_motion(out / "motion.mot", adapted.motion, name="adapted"),
+        "model": adapted.target.write_osim(out / "model.osim"),
+    }
+    write_bvh(out / "motion.bvh", motion_to_bvh(adapted.target.model, adapted.motion))
+    files["bvh"] = out / "motion.bvh"
+    if viewer:
+        from biomotion.viz.scene import model_scene
+        from biomotion.viz.viewer import write_viewer
+
+        source_motion, _ = _on_model(adapted.source_motion, adapted.source.model)
+        ours = model_scene(adapted.target.model, adapted.motion, folders=adapted.target.geometry, name="adapted")
+        theirs = model_scene(adapted.source.model, source_motion, folders=adapted.source.geometry, name="source")
+        files["viewer"] = write_viewer(
+            ours, out / "viewer.html", compare=theirs, compare_mode="side", title="biomotion adapt"
+        )
+    record = {
+        "inputs": inputs or {},
+        "command": command,
+        "adapter": {"weights": adapted.adapter_file.name, "sha256": adapted.adapter_sha256},
+        "source_shape": adapted.source.shape.as_dict(),
+        "target_shape": adapted.target.shape.as_dict(),
+        "target_model": adapted.target.model.name,
+        "knee_flexion_negative": adapted.knee_negative,
+        "coordinates_at_model_defaults": list(adapted.filled),
+        "floor_shift_m": adapted.floor_shift_m,
+        "stride_time_s": adapted.stride_time_s,
+        "frames": adapted.motion.n_frames,
+        "rate_hz": adapted.motion.rate,
+        "versions": versions(),
+        "files": sorted(p.name for p in (*files.values(), out / "record.json")),
+    }
+    with atomic_write(out / "record.json") as handle:
+        json.dump(_finite(record), handle, indent=1)
+    files["record"] = out / "record.json"
+    return files
