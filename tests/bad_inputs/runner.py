@@ -120,6 +120,7 @@ def _run_once(case: Case, root: Path, data: Path, timeout: float, wait: float | 
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        preexec_fn=_ctrl_c_as_in_a_terminal if wait is not None else None,
     )
     signalled = False
     if wait is not None:
@@ -135,6 +136,13 @@ def _run_once(case: Case, root: Path, data: Path, timeout: float, wait: float | 
     outcome = Outcome(case, argv, returncode, time.perf_counter() - started, stdout, stderr)
     judge(outcome, folder, data)
     return outcome, signalled
+
+
+def _ctrl_c_as_in_a_terminal() -> None:
+    """In the child before it starts: SIGINT to its default action, as a command typed in a terminal has it. A
+    runner started in the background of a non-interactive shell (``python benchmarks/bad_inputs.py &``) ignores
+    SIGINT, the children inherit that, and Python keeps an ignored SIGINT ignored: Ctrl-C would test nothing."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _interrupt_when_writing(process: subprocess.Popen, out: Path, started: float, timeout: float, wait: float) -> bool:
