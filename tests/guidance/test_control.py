@@ -123,3 +123,122 @@ def test_control_needs_pgbig_guidance(tmp_path, capsys, extra):
     args = ["generate", "--action", "run", "--control", str(EXAMPLE), *extra, "--out", str(tmp_path / "o")]
     assert main(args) == 2
     assert "--control is met through guidance" in capsys.readouterr().err
+
+
+def test_the_new_examples_load():
+    squat = Control.load(REPO / "examples/control/squat_knee_cap.yaml")
+    assert {(t.quantity, t.coordinate, t.kind, t.value) for t in squat.targets} == {
+        ("joint_torque", "knee_angle_r", "min", -0.5),
+        ("joint_torque", "knee_angle_l", "min", -0.5),
+    }
+    (reach,) = Control.load(REPO / "examples/control/reach_hand_path.yaml").targets
+    assert (reach.quantity, reach.body, reach.kind, len(reach.points)) == ("joint_position", "hand_r", "path", 5)
+    assert reach.times[0] == 0.3 and reach.points[0] == (0.15, 1.0, 0.24)
+
+
+@pytest.mark.parametrize(
+    "targets, message",
+    [
+        (
+            "- {quantity: joint_position, body: hand_R, kind: path, path: [[0, 0, 1, 0]]}",
+            "target 1 (joint_position): unknown body 'hand_R' (closest: hand_r",
+        ),
+        (
+            "- {quantity: joint_position, body: calcaneus_r, kind: path, path: [[0, 0, 1, 0]]}",
+            "unknown body 'calcaneus_r' (closest: calcn_r",
+        ),
+        ("- {quantity: joint_position, kind: path, path: [[0, 0, 1, 0]]}", "unknown body None"),
+        (
+            "- {quantity: joint_position, body: pelvis, kind: max, value: 1}",
+            "kind max does not apply to joint_position; choose path or value",
+        ),
+        (
+            "- {quantity: joint_position, body: pelvis, kind: path, path: [[0, 1, 0]]}",
+            "path point 1 must be [t, x, y, z]",
+        ),
+        (
+            "- {quantity: joint_position, body: pelvis, kind: value, value: [0, 1], times: [0.5]}",
+            "a joint position's value must be [x, y, z]",
+        ),
+        (
+            "- {quantity: joint_torque, coordinate: pelvis_ty, kind: max, value: 1}",
+            "target 1 (joint_torque): pelvis_ty has no joint moment",
+        ),
+        ("- {quantity: joint_torque, coordinate: knee_angle_r, kind: path, path: []}", "kind path does not apply"),
+        (
+            "- {quantity: joint_torque, coordinate: knee_angle_r, kind: max, value: 1}\n"
+            "- {quantity: joint_torque, coordinate: knee_angle_r, kind: min, value: 2}",
+            "target 2 (joint_torque knee_angle_r): its lower bound 2 is above target 1's upper bound 1",
+        ),
+    ],
+)
+def test_bad_position_and_torque_targets_are_one_line(tmp_path, targets, message):
+    path = write(tmp_path, "targets:\n" + "\n".join("  " + line for line in targets.splitlines()) + "\n")
+    with pytest.raises(ConfigError) as error:
+        Control.load(path)
+    text = str(error.value)
+    assert message in text and str(path) in text and "\n" not in text
+
+
+def test_a_path_outside_the_clip_is_refused(tmp_path):
+    control = Control.load(
+        write(tmp_path, "targets:\n  - {quantity: joint_position, body: pelvis, kind: path, path: [[2.5, 0, 1, 0]]}\n")
+    )
+    with pytest.raises(ConfigError, match=r"target 1 \(joint_position pelvis\): time ends at 2.5 s"):
+        control.check(2.0)
+
+
+def test_canonical_bodies_are_the_model_bodies():
+    from biomotion.body.canonical import CANONICAL_BODIES
+    from biomotion.data.clips import body_model
+    from tests.conftest import data_path
+
+    assert body_model(data_path(".")).body_names == CANONICAL_BODIES
+
+
+def shipped_generator():
+    from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, TOKENIZER_FILE, Generator
+    from tests.conftest import data_path
+
+    root = data_path(".")
+    if not all((CHECKPOINTS / f).exists() for f in (TOKENIZER_FILE, GENERATOR_FILE)):
+        pytest.skip("shipped weights absent")
+    return Generator.load(root, CHECKPOINTS)
+
+
+def test_a_path_target_is_zero_on_its_own_path_and_lowers_the_distance_on_a_seeded_run():
+    from biomotion.guidance.control import body_origins
+
+    generator = shipped_generator()
+    body = generator.body.to(torch.float32)
+    action = generator.bundle.vocabulary.parse("static")
+    free = generator.generate(action, seconds=1.0, seed=0)
+    hand = body_origins(body, free.q.float())[0, :, body.body_index("hand_r")]
+    frames = [6, 12, 18, 24, 29]
+    own = {"quantity": "joint_position", "body": "hand_r", "kind": "path", "weight": 1e5}
+    own["path"] = [[f / generator.rate, *hand[f].tolist()] for f in frames]
+    assert Control.from_dict({"targets": [own]}).loss(free.q.float(), None, generator.rate, body=body).item() < 1e-6
+    # the same hand path raised and brought forward by 10 cm
+    moved = dict(own, path=[[t, x + 0.1, y + 0.1, z] for t, x, y, z in own["path"]])
+    target = torch.tensor([p[1:] for p in moved["path"]])
+    guided = generator.generate(action, seconds=1.0, seed=0, control=Control.from_dict({"targets": [moved]}))
+    after = body_origins(body, guided.q.float())[0, frames, body.body_index("hand_r")]
+    before, now = (hand[frames] - target).norm(dim=-1), (after - target).norm(dim=-1)
+    assert before.mean() == pytest.approx(math.hypot(0.1, 0.1), abs=1e-4)
+    assert now.mean() < 0.5 * before.mean()
+
+
+def test_joint_torque_loss_uses_the_contact_shared_moments():
+    from biomotion.guidance.control import joint_moments
+
+    generator = shipped_generator()
+    body = generator.body.to(torch.float32)
+    q = generator.generate(generator.bundle.vocabulary.parse("squat"), seconds=1.0, seed=0).q.float()
+    knee = joint_moments(body, q, generator.rate)[0, :, 9]
+    assert torch.isfinite(knee).all() and knee.min() < -0.1  # an extension moment while squatting
+    cap = float(knee.min()) + 0.05
+    spec = {"quantity": "joint_torque", "coordinate": "knee_angle_r", "kind": "min", "value": cap, "weight": 1}
+    loss = Control.from_dict({"targets": [spec]}).loss(q.requires_grad_(True), None, generator.rate, body=body)
+    assert loss.item() > 0
+    loss.sum().backward()
+    assert torch.isfinite(q.grad).all() and q.grad.abs().sum() > 0

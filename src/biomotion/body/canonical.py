@@ -53,6 +53,33 @@ CANONICAL_COORDINATES: tuple[str, ...] = (
     "wrist_dev_l",
 )
 
+#: The canonical model's bodies (Rajagopal 2016's BodySet, in its order): the names a control target's
+#: ``joint_position`` takes (`biomotion.guidance.control`); each body's origin is its joint centre with its parent.
+CANONICAL_BODIES: tuple[str, ...] = (
+    "pelvis",
+    "femur_r",
+    "tibia_r",
+    "patella_r",
+    "talus_r",
+    "calcn_r",
+    "toes_r",
+    "femur_l",
+    "tibia_l",
+    "patella_l",
+    "talus_l",
+    "calcn_l",
+    "toes_l",
+    "torso",
+    "humerus_r",
+    "ulna_r",
+    "radius_r",
+    "hand_r",
+    "humerus_l",
+    "ulna_l",
+    "radius_l",
+    "hand_l",
+)
+
 KNEE_COORDINATES = ("knee_angle_r", "knee_angle_l")
 
 #: Coordinates the canonical model's coupler constraints set from another one (the patella's ``_beta`` from the

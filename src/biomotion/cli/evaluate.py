@@ -20,9 +20,11 @@ DESCRIPTION = (
     "on any folder laid out like ../shared/data, whoever is in "
     "it. `biomotion eval shape` puts one Fukuchi runner's motion on another's body at the same treadmill speed and "
     "compares it with the other's own (HUMOS real pairs), the shape adapter against the copy baseline on pairs of "
-    "runners the adapter never saw. "
+    "runners the adapter never saw. `biomotion eval control` samples control targets (joint paths, vertical GRF and "
+    "knee-moment caps) from held-out clips, generates with PG-BIG guidance and recomputes what was met. "
     "Python: biomotion.evaluate, biomotion.eval_generation, "
-    "biomotion.evaluation.ground_forces.eval_ground_forces, biomotion.evaluation.shape.eval_shape."
+    "biomotion.evaluation.ground_forces.eval_ground_forces, biomotion.evaluation.shape.eval_shape, "
+    "biomotion.evaluation.control.eval_control."
 )
 
 
@@ -35,7 +37,7 @@ def add_parser(verbs) -> None:
     parser.add_argument(
         "mode",
         nargs="?",
-        choices=("reference", "generation", "ground-forces", "refine", "shape"),
+        choices=("reference", "generation", "ground-forces", "refine", "shape", "control"),
         help="reference: score the real data (reference table); generation: generate for every "
         "unseen subject of --data-root and tabulate PG-BIG Tables 2-3 (full model, w/o "
         "guidance, w/o personalization, population baseline), the identity probe and the "
@@ -43,7 +45,8 @@ def add_parser(verbs) -> None:
         "Fukuchi runners and the shipped weights on OpenCap; refine: the PhysPT refiner on corrupted clips of "
         "the subjects it never saw (against a tuned low-pass), on PG-BIG's generated clips, and its speed; shape: "
         "real pairs of Fukuchi runners at the same speed, A's motion on B's body against B's own (HUMOS; the "
-        "shape adapter against the copy baseline, on runners the adapter never saw)",
+        "shape adapter against the copy baseline, on runners the adapter never saw); control: targets from "
+        "held-out clips met through PG-BIG guidance, bounds recomputed by the analysis",
     )
     parser.add_argument(
         "--refiner",
@@ -133,6 +136,20 @@ def add_parser(verbs) -> None:
         help="shape: shape-adapter weights (`biomotion train shape-adapter`; default: "
         "checkpoints/shape_adapter.safetensors when present), or 'none' for the copy baseline alone",
     )
+    parser.add_argument(
+        "--generator",
+        choices=("pgbig", "flexmotion", "both"),
+        default="pgbig",
+        help="generation: pgbig, PG-BIG Tables 2-3 (default); flexmotion or both, FlexMotion beside PG-BIG on the "
+        "same held-out prompts (biomotion.evaluation.flexmotion; --repeats clips per target)",
+    )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="generation --generator flexmotion|both: dataset cache (`biomotion data build`; default: a temporary "
+        "one of --data-root)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -142,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.json, args.md):
         if path is not None:
             writable_file(path, "--json/--md")
+    if args.mode == "generation" and args.generator != "pgbig":
+        return _flexmotion(args)
     if args.mode == "generation" and (args.folds is not None or args.quick):
         return _generation_cv(args)
     if args.mode == "generation":
@@ -175,6 +194,8 @@ def run(args: argparse.Namespace) -> int:
         return _refine(args)
     if args.mode == "shape":
         return _shape(args)
+    if args.mode == "control":
+        return _control(args)
     if args.mode == "reference":
         from biomotion.evaluation.harness import reference_command
 
@@ -344,10 +365,23 @@ def _shape(args: argparse.Namespace) -> int:
         command=command_line(),
     )
     print(f"{report['pairs']} pairs of {report['subjects']} runners")
-    keys = ("shape_copy_dtw", "shape_copy_stride_rel_err", "shape_copy_cadence_rel_err")
+    keys = (
+        "shape_copy_dtw",
+        "shape_copy_stride_rel_err",
+        "shape_copy_cadence_rel_err",
+        "shape_copy_physics_worst_ratio_to_real",
+        "shape_copy_dyn_stability_gap_points",
+    )
     if adapt is not None:
-        keys += ("shape_adapted_dtw", "shape_adapted_cadence_rel_err", "shape_dtw_gain_vs_copy", "shape_stride_rel_err")
-    for key in keys:
+        keys += (
+            "shape_adapted_dtw",
+            "shape_adapted_cadence_rel_err",
+            "shape_dtw_gain_vs_copy",
+            "shape_stride_rel_err",
+            "shape_physics_worst_ratio_to_real",
+            "shape_dyn_stability_gap_points",
+        )
+    for key in (k for k in keys if k not in report["not_measured"]):
         value = report[key]
         print(f"  {key}: {'–' if value is None else f'{value:.4f}'}")
     for key, why in report["not_measured"].items():
@@ -355,4 +389,63 @@ def _shape(args: argparse.Namespace) -> int:
     for line in report["skipped"]:
         print(f"  skipped {line}")
     print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
+    return 0
+
+
+def _control(args: argparse.Namespace) -> int:
+    """``biomotion eval control``: control targets from held-out clips through PG-BIG guidance
+    (`biomotion.evaluation.control`); --seed, --checkpoints, --json and --md as for generation."""
+    from biomotion.errors import ConfigError
+    from biomotion.evaluation.control import Settings, eval_control
+
+    if not args.data_root.is_dir():
+        raise ConfigError(f"{args.data_root}: --data-root is not a folder")
+    json_path = args.json or Path("docs/results/eval_control.json")
+    md_path = args.md or (json_path.with_suffix(".md") if args.json is None else None)
+    writable_file(json_path, "--json")
+    report = eval_control(
+        args.data_root,
+        json_path,
+        md_path,
+        checkpoints=args.checkpoints,
+        settings=Settings(seed=args.seed),
+        command=command_line(),
+    )
+    print(f"{report['targets']} control targets from {report['subjects']} held-out subjects (generator: pgbig)")
+    for key, row in report["bars"].items():
+        value = "–" if row["value"] is None else f"{row['value']:.3f}"
+        print(f"  {'–' if row['met'] is None else 'met' if row['met'] else 'NOT met':8s} {key}: {value} ({row['bar']})")
+    print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
+    return 0
+
+
+def _flexmotion(args: argparse.Namespace) -> int:
+    """``biomotion eval generation --generator flexmotion|both``: FlexMotion beside PG-BIG on the held-out prompts
+    (`biomotion.evaluation.flexmotion.eval_flexmotion`; the issue's bars); --json required, --md optional."""
+    import torch
+
+    from biomotion.errors import ConfigError
+    from biomotion.evaluation.flexmotion import eval_flexmotion
+
+    if args.json is None:
+        raise ConfigError("eval generation --generator flexmotion|both needs --json FILE")
+    if not args.data_root.is_dir():
+        raise ConfigError(f"{args.data_root}: --data-root is not a folder")
+    if args.cache is not None and not args.cache.expanduser().is_dir():
+        raise ConfigError(f"{args.cache}: --cache is not a folder (`biomotion data build`)")
+    torch.set_num_threads(1)  # the sampling time is stated for one thread
+    report = eval_flexmotion(
+        args.data_root,
+        args.json,
+        args.md,
+        cache_dir=args.cache,
+        checkpoints=args.checkpoints or Path("checkpoints"),
+        samples=args.repeats,
+        seed=args.seed,
+        command=command_line(),
+    )
+    print(f"FlexMotion beside PG-BIG on {report['targets']} targets of {report['subjects']} held-out subjects")
+    for key, row in report["bars"].items():
+        print(f"  {'met' if row['met'] else 'NOT met':8s} {key}: {row['value']:.4g} ({row['bar']})")
+    print(f"wrote {args.json}" + (f" and {args.md}" if args.md else ""))
     return 0

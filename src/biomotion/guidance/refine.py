@@ -280,7 +280,7 @@ class Guide:
             activations = self.surrogate(k.q, **heights)
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
         if self.control is not None:
-            out["control"] = self.control.loss(k.q, k.com, self.rate, self.frames)
+            out["control"] = self.control.loss(k.q, k.com, self.rate, self.frames, self.body)
         return out
 
     def smoothed(self, q: torch.Tensor, cutoff_hz: float) -> torch.Tensor:

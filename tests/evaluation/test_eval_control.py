@@ -1,0 +1,64 @@
+"""`biomotion eval control` (`biomotion.evaluation.control`): target planning, and the whole evaluation on two
+targets of the held-out subjects (a joint path and a GRF cap), bounds recomputed by the analysis."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from biomotion.evaluation.control import Settings, bars, measurable_bodies, plan, summary
+from biomotion.motion import Motion
+
+
+def clip(names: tuple[str, ...]) -> Motion:
+    return Motion(times=np.arange(10) / 30.0, values=np.zeros((10, len(names))), names=names)
+
+
+def test_plan_takes_paths_of_bodies_the_clip_measures_then_caps():
+    from biomotion.body.canonical import CANONICAL_COORDINATES
+
+    legs = clip(tuple(n for n in CANONICAL_COORDINATES if not n.startswith(("arm", "elbow", "pro", "wrist"))))
+    full = clip(CANONICAL_COORDINATES)
+    assert measurable_bodies(legs) == ["pelvis", "calcn_r"] and measurable_bodies(full)[-1] == "hand_r"
+    planned = plan([legs, full], Settings(paths=3, grf_caps=1, torque_caps=1))
+    assert [p[0] for p in planned] == ["path", "path", "path", "grf", "torque"]
+    assert planned[1] == ("path", 1, "calcn_r") and planned[2] == ("path", 0, "pelvis")
+
+
+def test_summary_and_bars():
+    records = [
+        {"kind": "path", "errors_m": [0.01, 0.03], "uncontrolled_errors_m": [0.2, 0.4]},
+        {"kind": "grf", "met": True},
+        {"kind": "torque", "met": False},
+    ]
+    figures = summary(records)
+    assert figures["control_joint_mean_err_m"] == pytest.approx(0.02)
+    assert figures["control_joint_max_err_m"] == pytest.approx(0.03)
+    assert figures["control_bounds_met_share"] == 0.5 and figures["control_traj_err_share"] == 0.0
+    judged = bars(figures)
+    assert judged["control_joint_mean_err_m"]["met"] and not judged["control_bounds_met_share"]["met"]
+    assert judged["control_fid_ratio"]["met"] is None
+
+
+def test_eval_control_on_two_held_out_targets(tmp_path):
+    from biomotion.evaluation.control import eval_control
+    from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, TOKENIZER_FILE
+    from tests.conftest import data_path
+
+    root = data_path(".")
+    if not all((CHECKPOINTS / f).exists() for f in (TOKENIZER_FILE, GENERATOR_FILE)):
+        pytest.skip("shipped weights absent")
+    settings = Settings(paths=1, grf_caps=1, torque_caps=0, max_seconds=1.0, path_seconds=0.5)
+    report = eval_control(root, tmp_path / "c.json", tmp_path / "c.md", settings=settings, fid=False, progress=False)
+    assert report["generator"] == "pgbig" and report["targets"] == 2
+    path, cap = report["per_target"]
+    assert path["kind"] == "path" and cap["kind"] == "grf"
+    assert np.mean(path["errors_m"]) < np.mean(path["uncontrolled_errors_m"])
+    assert cap["cap"] == pytest.approx(0.9 * cap["uncontrolled_peak"])
+    assert cap["controlled_peak"] < cap["uncontrolled_peak"]
+    assert json.loads((tmp_path / "c.json").read_text())["control_joint_mean_err_m"] == pytest.approx(
+        float(np.mean(path["errors_m"]))
+    )
+    assert "generator: **pgbig**" in (tmp_path / "c.md").read_text().replace("Generator:", "generator:")
