@@ -42,8 +42,9 @@ evidence is in docs/decisions/guidance-weights.md and the pages it links):
   Butterworth, `biomotion.motion.lowpass`, the filter the real clips went through at their source), ``biomotion
   generate --smooth HZ``: less jerk and fewer muscle-limit violations, a little more foot sliding.
 - user targets (``control``, ours after FlexMotion Sec. 3.3's controls: `biomotion.guidance.control`): with a
-  control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets); without
-  one nothing changes.
+  control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets), and
+  after planting the coordinates themselves are corrected until the targets are met (``control_fit``,
+  `biomotion.guidance.control_fit`: what latents alone cannot reach); without one nothing changes.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -64,6 +65,7 @@ import torch
 
 from biomotion.errors import ModelError
 from biomotion.guidance import losses
+from biomotion.guidance.control_fit import ControlFitConfig, fit_control
 from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.guidance.tempo import WARP_RANGE, warp
 from biomotion.models.bundle import GuidanceBounds
@@ -118,7 +120,8 @@ class GuidanceConfig:
     decoded_contact: bool = True  # m_t from the tokenizer's contact channels when it has them (`Guide.contact`)
     tempo: tuple[float, float] | None = WARP_RANGE  # playback factors that may bring a sample to the asked speed
     smooth_hz: float | None = None  # zero-lag Butterworth cutoff on the guided coordinates before planting; None: off
-    planting: PlantingConfig | None = PlantingConfig()  # the last stage (immutable settings); None skips it
+    planting: PlantingConfig | None = PlantingConfig()  # after guidance (immutable settings); None skips it
+    control_fit: ControlFitConfig | None = ControlFitConfig()  # with control targets, the last stage; None skips it
 
     def alpha(self, k: int) -> float:
         """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
@@ -347,4 +350,18 @@ class Guide:
                 self.body, q, self.feet_bodies, self.feet_offsets, self.feet_sides, self.lower, self.upper, c.planting
             )
         )
+        if self.control is not None and c.control_fit is not None:
+            planted = fit_control(
+                self.body,
+                planted,
+                self.control,
+                self.rate,
+                self.feet_bodies,
+                self.feet_offsets,
+                self.lower,
+                self.upper,
+                self.rotational,
+                self.frames,
+                c.control_fit,
+            )
         return GuidanceResult(planted, q, final.detach(), history)
