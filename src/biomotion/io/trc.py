@@ -44,7 +44,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
         raise DataFormatError(path, "no such file") from None
     except OSError as error:
         raise DataFormatError(path, f"cannot read: {error.strerror}") from None
-    if not "".join(lines).strip():
+    if not any(line.strip() for line in lines):  # stops at the first line with text
         raise DataFormatError(path, "empty file", line=1)
     if len(lines) < 5:
         raise DataFormatError(path, f"only {len(lines)} lines: a TRC file has 5 header lines then data")
@@ -73,7 +73,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
     if len(names) != declared_markers:
         raise DataFormatError(path, f"header says {declared_markers} markers, label line names {len(names)}", line=4)
     body = lines[5:]
-    numbers = [number + 6 for number, text in enumerate(body) if text.strip()]
+    numbers = [number + 6 for number, text in enumerate(body) if text and not text.isspace()]  # no copies
     if not numbers:
         raise DataFormatError(path, "no data rows", line=6)
     if len(numbers) < declared_frames:
@@ -112,8 +112,7 @@ def read_trc(path: str | Path, time_range: tuple[float, float] | None = None) ->
 
 def _times(path: Path, body: list[str], numbers: list[int]) -> np.ndarray:
     """The time (second field) of the data rows on file lines ``numbers``, checked to be finite and increasing."""
-    fields = [body[number - 6].split("\t", 2) for number in numbers]
-    tokens = [row[1] if len(row) > 1 else "nan" for row in fields]
+    tokens = [_second_field(body[number - 6]) for number in numbers]
     try:
         times = np.array(tokens, dtype=float)
     except ValueError:
@@ -125,6 +124,16 @@ def _times(path: Path, body: list[str], numbers: list[int]) -> np.ndarray:
         raise
     _check_times(path, times, numbers)
     return times
+
+
+def _second_field(text: str) -> str:
+    """The second tab-separated field of a row ("nan" when it has none), found without splitting the whole row:
+    a TRC row holds thousands of characters after it."""
+    start = text.find("\t")
+    if start < 0:
+        return "nan"
+    end = text.find("\t", start + 1)
+    return text[start + 1 :] if end < 0 else text[start + 1 : end]
 
 
 def _check_times(path: Path, times: np.ndarray, numbers: list[int]) -> None:
