@@ -3,7 +3,9 @@
 Truth: the runners' own scaled models and IK (``fukuchi-running``), their heights from ``participantInfo.csv``; the
 shipped adapter keeps A's stride time exactly for A -> A (its time warp is the change from A's shape to the
 target's, zero for the same shape), and predicts a longer stride for a taller body
-(docs/results/eval_shape.md)."""
+(docs/results/eval_shape.md); a treadmill run's stance feet move at minus the belt speed (the speed the Fukuchi
+trial's name gives), and planting them on that belt removes most of the adapted run's foot skate as
+`biomotion.evaluation.shape_physics.clip_physics` scores it."""
 
 import json
 
@@ -22,7 +24,10 @@ torch.set_num_threads(1)
 
 HEIGHTS = {"RBDS04": 1.68, "RBDS012": 1.786}  # m, participantInfo.csv
 ADAPTER = REPO / "checkpoints" / "shape_adapter.safetensors"
-A_TO_A_RMS_DEG = 5.0  # hip/knee/ankle angles of A -> A against A, RMS: the adapter re-decodes them (3.5 deg measured)
+#: hip/knee/ankle angles of A -> A against A, RMS: the adapter re-decodes them (3.5 deg measured) and foot planting
+#: moves the legs so the re-decoded stance feet rest on the belt (4.2 deg measured with it)
+A_TO_A_RMS_DEG = 5.0
+BELT = 3.5  # m/s, the T35 trials
 
 
 def _runner(name: str):
@@ -65,6 +70,8 @@ def test_adapt_onto_a_taller_runner_end_to_end(tmp_path, source_motion, capsys):
     assert len(record["adapter"]["sha256"]) == 64 and record["versions"]["biomotion"] == bm.__version__
     assert record["stride_time_s"]["adapted"] > record["stride_time_s"]["source"]
     assert 0.0 < record["floor_shift_m"] < 0.15  # longer legs: the pelvis goes up to keep the feet on the floor
+    assert record["feet_planted"] is True and record["inputs"]["planting"] is True
+    assert record["ground_velocity_m_s"]["x"] == pytest.approx(-BELT, abs=0.15)
     assert "motion.mot" in record["files"] and record["command"].startswith("biomotion ")
 
 
@@ -117,7 +124,7 @@ def test_bad_targets_exit_2_with_one_error_line(tmp_path, source_motion, capsys,
     generic = data_path("fukuchi-running/generic-models/Denton2023_LowerLimb_Fukuchi2017.osim")
     motion_file = data_path("fukuchi-running/ik/T35/RBDS04_T35_ik_simple.mot")
     args = ["adapt", str(motion_file), "--from", str(_runner("RBDS04")), "--from-height", "1.68", "--to", str(target)]
-    code = main([*args, "--generic", str(generic), "--out", str(tmp_path / "out"), "--no-viewer"])
+    code = main([*args, "--generic", str(generic), "--out", str(tmp_path / "out"), "--no-viewer", "--no-planting"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert len(err) == 1 and err[0].startswith("error: ") and str(target) in err[0] and message in err[0]
@@ -130,3 +137,34 @@ def test_a_lower_limb_model_without_a_height_is_named(tmp_path, source_motion, c
     assert main([*args, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--from-height" in err[0]
+
+
+def test_the_ground_speed_of_a_treadmill_run_is_minus_the_belt_speed(source_motion):
+    """RBDS04 at 3.5 m/s on their own model: the stance feet move backwards at the belt speed (x), not sideways."""
+    from biomotion.generation.adapt import _on_model, ground_velocity
+
+    body = bm.read_body(_runner("RBDS04"), height=HEIGHTS["RBDS04"])
+    vx, vz = ground_velocity(body.model, _on_model(source_motion, body.model)[0])
+    assert vx == pytest.approx(-BELT, abs=0.15)  # -3.57 measured: 2 % off the nominal belt speed
+    assert abs(vz) < 0.1
+
+
+def test_planting_on_the_belt_removes_most_foot_skate(source_motion):
+    """RBDS04 -> RBDS012: with planting the adapted run skates on under half as many frame pairs and its stance
+    feet float lower than without (50 % -> 23 %, 32 -> 6 mm measured), scored as `biomotion eval shape` does
+    (overground at the belt speed); the pelvis translations are the same, so the output is still a treadmill
+    run, and only leg angles change."""
+    from biomotion.evaluation.shape_physics import clip_physics
+
+    source = bm.read_body(_runner("RBDS04"), height=HEIGHTS["RBDS04"])
+    target = bm.read_body(_runner("RBDS012"), height=HEIGHTS["RBDS012"])
+    free = bm.adapt(source_motion, source, target, planting=False)
+    planted = bm.adapt(source_motion, source, target)
+    assert planted.planted and not free.planted
+    assert planted.ground_velocity_m_s == free.ground_velocity_m_s
+    ours, theirs = clip_physics(target.model, planted.motion, BELT), clip_physics(target.model, free.motion, BELT)
+    assert ours["skate"] < 0.5 * theirs["skate"]
+    assert ours["float"] < 0.5 * theirs["float"]
+    changed = np.abs(planted.motion.values - free.motion.values).max(0) > 0
+    names = {n for n, c in zip(planted.motion.names, changed) if c}
+    assert names and all(n.startswith(("hip_", "knee_", "ankle_")) for n in names)

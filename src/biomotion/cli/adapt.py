@@ -12,13 +12,16 @@ DESCRIPTION = (
     "Move MOTION (OpenSim coordinates, .mot/.sto, a gait of at least two strides) from the body it was recorded on "
     "(--from) onto another body (--to) the way that body would move (HUMOS): the shipped shape-conditioned c-VAE "
     "re-decodes the hip, knee, ankle and pelvis angles for the target's build and sets the stride time the target's "
-    "shape predicts; the pelvis is raised or lowered so the target's feet meet the source's floor. A body is a "
+    "shape predicts; the pelvis is raised or lowered so the target's feet meet the source's floor, and the feet are "
+    "planted on the ground the source ran on (a treadmill belt's speed is estimated from the source's stance feet; "
+    "--no-planting keeps the decoded leg angles). A body is a "
     "scaled OpenSim model (.osim) or a shape file (YAML/JSON): 'height' (m) and 'mass' (kg), optionally 'sex' and "
     "'generic' (the generic .osim to scale, relative to the file; default --generic, else Rajagopal 2016 under "
     "--data-root), or the fields of a biomotion Shape (reference, scales, mass, masses, height, lengths, sex). A "
     "lower-limb model has no standing height: give it with --from-height/--to-height. Writes motion.mot (on the "
     "target's scaled model, degrees), model.osim (that model), motion.bvh, viewer.html (adapted and source side by "
-    "side) and record.json (inputs, both shapes, the adapter's SHA-256, stride times, versions). Python: "
+    "side) and record.json (inputs, both shapes, the adapter's SHA-256, stride times, ground velocity, planting, "
+    "versions). Python: "
     "biomotion.adapt."
 )
 EPILOG = (
@@ -76,6 +79,11 @@ def add_parser(verbs) -> None:
         type=Path,
         help="shape-adapter weights (default: the shipped checkpoints/shape_adapter.safetensors)",
     )
+    parser.add_argument(
+        "--no-planting",
+        action="store_true",
+        help="keep the adapter's leg angles: do not plant the stance feet on the source's ground (treadmill or floor)",
+    )
     parser.add_argument("--no-viewer", action="store_true", help="skip viewer.html (the largest file)")
     add_data_root(parser, "folder laid out like ../shared/data, for the default generic model")
     add_overwrite(parser)
@@ -101,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         target_height=args.to_height,
         generic=args.generic,
         data_root=args.data_root,
+        planting=not args.no_planting,
     )
     inputs = {
         "motion": portable(args.motion),
@@ -109,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         "from_height_m": args.from_height,
         "to_height_m": args.to_height,
         "generic": None if args.generic is None else portable(args.generic),
+        "planting": not args.no_planting,
     }
     with fresh_folder(args.out, args.overwrite) as scratch:
         files = write_adapted(adapted, scratch, viewer=not args.no_viewer, inputs=inputs, command=command_line())
@@ -120,6 +130,12 @@ def run(args: argparse.Namespace) -> int:
         f"{strides['adapted']:.3f} s"
         + ("" if adapted.floor_shift_m is None else f", pelvis_ty {100 * adapted.floor_shift_m:+.1f} cm to the floor")
     )
+    if adapted.ground_velocity_m_s is not None:
+        vx, vz = adapted.ground_velocity_m_s
+        print(
+            f"  ground under the source's stance feet: ({vx:+.2f}, {vz:+.2f}) m/s (x, z); feet "
+            + ("planted on it" if adapted.planted else "not planted (--no-planting)")
+        )
     if adapted.filled:
         print(f"  at the target model's defaults (not in the motion): {', '.join(adapted.filled)}")
     print(f"wrote {', '.join(sorted(p.name for p in files.values()))} -> {args.out}")

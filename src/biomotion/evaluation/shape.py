@@ -6,9 +6,9 @@ Protocol. The same task done by two real people: Fukuchi runners at the same tre
 Runners with a scaled model (``<r>/<r>_simple.osim``) and IK at a speed (``ik/<speed>/<r>_<speed>_ik_simple.mot``)
 are sorted by name; runner i (A) is paired with runners i+1 … i+``partners`` (B), cyclically, at every speed both
 have: deterministic, every runner is an A and a B equally often. A's IK motion is adapted onto B's `Shape`
-(``adapt(motion, shape_A, shape_B) -> motion``; the default, None, is the **copy baseline**: A's coordinates as
-they are, the trivial solution HUMOS's physics terms exist to rule out, ``humos.md`` "Why This Works", Mechanism 3)
-and compared with B's real IK motion on B's scaled model:
+(``adapt(motion, shape_A, shape_B) -> motion``, or a `BodyAdapter` called with both bodies; the default, None, is
+the **copy baseline**: A's coordinates as they are, the trivial solution HUMOS's physics terms exist to rule out,
+``humos.md`` "Why This Works", Mechanism 3) and compared with B's real IK motion on B's scaled model:
 
 - **DTW** (`dtw_distance`): the ten hip, knee and ankle angles (deg) of both clips resampled to `DTW_RATE`, aligned
   by dynamic time warping (Sakoe & Chiba 1978) with the RMS over the angles as the frame distance; the figure is
@@ -34,6 +34,10 @@ means over pairs (medians beside them) and per speed. ``shape_dtw_gain_vs_copy``
 ``shape_stride_rel_err``, ``shape_physics_worst_ratio_to_real`` and ``shape_dyn_stability_gap_points`` of an
 adapter are reported when ``adapt`` is given; with the copy baseline alone they are None (the copy's own figures,
 ``shape_copy_*``, are always reported).
+
+The adapted motion is the one ``biomotion adapt`` writes: `load_adapter` returns a `BodyAdapter`, which calls
+`biomotion.generation.adapt.adapt` on A's and B's scaled models (knee sign, B's coordinate order, A's floor, and the
+feet planted on the ground A ran on, the treadmill belt here, estimated from A's motion: that module's docstring).
 
 Held-out pairs. A learned adapter is scored only on runners it never saw: ``trained`` names the runners of its
 training set (`load_adapter` reads them from the weights), who are left out before pairing, so every pair (and its
@@ -63,6 +67,8 @@ from biomotion.body.model import BodyModel
 from biomotion.body.shape import Shape
 from biomotion.errors import BiomotionError, ConfigError
 from biomotion.evaluation.shape_physics import PHYSICS, STABILITY, clip_physics
+from biomotion.generation.adapt import Body
+from biomotion.generation.adapt import adapt as adapt_motion
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mot import read_motion
 from biomotion.io.tables import read_subject_table
@@ -99,6 +105,7 @@ _PASSES = {
 NEEDS_ADAPTER = "needs the shape-conditioned adapter: pass one (`--adapter`, `load_adapter`)"
 
 Adapter = Callable[[Motion, Shape, Shape], Motion]
+"""A shape-only hook: (A's motion, A's Shape, B's Shape) -> the motion on B."""
 
 
 @dataclass(frozen=True)
@@ -109,6 +116,34 @@ class Runner:
     model: BodyModel
     shape: Shape
     motions: dict[str, Motion]
+    model_file: Path | None = None
+
+    @property
+    def body(self) -> Body:
+        """The runner as a `biomotion.generation.adapt.Body`: scaled model, Shape and model file."""
+        source = self.model_file or Path(f"{self.name}_simple.osim")
+        return Body(self.shape, self.model, source, osim=self.model_file)
+
+
+@dataclass(frozen=True)
+class BodyAdapter:
+    """The shape adapter at ``weights`` as ``biomotion adapt`` runs it (`biomotion.generation.adapt.adapt`, foot
+    planting on unless ``planting`` is False), called with A's motion and both runners' bodies: planting needs the
+    models, not only the Shapes."""
+
+    weights: Path
+    planting: bool = True
+
+    def __call__(self, motion: Motion, source: Body, target: Body) -> Motion:
+        return adapt_motion(motion, source, target, adapter=self.weights, planting=self.planting).motion
+
+
+def _adapt(adapt: Adapter | BodyAdapter, motion: Motion, source: Runner, target: Runner) -> Motion:
+    """``adapt`` applied to ``motion`` from ``source`` onto ``target``: bodies for a `BodyAdapter`, Shapes for a
+    shape-only hook."""
+    if isinstance(adapt, BodyAdapter):
+        return adapt(motion, source.body, target.body)
+    return adapt(motion, source.shape, target.shape)
 
 
 # ---- metrics ---------------------------------------------------------------------------------------------------
@@ -264,7 +299,7 @@ def load_runners(data_root: Path, speeds: Sequence[str] = tuple(SPEEDS)) -> tupl
         model = BodyModel.from_osim(model_file)
         profile = table.get(name)
         shape = Shape.from_model(model, generic, height=None if profile is None else profile.height)
-        runners.append(Runner(name, model, shape, motions))
+        runners.append(Runner(name, model, shape, motions, model_file))
     return runners, skipped
 
 
@@ -297,7 +332,7 @@ def eval_shape(
     json_path: Path | None = None,
     md_path: Path | None = None,
     *,
-    adapt: Adapter | None = None,
+    adapt: Adapter | BodyAdapter | None = None,
     partners: int = PARTNERS,
     speeds: Sequence[str] = tuple(SPEEDS),
     progress: bool = True,
@@ -341,7 +376,7 @@ def eval_shape(
         row["physics_real"] = real_physics[(b, speed)]
         if adapt is not None:
             try:
-                adapted = adapt(source, runner_a.shape, runner_b.shape)
+                adapted = _adapt(adapt, source, runner_a, runner_b)
             except BiomotionError as error:
                 skipped.append(f"{a} -> {b} {speed}: the adapter failed: {error}")
                 adapted = None
@@ -418,14 +453,14 @@ def physics_summary(pairs: Sequence[tuple[dict | None, dict | None]]) -> dict:
     }
 
 
-def _self_dtw(adapt: Adapter, runners: list[Runner], skipped: list[str]) -> float | None:
+def _self_dtw(adapt: Adapter | BodyAdapter, runners: list[Runner], skipped: list[str]) -> float | None:
     """Mean DTW (deg) of A's motion adapted to A's own Shape against A's motion, over the scored runners' clips:
     how far the adapter moves a motion that should stay put (0 for the copy)."""
     distances = []
     for runner in runners:
         for speed, motion in runner.motions.items():
             try:
-                same = adapt(motion, runner.shape, runner.shape)
+                same = _adapt(adapt, motion, runner, runner)
             except BiomotionError as error:
                 skipped.append(f"{runner.name} -> itself {speed}: the adapter failed: {error}")
                 continue
@@ -613,19 +648,20 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def load_adapter(path: Path) -> tuple[Adapter, list[str], dict]:
-    """The shape adapter saved at ``path`` (`biomotion.models.shape_vae.ShapeAdapter`) as an `Adapter` for the
-    Fukuchi motions (negative knee flexion), the Fukuchi runners it was trained on (left out of the pairs), and
-    its file name and SHA-256 for the report."""
+def load_adapter(path: Path, *, planting: bool = True) -> tuple[BodyAdapter, list[str], dict]:
+    """The shape adapter saved at ``path`` (`biomotion.models.shape_vae.ShapeAdapter`) as a `BodyAdapter`: the
+    motion ``biomotion adapt`` writes (knee sign read from the motion, feet planted unless ``planting`` is False),
+    the Fukuchi runners it was trained on (left out of the pairs), and its file name, SHA-256 and planting for the
+    report."""
     import hashlib
 
     from biomotion.models.shape_vae import ShapeAdapter
 
     adapter = ShapeAdapter.load(path)
     trained = sorted(key.split("/", 1)[1] for key in adapter.subjects if key.startswith("fukuchi/"))
-
-    def adapt(motion: Motion, source: Shape, target: Shape) -> Motion:
-        return adapter.adapt(motion, source, target, knee_flipped=True)
-
-    info = {"weights": Path(path).name, "sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest()}
-    return adapt, trained, info
+    info = {
+        "weights": Path(path).name,
+        "sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest(),
+        "feet_planted": planting,
+    }
+    return BodyAdapter(Path(path), planting), trained, info

@@ -23,17 +23,41 @@ moves, how the stride time follows the target's shape). This module wraps it for
   ``pelvis_ty`` is shifted so the 5th percentile over frames of the lowest foot contact point
   (`biomotion.body.contact.lowest_foot_heights`, `biomotion.body.contact.GROUND_PERCENTILE`) is where the source
   motion's is on the source model: the adapted body stands on the source's floor (`Adapted.floor_shift_m`).
+- **Ground and foot planting** (``planting``, default on): the adapted runner is on the same ground as the source,
+  a treadmill belt or the floor. The adapter re-decodes the leg angles and sets a new stride time while the pelvis
+  translations keep the source's, so a stance foot no longer moves with the ground under it: it skates (HUMOS
+  "skate", ``humos.md`` "Why This Works", Mechanism 3). Two steps fix that without any constant fitted on
+  evaluated motions:
+
+  1. `ground_velocity`: the velocity of the ground under the source's stance feet, estimated from the source
+     motion on the source model as the median horizontal velocity (x, z) of each foot's lowest contact point
+     (`biomotion.body.contact.foot_points`) over the frames in which it is within the planting stage's stance
+     height (`biomotion.guidance.planting.PlantingConfig.stance_height`, 3 cm) of the floor. On a treadmill it is
+     minus the belt speed along the running direction (a Fukuchi T35 run gives about -3.5 m/s along x); overground
+     it is about 0. Recorded as `Adapted.ground_velocity_m_s`.
+  2. `plant_on_ground`: the adapted motion is moved into the frame of that ground (its velocity times time is
+     subtracted from ``pelvis_tx``/``pelvis_tz``, as `biomotion.data.placement.place_clip` adds a belt speed, and
+     its floor is put at y = 0), the feet are planted there by the project's planting stage
+     (`biomotion.guidance.planting.plant_feet`: Kovar et al. 2002 footskate cleanup, the last stage of PG-BIG
+     guidance, PG-BIG Sec. 3.3), which changes only hip, knee, ankle and subtalar angles within the model's ranges
+     (so either knee sign), and the pelvis translations are put back: the output is a treadmill motion if the input
+     was one. The thresholds are `PlantingConfig`'s defaults; its fade, defined as 3 frames at the canonical 30 Hz
+     (`biomotion.body.canonical.DEFAULT_RATE`), is kept at the same 0.1 s at the motion's rate.
+     `Adapted.planted` says whether it ran (off with ``planting=False``; skipped for a model without pelvis
+     translations).
 
 `write_adapted` writes ``motion.mot`` (degrees), ``model.osim`` (the target's scaled model), ``motion.bvh``
 (`biomotion.body.bvh_export.motion_to_bvh`), ``viewer.html`` (the adapted motion on the target beside the source on
 its own body, `biomotion.viz.viewer.write_viewer`) and ``record.json`` (inputs, both shapes, the adapter's file and
-SHA-256, stride times, versions). Contract: inputs are not changed; bad bodies and motions raise a one-line
-`biomotion.errors.ConfigError` or `biomotion.errors.DataFormatError` naming the file.
+SHA-256, stride times, the ground velocity and whether the feet were planted, versions). Contract: inputs are not
+changed; bad bodies and motions raise a one-line `biomotion.errors.ConfigError` or `biomotion.errors.DataFormatError`
+naming the file.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
@@ -43,12 +67,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from biomotion.body.canonical import KNEE_COORDINATES
-from biomotion.body.contact import GROUND_PERCENTILE, lowest_foot_heights
-from biomotion.body.kinematics import apply_couplers
+from biomotion.body.canonical import DEFAULT_RATE, KNEE_COORDINATES
+from biomotion.body.contact import GROUND_PERCENTILE, foot_points, lowest_foot_heights
+from biomotion.body.kinematics import apply_couplers, forward_kinematics, points_in_ground
 from biomotion.body.model import BodyModel
 from biomotion.body.shape import Shape, segment_lengths
 from biomotion.errors import ConfigError, DataFormatError
+from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
 
@@ -67,6 +92,7 @@ SHAPE_FILE_KEYS = (
     "lengths",
 )
 """Keys a shape file may hold (module docstring)."""
+PELVIS_TRANSLATIONS = ("pelvis_tx", "pelvis_ty", "pelvis_tz")
 
 
 @dataclass(frozen=True)
@@ -102,7 +128,9 @@ class Body:
 @dataclass(frozen=True)
 class Adapted:
     """A motion moved onto ``target`` (module docstring): ``motion`` in the target model's coordinate order,
-    ``source_motion`` as given; the adapter's file and SHA-256; what was done to fit the target."""
+    ``source_motion`` as given; the adapter's file and SHA-256; what was done to fit the target:
+    ``ground_velocity_m_s`` (x, z) the ground under the source's stance feet (None without pelvis translations),
+    ``planted`` whether the feet were planted on it (module docstring)."""
 
     motion: Motion
     source_motion: Motion
@@ -114,6 +142,8 @@ class Adapted:
     filled: tuple[str, ...]
     floor_shift_m: float | None
     stride_time_s: dict[str, float]
+    ground_velocity_m_s: tuple[float, float] | None = None
+    planted: bool = False
 
 
 def knee_negative(model: BodyModel) -> bool:
@@ -242,14 +272,91 @@ def _floor(model: BodyModel, motion: Motion) -> float:
     return float(np.percentile(lowest_foot_heights(model, motion.values.astype(np.float64)), GROUND_PERCENTILE))
 
 
+def _foot_positions(model: BodyModel, q: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """[T, K, 3] ground positions (m) of ``model``'s foot contact points for coordinates q [T, n] (all present),
+    and each point's foot ("r"/"l")."""
+    feet = foot_points(model)
+    with torch.no_grad():
+        poses = forward_kinematics(model, torch.as_tensor(q, dtype=model.dtype))
+        return points_in_ground(poses, feet.bodies, feet.offsets).double().numpy(), feet.feet
+
+
+def ground_velocity(
+    model: BodyModel, motion: Motion, stance_height: float = PlantingConfig.stance_height
+) -> tuple[float, float] | None:
+    """(x, z) velocity (m/s) of the ground under the stance feet of ``motion`` on ``model`` (coordinates in the
+    model's order, all present: `_on_model`): per foot and frame, the velocity of that foot's lowest contact point
+    (central differences of that point's own path), kept where it is within ``stance_height`` of the floor (the 5th
+    percentile of the lowest point over frames, as `place_clip` puts a clip on the floor); the median over the kept
+    samples. Minus the belt speed on a treadmill, about 0 overground; None when no frame is kept or the motion has
+    fewer than 3 frames. ``stance_height`` is the planting stage's stance threshold, so "on the ground" means the
+    same here as where the feet are planted (module docstring)."""
+    if motion.n_frames < 3:
+        return None
+    points, feet = _foot_positions(model, motion.values.astype(np.float64))
+    velocity = np.gradient(points, motion.times, axis=0)
+    height = points[..., 1]
+    floor = np.percentile(height.min(-1), GROUND_PERCENTILE)
+    samples = []
+    for side in sorted(set(feet)):
+        own = np.flatnonzero(np.array(feet) == side)
+        lowest = own[height[:, own].argmin(-1)]
+        frames = np.arange(len(lowest))
+        down = height[frames, lowest] < floor + stance_height
+        samples.append(velocity[frames, lowest][down][:, [0, 2]])
+    kept = np.concatenate(samples)
+    if not len(kept):
+        return None
+    vx, vz = np.median(kept, axis=0)
+    return float(vx), float(vz)
+
+
+def plant_on_ground(
+    model: BodyModel, motion: Motion, velocity: tuple[float, float], config: PlantingConfig | None = None
+) -> Motion:
+    """``motion`` on ``model`` (model order, all present, pelvis translations among them) with its feet planted on
+    a ground moving at ``velocity`` (x, z) m/s (module docstring): in the ground's frame, with the floor at y = 0,
+    `biomotion.guidance.planting.plant_feet` changes the leg angles so stance feet rest; the pelvis translations
+    are returned unchanged. ``config`` defaults to `PlantingConfig` with its fade (3 frames at the canonical 30 Hz)
+    kept at the same duration at the motion's rate."""
+    if config is None:
+        default = PlantingConfig()
+        config = dataclasses.replace(default, ramp=max(1, round(default.ramp * motion.rate / DEFAULT_RATE)))
+    values = motion.values.astype(np.float64)
+    tx, ty, tz = (motion.index(n) for n in PELVIS_TRANSLATIONS)
+    elapsed = motion.times - motion.times[0]
+    moving = values.copy()
+    moving[:, tx] -= velocity[0] * elapsed
+    moving[:, tz] -= velocity[1] * elapsed
+    moving[:, ty] -= _floor(model, motion)
+    feet = foot_points(model)
+    q = torch.as_tensor(moving, dtype=model.dtype)[None]
+    with torch.no_grad():
+        planted = plant_feet(
+            model, q, feet.bodies, feet.offsets, feet.feet, model.ranges[:, 0], model.ranges[:, 1], config
+        )[0]
+    out = planted.double().numpy().copy()
+    out[:, [tx, ty, tz]] = values[:, [tx, ty, tz]]
+    return motion.with_values(out.astype(motion.values.dtype))
+
+
+@functools.lru_cache(maxsize=4)
+def _read_adapter(path: Path, modified_ns: int, size: int):
+    """The adapter at ``path`` and its SHA-256, read once per file version (an evaluation adapts many clips)."""
+    from biomotion.models.shape_vae import ShapeAdapter
+
+    return ShapeAdapter.load(path), hashlib.sha256(path.read_bytes()).hexdigest()
+
+
 def _load_adapter(adapter):
     from biomotion.generation.pipeline import CHECKPOINTS
-    from biomotion.models.shape_vae import ShapeAdapter
 
     path = Path(CHECKPOINTS / ADAPTER_FILE if adapter is None else adapter)
     if not path.is_file():
         raise ConfigError(f"{path}: no shape adapter weights (`biomotion train shape-adapter` writes them)")
-    return ShapeAdapter.load(path), path
+    stat = path.stat()
+    model, sha256 = _read_adapter(path.resolve(), stat.st_mtime_ns, stat.st_size)
+    return model, path, sha256
 
 
 def adapt(
@@ -262,11 +369,14 @@ def adapt(
     target_height: float | None = None,
     generic: str | Path | None = None,
     data_root: str | Path | None = None,
+    planting: bool = True,
 ) -> Adapted:
     """``motion`` of the body ``source`` moved onto the body ``target`` (each a `Body`, a scaled .osim or a shape
     file, `read_body`) by the shape adapter at ``adapter`` (default the shipped
-    ``checkpoints/shape_adapter.safetensors``); see the module docstring for the knee sign, the coordinates and the
-    floor. ``source_height`` / ``target_height`` (m) give a body's standing height where its model has none."""
+    ``checkpoints/shape_adapter.safetensors``); see the module docstring for the knee sign, the coordinates, the
+    floor and the ground. ``source_height`` / ``target_height`` (m) give a body's standing height where its model
+    has none; ``planting`` False leaves the adapter's leg angles as decoded (the ground velocity is still
+    estimated and recorded)."""
     from biomotion.generation.pipeline import knee_flexion_negative
     from biomotion.models.shape_vae import motion_features, stride_time
 
@@ -274,7 +384,7 @@ def adapt(
         source = read_body(source, height=source_height, generic=generic, data_root=data_root, what="--from")
     if not isinstance(target, Body):
         target = read_body(target, height=target_height, generic=generic, data_root=data_root, what="--to")
-    model, path = _load_adapter(adapter)
+    model, path, sha256 = _load_adapter(adapter)
     flipped = knee_flexion_negative(motion)
     moved = model.adapt(motion, source.shape, target.shape, knee_flipped=flipped)
     negative = knee_negative(target.model)
@@ -284,13 +394,21 @@ def adapt(
             values[:, moved.index(name)] *= -1.0
         moved = moved.with_values(values)
     on_target, filled = _on_model(moved, target.model)
+    on_source, _ = _on_model(motion, source.model)
     shift = None
     if "pelvis_ty" in target.model.coordinate_names and "pelvis_ty" in motion.names:
-        on_source, _ = _on_model(motion, source.model)
         shift = _floor(source.model, on_source) - _floor(target.model, on_target)
         values = on_target.values.copy()
         values[:, on_target.index("pelvis_ty")] += shift
         on_target = on_target.with_values(values)
+    velocity = None
+    if all(n in motion.names for n in PELVIS_TRANSLATIONS) and all(
+        n in target.model.coordinate_names for n in PELVIS_TRANSLATIONS
+    ):
+        velocity = ground_velocity(source.model, on_source)
+    planted = planting and velocity is not None
+    if planted:
+        on_target = plant_on_ground(target.model, on_target, velocity)
     strides = {  # as the adapter's stride detector measures them in the source and in the output
         "source": stride_time(motion_features(motion, knee_flipped=flipped), motion.rate),
         "adapted": stride_time(motion_features(moved, knee_flipped=negative), moved.rate),
@@ -301,11 +419,13 @@ def adapt(
         source=source,
         target=target,
         adapter_file=path,
-        adapter_sha256=hashlib.sha256(path.read_bytes()).hexdigest(),
+        adapter_sha256=sha256,
         knee_negative={"source": flipped, "target": negative},
         filled=filled,
         floor_shift_m=shift,
         stride_time_s=strides,
+        ground_velocity_m_s=velocity,
+        planted=planted,
     )
 
 
@@ -364,6 +484,10 @@ def write_adapted(
         "coordinates_at_model_defaults": list(adapted.filled),
         "floor_shift_m": adapted.floor_shift_m,
         "stride_time_s": adapted.stride_time_s,
+        "ground_velocity_m_s": None
+        if adapted.ground_velocity_m_s is None
+        else dict(zip(("x", "z"), adapted.ground_velocity_m_s)),
+        "feet_planted": adapted.planted,
         "frames": adapted.motion.n_frames,
         "rate_hz": adapted.motion.rate,
         "versions": versions(),
