@@ -242,3 +242,99 @@ def test_joint_torque_loss_uses_the_contact_shared_moments():
     assert loss.item() > 0
     loss.sum().backward()
     assert torch.isfinite(q.grad).all() and q.grad.abs().sum() > 0
+
+
+MUSCLES = ("glmed1_r", "glmed2_r", "glmed3_r", "glmed1_l")
+ABDUCTORS = REPO / "examples/control/gait_abductor_cap.yaml"
+
+
+def test_the_abductor_example_loads_and_names_surrogate_muscles():
+    control = Control.load(ABDUCTORS)
+    assert {(t.quantity, t.muscle, t.kind, t.value, t.window) for t in control.targets} == {
+        ("muscle_activation", m, "max", 0.4, None) for m in ("glmed1_r", "glmed2_r", "glmed3_r")
+    }
+    control.check(2.0)
+    control.check_muscles(MUSCLES)
+    surrogate = REPO / "checkpoints/surrogate.safetensors"
+    if surrogate.exists():
+        import json
+
+        from safetensors import safe_open
+
+        with safe_open(str(surrogate), "pt") as f:
+            control.check_muscles(json.loads(f.metadata()["muscles"]))
+
+
+@pytest.mark.parametrize(
+    "targets, message",
+    [
+        ("- {quantity: muscle_activation, kind: max, value: 0.4}", "target 1 (muscle_activation): muscle_activation"),
+        (
+            "- {quantity: muscle_activation, muscle: glmed1_r, kind: max, value: 40}",
+            "target 1 (muscle_activation): an activation lies in 0-1, got 40",
+        ),
+        (
+            "- {quantity: muscle_activation, muscle: glmed1_r, kind: path, value: 0.4}",
+            "kind path does not apply to muscle_activation",
+        ),
+        ("- {quantity: com_height, muscle: glmed1_r, kind: max, value: 1}", "a muscle applies to muscle_activation"),
+    ],
+)
+def test_bad_muscle_targets_are_one_line(tmp_path, targets, message):
+    path = write(tmp_path, "targets:\n  " + targets + "\n")
+    with pytest.raises(ConfigError) as error:
+        Control.load(path)
+    text = str(error.value)
+    assert message in text and str(path) in text and "\n" not in text
+
+
+def test_an_unknown_muscle_is_refused_with_the_closest_names(tmp_path):
+    path = write(tmp_path, "targets:\n  - {quantity: muscle_activation, muscle: glmed_r, kind: max, value: 0.4}\n")
+    control = Control.load(path)  # the name is checked once the surrogate's names are known
+    with pytest.raises(ConfigError) as error:
+        control.check_muscles(MUSCLES)
+    text = str(error.value)
+    assert f"{path}: target 1 (muscle_activation glmed_r): unknown muscle 'glmed_r' (closest: glmed" in text
+    assert "\n" not in text
+
+
+def test_muscle_targets_without_a_surrogate_are_refused(tmp_path):
+    control = Control.load(ABDUCTORS)
+    with pytest.raises(ConfigError) as error:
+        control.check_muscles(None)
+    assert "target 1 (muscle_activation glmed1_r)" in str(error.value) and "\n" not in str(error.value)
+    Control.load(EXAMPLE).check_muscles(None)  # no muscle target: nothing to compute
+
+
+def test_the_pipeline_refuses_muscle_targets_without_a_surrogate():
+    from biomotion.generation.pipeline import Generator
+
+    generator = Generator.__new__(Generator)  # only what generate reads before sampling
+    generator.surrogate, generator.rate = None, 30.0
+    with pytest.raises(ConfigError, match="no surrogate loaded"):
+        Generator.generate(generator, None, seconds=2.0, control=Control.load(ABDUCTORS))
+
+
+def test_muscle_losses_vanish_inside_bounds_and_grow_outside():
+    rate, frames = 30.0, 60
+    t = torch.arange(frames) / rate
+    q, com = torch.zeros(2, frames, 39), torch.zeros(2, frames, 3)
+    activations = torch.full((2, frames, len(MUSCLES)), 0.1)
+    activations[:, :, 0] = 0.2 + 0.1 * torch.sin(2 * math.pi * t)  # peak 0.3
+    activations[1, :, 0] += 0.3  # clip 2 peaks at 0.6
+    cap = Control.from_dict({"targets": [{"quantity": "muscle_activation", "muscle": "glmed1_r", "kind": "max",
+                                          "value": 0.4}]})  # fmt: skip
+    loss = cap.loss(q, com, rate, activations=activations, muscles=MUSCLES)
+    assert loss[0].item() == 0.0 and loss[1].item() > 0.0
+    higher = activations.clone()
+    higher[1, :, 0] += 0.1
+    assert cap.loss(q, com, rate, activations=higher, muscles=MUSCLES)[1] > loss[1]
+    floor = Control.from_dict({"targets": [{"quantity": "muscle_activation", "muscle": "glmed2_r", "kind": "min",
+                                            "value": 0.05}]})  # fmt: skip
+    assert floor.loss(q, com, rate, activations=activations, muscles=MUSCLES).abs().max().item() == 0.0
+    value = Control.from_dict({"targets": [{"quantity": "muscle_activation", "muscle": "glmed2_r", "kind": "value",
+                                            "times": [1.0], "value": 0.3, "weight": 1}]})  # fmt: skip
+    got = value.loss(q, com, rate, activations=activations, muscles=MUSCLES)
+    assert got.tolist() == pytest.approx([0.04, 0.04])
+    with pytest.raises(ValueError, match="need the activations"):
+        cap.loss(q, com, rate)

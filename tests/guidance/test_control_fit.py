@@ -55,3 +55,10 @@ def test_bounds_alone_leave_the_clip_as_it_is(standing):
     body, q, feet = standing
     spec = {"quantity": "joint_angle", "coordinate": "knee_angle_r", "kind": "max", "value": 10}
     assert torch.equal(_fit(body, q, feet, Control.from_dict({"targets": [spec]})), q)
+
+
+def test_muscle_targets_of_any_kind_leave_the_clip_as_it_is(standing):
+    """The stage computes no activations: a muscle ``value`` target (a fitted kind) is skipped, not evaluated."""
+    body, q, feet = standing
+    spec = {"quantity": "muscle_activation", "muscle": "glmed1_r", "kind": "value", "times": [0.5], "value": 0.2}
+    assert torch.equal(_fit(body, q, feet, Control.from_dict({"targets": [spec]})), q)

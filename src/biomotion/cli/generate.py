@@ -101,8 +101,9 @@ def add_parser(verbs) -> None:
         "--control",
         type=Path,
         metavar="FILE",
-        help="control spec (YAML, examples/control/): targets on vertical GRF, joint angles or COM height, met "
-        "through guidance (biomotion.guidance.control)",
+        help="control spec (YAML, examples/control/): targets on vertical GRF, joint angles, COM height, body "
+        "paths, joint moments or muscle activations, met through guidance (biomotion.guidance.control, "
+        "docs/control.md)",
     )
     parser.add_argument(
         "--smooth",

@@ -264,6 +264,7 @@ class Generator:
             raise ConfigError(f"--samples must be at least 1, got {samples}")
         if control is not None:
             control.check(seconds)
+            control.check_muscles(self.surrogate.names if guidance and self.surrogate is not None else None)
         speed = None
         if action.speed is not None:  # the request's speed at the canonical size (biomotion.data.placement)
             height = profile.height if profile is not None and personalised and profile.height else GENERIC_HEIGHT

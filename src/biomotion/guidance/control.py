@@ -25,6 +25,10 @@ A spec (``examples/control/*.yaml``) is a list of targets::
         coordinate: knee_angle_r # the coordinate's inverse-dynamics moment, N·m/kg, OpenSim's sign: a knee
         kind: min                # extension moment is negative, so "extension moment at most 1.5" is min -1.5
         value: -1.5
+      - quantity: muscle_activation
+        muscle: glmed1_r         # a muscle of the shipped surrogate (Rajagopal 2016 names)
+        kind: max                # max, min over a window; value at times
+        value: 0.4               # activation, 0-1
 
 Quantities, evaluated on the guided clip's `Kinematics` (canonical body size, y up, ground at y = 0):
 
@@ -51,23 +55,32 @@ Quantities, evaluated on the guided clip's `Kinematics` (canonical body size, y 
   held fixed within a step, so the gradient sees the force's size and the lever arms but not a shift of load
   between points; and the analysis the bound is measured with filters the coordinates at 6 Hz first, the
   guidance does not, so its peaks are the higher ones.
+- ``muscle_activation``: the named muscle's activation (0-1) as the muscle surrogate predicts it from the guided
+  coordinates (`biomotion.muscles.surrogate.MuscleSurrogate`, the network PG-BIG's guidance already runs every
+  step for its activation bounds, Sec. 3.3 and A.7): FlexMotion's activation control (Sec. 3.3) done through
+  guidance. The loss takes the activations [B, T, M] and their muscle names from its caller
+  (`biomotion.guidance.refine.Guide.terms`); the spec is read before any surrogate is loaded, so a muscle's name
+  is checked against the surrogate's names when they are known (`Control.check_muscles`). What the bound acts on
+  is the surrogate's estimate of static optimization, not static optimization itself.
 
 Losses, each a per-clip [B] tensor, weighted per target and summed: a bound is a squared hinge on a smooth maximum
 (minimum) over the window, relu(tau logsumexp(x / tau) - cap)^2, so the gradient reaches the frames near the peak
 and the smooth maximum, never below the true one, errs on the safe side; ``value`` is the mean squared difference
 at the given times (nearest frame), and ``path`` and a joint position's ``value`` the mean squared distance
-(m^2) between the body origin and the points at their times (nearest frame). Muscle activations (the issue's
-other quantity) are not supported here.
+(m^2) between the body origin and the points at their times (nearest frame).
 
 Validation raises `biomotion.errors.ConfigError` with one line naming the file and the target (``FILE: target N
 (quantity): ...``): unknown quantity, kind, coordinate or body (with the closest body names), a bad window, time
-or point, bounds that contradict each other (a min above a max of the same quantity over overlapping windows)
-and, once the clip length is known (`Control.check`), windows or times outside the clip.
+or point, an activation outside 0-1, bounds that contradict each other (a min above a max of the same quantity over
+overlapping windows), once the clip length is known (`Control.check`) windows or times outside the clip, and once
+the surrogate is known (`Control.check_muscles`) an unknown muscle (with the closest names) or muscle targets with
+no surrogate to compute activations.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,7 +89,7 @@ import torch
 from biomotion.body.model import BodyModel
 from biomotion.errors import ConfigError
 
-QUANTITIES = ("grf_vertical", "joint_angle", "com_height", "joint_position", "joint_torque")
+QUANTITIES = ("grf_vertical", "joint_angle", "com_height", "joint_position", "joint_torque", "muscle_activation")
 KINDS = ("max", "min", "value", "path")
 #: the kinds each quantity takes
 QUANTITY_KINDS = {
@@ -85,12 +98,19 @@ QUANTITY_KINDS = {
     "com_height": ("max", "min", "value"),
     "joint_position": ("path", "value"),
     "joint_torque": ("max", "min"),
+    "muscle_activation": ("max", "min", "value"),
 }
 GRAVITY = 9.81
 DEFAULT_WEIGHT = 1000.0
-#: smooth-max sharpness per quantity, in its unit (body weights, rad, m)
-SHARPNESS = {"grf_vertical": 0.05, "joint_angle": 0.02, "com_height": 0.005, "joint_torque": 0.02}
-_KEYS = {"quantity", "kind", "value", "window", "times", "weight", "coordinate", "body", "path"}
+#: smooth-max sharpness per quantity, in its unit (body weights, rad, m, N·m/kg, activation)
+SHARPNESS = {
+    "grf_vertical": 0.05,
+    "joint_angle": 0.02,
+    "com_height": 0.005,
+    "joint_torque": 0.02,
+    "muscle_activation": 0.01,
+}
+_KEYS = {"quantity", "kind", "value", "window", "times", "weight", "coordinate", "body", "path", "muscle"}
 
 
 @dataclass(frozen=True)
@@ -98,7 +118,8 @@ class Target:
     """One target: ``quantity`` and ``kind`` (see the module), ``value`` in SI / body weights / N·m/kg (a joint
     angle already in rad; NaN for a joint position, whose points are in ``points``), ``window`` (start, end) in s
     or None for the whole clip, ``times`` in s (kinds value and path), ``weight``, ``coordinate`` (joint_angle,
-    joint_torque), ``body`` and ``points`` [(x, y, z) m per time] (joint_position)."""
+    joint_torque), ``body`` and ``points`` [(x, y, z) m per time] (joint_position), ``muscle``
+    (muscle_activation: a surrogate muscle's name, checked by `Control.check_muscles`)."""
 
     quantity: str
     kind: str
@@ -109,9 +130,11 @@ class Target:
     coordinate: str | None = None
     body: str | None = None
     points: tuple[tuple[float, float, float], ...] = ()
+    muscle: str | None = None
 
     def describe(self) -> str:
-        named = self.coordinate if self.coordinate is not None else self.body
+        """The quantity and what it names (coordinate, body or muscle), as error messages show a target."""
+        named = next((x for x in (self.coordinate, self.body, self.muscle) if x is not None), None)
         return self.quantity if named is None else f"{self.quantity} {named}"
 
 
@@ -162,6 +185,7 @@ class Control:
                 )
             coordinate = _coordinate(raw.get("coordinate"), quantity, where)
             body = _body(raw.get("body"), quantity, where)
+            muscle = _muscle(raw.get("muscle"), quantity, where)
             weight = _number(raw.get("weight", DEFAULT_WEIGHT), f"{where}: weight")
             if weight < 0:
                 raise ConfigError(f"{where}: weight must not be negative, got {weight:g}")
@@ -174,6 +198,8 @@ class Control:
             value = _number(raw.get("value"), f"{where}: value")
             if quantity == "joint_angle" and not coordinate.startswith("pelvis_t"):
                 value = math.radians(value)
+            if quantity == "muscle_activation" and not 0.0 <= value <= 1.0:
+                raise ConfigError(f"{where}: an activation lies in 0-1, got {value:g}")
             window, times = None, ()
             if kind == "value":
                 if raw.get("window") is not None:
@@ -191,7 +217,7 @@ class Control:
                         raise ConfigError(
                             f"{where}: window [{window[0]:g}, {window[1]:g}] s must have 0 <= start < end"
                         )
-            targets.append(Target(quantity, kind, value, window, times, weight, coordinate))
+            targets.append(Target(quantity, kind, value, window, times, weight, coordinate, muscle=muscle))
         _check_consistent(targets, source)
         return cls(tuple(targets), source)
 
@@ -205,12 +231,46 @@ class Control:
                     f"{late:g} s, outside the {seconds:g} s clip"
                 )
 
+    def check_muscles(self, names: Sequence[str] | None) -> None:
+        """ConfigError when a muscle_activation target names a muscle not in ``names`` (the muscle surrogate's,
+        `biomotion.muscles.surrogate.MuscleSurrogate.names`; the message gives the closest ones), or when there is
+        any muscle_activation target and ``names`` is None: nothing will compute activations (guidance off, or no
+        surrogate loaded). The generation pipeline calls it before generating."""
+        from biomotion.analysis.study import closest_names
+
+        for n, t in enumerate(self.targets, 1):
+            if t.quantity != "muscle_activation":
+                continue
+            where = f"{self.source}: target {n} ({t.describe()})"
+            if names is None:
+                raise ConfigError(
+                    f"{where}: muscle activations come from the muscle surrogate inside guidance, and this "
+                    "generation has none (guidance off or no surrogate loaded)"
+                )
+            if t.muscle not in names:
+                close = closest_names([t.muscle], names, 3)[t.muscle]
+                hint = f"closest: {', '.join(close)}; " if close else ""
+                raise ConfigError(
+                    f"{where}: unknown muscle {t.muscle!r} ({hint}the surrogate's {len(names)} muscles are the "
+                    f"Rajagopal 2016 ones, e.g. {', '.join(names[:3])})"
+                )
+
     def loss(
-        self, q: torch.Tensor, com: torch.Tensor, rate: float, frames: int | None = None, body: BodyModel | None = None
+        self,
+        q: torch.Tensor,
+        com: torch.Tensor,
+        rate: float,
+        frames: int | None = None,
+        body: BodyModel | None = None,
+        *,
+        activations: torch.Tensor | None = None,
+        muscles: Sequence[str] | None = None,
     ) -> torch.Tensor:
         """The weighted sum [B] of every target's loss on clips q [B, T, 39] and COM [B, T, 3] (canonical, on the
         floor) at ``rate`` Hz; ``frames``: the clip's length (T when None; later frames are ignored); ``body``:
-        the canonical `BodyModel` the clips were posed with, needed by joint_position and joint_torque targets."""
+        the canonical `BodyModel` the clips were posed with, needed by joint_position and joint_torque targets;
+        ``activations`` [B, T, M] (0-1, frame for frame with q) and their ``muscles`` names: the surrogate's
+        prediction on q, needed by muscle_activation targets (FlexMotion Sec. 3.3's activation control)."""
         from biomotion.body.canonical import CANONICAL_COORDINATES
 
         frames = q.shape[1] if frames is None else min(frames, q.shape[1])
@@ -218,6 +278,12 @@ class Control:
         needs_body = {t.quantity for t in self.targets} & {"joint_position", "joint_torque"}
         if needs_body and body is None:
             raise ValueError(f"{self.source}: {', '.join(sorted(needs_body))} targets need the body model")
+        if any(t.quantity == "muscle_activation" for t in self.targets):
+            if activations is None or muscles is None:
+                raise ValueError(f"{self.source}: muscle_activation targets need the activations and their names")
+            missing = sorted({t.muscle for t in self.targets if t.muscle is not None} - set(muscles))
+            if missing:
+                raise ValueError(f"{self.source}: no activations for {', '.join(missing)}")
         positions = moments = None
         total = torch.zeros(q.shape[0], dtype=q.dtype)
         for t in self.targets:
@@ -236,6 +302,8 @@ class Control:
                 if moments is None:
                     moments = joint_moments(body, q, rate)
                 series = moments[:, :, CANONICAL_COORDINATES.index(t.coordinate)]
+            elif t.quantity == "muscle_activation":
+                series = activations[:, :frames, list(muscles).index(t.muscle)]
             else:
                 series = q[:, :, CANONICAL_COORDINATES.index(t.coordinate)]
             total = total + t.weight * _target_loss(t, series, rate)
@@ -320,6 +388,18 @@ def _body(body, quantity: str, where: str) -> str | None:
             f"{where}: unknown body {body!r} ({hint}the canonical ones are {', '.join(CANONICAL_BODIES)})"
         )
     return body
+
+
+def _muscle(muscle, quantity: str, where: str) -> str | None:
+    """The muscle of a muscle_activation target (None for the other quantities); its name is checked against the
+    surrogate's later (`Control.check_muscles`), since the spec loads before the surrogate."""
+    if quantity != "muscle_activation":
+        if muscle is not None:
+            raise ConfigError(f"{where}: a muscle applies to muscle_activation only")
+        return None
+    if not isinstance(muscle, str) or not muscle:
+        raise ConfigError(f"{where}: muscle_activation needs 'muscle', a muscle name of the surrogate (e.g. glmed1_r)")
+    return muscle
 
 
 def _times(given, where: str) -> tuple[float, ...]:

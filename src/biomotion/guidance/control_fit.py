@@ -13,17 +13,19 @@ generator that is not a diffusion model, the correction is one stage after guida
 
 with ``control`` the spec's own weighted loss over its targets of kind ``path`` and ``value``
 (`biomotion.guidance.control.Control.loss`: body paths and positions, angles, COM height or vertical GRF at given
-times): the targets that ask for a place or a value at a time. Bounds (``max``, ``min``) are left to the latent
-guidance, which meets them from inside the decoder's motions; pushed further here, a bound on the guidance's own
-estimate (Newton's vertical force from the unfiltered COM, inverse dynamics of unfiltered coordinates) is not the
-bound the analysis measures after its 6 Hz filter, and the correction can make that one worse. d is a correction of
-every coordinate, represented by its values at knots about every ``knot_frames`` frames (the first and last frames
-among them) and interpolated between them by cubic convolution: continuous in velocity, so a correction adds neither
-jitter nor acceleration spikes; only the coordinates that can move what a target names are corrected
-(`free_coordinates`: a hand path leaves the legs alone). Rotations are kept inside their ranges, the foot points that
-planting put on the floor are held where they are (the last term), and the COM is recomputed from the corrected
-coordinates. Adam on the knot values for ``iterations`` steps; without a path or value target the clip is returned as
-it is.
+times): the targets that ask for a place or a value at a time. Muscle activation targets, of any kind, are left out
+(``UNFITTED_QUANTITIES``): this stage has no muscle surrogate, and moving the coordinates for an activation the
+guidance estimated would not be checked by anything after it; they are met by the latent guidance alone. Bounds
+(``max``, ``min``) are left to the latent guidance, which meets them from inside the decoder's motions; pushed
+further here, a bound on the guidance's own estimate (Newton's vertical force from the unfiltered COM, inverse
+dynamics of unfiltered coordinates) is not the bound the analysis measures after its 6 Hz filter, and the correction
+can make that one worse. d is a correction of every coordinate, represented by its values at knots about every
+``knot_frames`` frames (the first and last frames among them) and interpolated between them by cubic convolution:
+continuous in velocity, so a correction adds neither jitter nor acceleration spikes; only the coordinates that can
+move what a target names are corrected (`free_coordinates`: a hand path leaves the legs alone). Rotations are kept
+inside their ranges, the foot points that planting put on the floor are held where they are (the last term), and the
+COM is recomputed from the corrected coordinates. Adam on the knot values for ``iterations`` steps; without a path or
+value target the clip is returned as it is.
 
 Contract: q [B, T, n] canonical coordinates on the floor at ``rate`` Hz in, the same shape out; the input is not
 changed; coupled coordinates (the knee ``_beta``) are recomputed from their independent ones.
@@ -40,6 +42,8 @@ from biomotion.guidance.control import Control
 
 FITTED_KINDS = ("path", "value")
 """The kinds of target this stage corrects the coordinates for (module docstring)."""
+UNFITTED_QUANTITIES = ("muscle_activation",)
+"""Quantities this stage leaves alone whatever their kind: it computes no activations (module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -94,7 +98,8 @@ def fit_control(
     the foot contact points (`biomotion.body.contact.foot_points`), ``lower``/``upper`` [n] the coordinate ranges
     applied to the ``rotational`` [n] ones, ``frames`` the clip's length (T when None)."""
     q0 = q.detach()
-    control = Control(tuple(t for t in control.targets if t.kind in FITTED_KINDS), control.source)
+    fitted = tuple(t for t in control.targets if t.kind in FITTED_KINDS and t.quantity not in UNFITTED_QUANTITIES)
+    control = Control(fitted, control.source)
     if not control.targets:
         return q0
     free = free_coordinates(body, control).to(q0.dtype)  # [n]

@@ -42,8 +42,9 @@ evidence is in docs/decisions/guidance-weights.md and the pages it links):
   Butterworth, `biomotion.motion.lowpass`, the filter the real clips went through at their source), ``biomotion
   generate --smooth HZ``: less jerk and fewer muscle-limit violations, a little more foot sliding.
 - user targets (``control``, ours after FlexMotion Sec. 3.3's controls: `biomotion.guidance.control`): with a
-  control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets), and
-  after planting the coordinates themselves are corrected until the targets are met (``control_fit``,
+  control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets; muscle
+  activation targets act on the surrogate's activations of the same step), and after planting the coordinates
+  themselves are corrected until the path and value targets are met (``control_fit``,
   `biomotion.guidance.control_fit`: what latents alone cannot reach); without one nothing changes.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
@@ -202,6 +203,9 @@ class Guide:
             raise ValueError("a tempo needs the number of frames to play")
         self.tempo, self.frames = tempo, frames  # [B] playback factors (`biomotion.guidance.tempo`), output frames
         self.control = control  # `biomotion.guidance.control.Control`: user targets, one more term (weights inside)
+        self.control_reads_muscles = control is not None and any(
+            t.quantity == "muscle_activation" for t in control.targets
+        )
 
     def kinematics(self, z: torch.Tensor) -> Kinematics:
         """Decode latents [B, N, D], play them at the tempo when one is set, add the posture shift and put each
@@ -277,13 +281,20 @@ class Guide:
             out["zmp"] = losses.zmp_support(k.zmp, k.loaded, k.feet, contact)
         if self.config.w_foot_skim > 0:
             out["foot_skim"] = losses.foot_skim(k.feet, self.rate, self.config.contact_height)
+        activations = muscles = None
         if self.surrogate is not None:
             # a surrogate with contact features reads the foot heights computed above (the same points)
             heights = {"heights": k.feet[..., 1]} if self.surrogate_reads_feet else {}
-            activations = self.surrogate(k.q, **heights)
+            if self.control_reads_muscles:  # the outputs' estimate (`predict_symmetric`), not one pass's error
+                activations = self.surrogate.predict_symmetric(k.q, **heights)[0]
+            else:
+                activations = self.surrogate(k.q, **heights)
+            muscles = self.surrogate.names
             out["activation"] = losses.activation(activations, self.surrogate.low, self.surrogate.high)
-        if self.control is not None:
-            out["control"] = self.control.loss(k.q, k.com, self.rate, self.frames, self.body)
+        if self.control is not None:  # muscle_activation targets read the same activations
+            out["control"] = self.control.loss(
+                k.q, k.com, self.rate, self.frames, self.body, activations=activations, muscles=muscles
+            )
         return out
 
     def smoothed(self, q: torch.Tensor, cutoff_hz: float) -> torch.Tensor:
