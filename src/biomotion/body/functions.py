@@ -263,20 +263,22 @@ class FunctionStack:
         ]
         self.first, self.last = ends
 
-    def derivatives(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(s f, s f', s f'') at ``x`` [K, ...]."""
+    def derivatives(self, x: torch.Tensor, order: int = 2) -> tuple[torch.Tensor, ...]:
+        """(s f, s f', s f'') at ``x`` [K, ...], or only the first ``order + 1`` of them: the derivatives not asked
+        for are not computed (forward kinematics needs the values, its Jacobians the slopes, dynamics all three)."""
         if x.shape[0] != self.size:
             raise ModelError(f"FunctionStack of {self.size} functions got {x.shape[0]} arguments")
+        if order not in (0, 1, 2):
+            raise ValueError(f"order must be 0, 1 or 2, not {order}")
         trailing = (1,) * (x.dim() - 1)
-        parts = []
+        parts: list[tuple[torch.Tensor, ...]] = []
         if len(self.affine):
             u = x[self.affine]
             slope = self.slope.to(x.dtype).reshape(-1, *trailing)
-            parts.append(
-                (slope * u + self.intercept.to(x.dtype).reshape(-1, *trailing), slope.expand_as(u), torch.zeros_like(u))
-            )
+            value = slope * u + self.intercept.to(x.dtype).reshape(-1, *trailing)
+            parts.append((value, slope.expand_as(u), torch.zeros_like(u))[: order + 1])
         if len(self.splines):
-            parts.append(self._evaluate_splines(x[self.splines]))
+            parts.append(self._evaluate_splines(x[self.splines], order))
         if len(self.polynomials):
             u = x[self.polynomials]
             f, d1, d2 = torch.zeros_like(u), torch.zeros_like(u), torch.zeros_like(u)
@@ -285,33 +287,32 @@ class FunctionStack:
                 d2 = d2 * u + 2.0 * d1
                 d1 = d1 * u + f
                 f = f * u + c
-            parts.append((f, d1, d2))
+            parts.append((f, d1, d2)[: order + 1])
         for k, function in self.others:
-            parts.append(tuple(d[None] for d in function.derivatives(x[k])))
+            parts.append(tuple(d[None] for d in function.derivatives(x[k])[: order + 1]))
         if not parts:
             zero = x.new_zeros(x.shape)
-            return zero, zero, zero
+            return (zero,) * (order + 1)
         scale = self.scale.to(x.dtype).reshape(-1, *trailing)
-        return tuple(
-            scale * torch.cat([p[i] for p in parts])[self.order]  # type: ignore[return-value]
-            for i in range(3)
-        )
+        return tuple(scale * torch.cat([p[i] for p in parts])[self.order] for i in range(order + 1))
 
-    def _evaluate_splines(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _evaluate_splines(self, x: torch.Tensor, order: int) -> tuple[torch.Tensor, ...]:
         trailing = (1,) * (x.dim() - 1)
         inner = self.inner.to(x.dtype).reshape(self.inner.shape[0], *trailing, -1)
         k = (x[..., None] >= inner).sum(-1) + self.offset.reshape(-1, *trailing)
         knot, y, b, c, d = self.table.to(x.dtype)[:, k]
         dx = x - knot
-        value = y + dx * (b + dx * (c + dx * d))
-        slope = b + dx * (2.0 * c + 3.0 * dx * d)
-        curvature = 2.0 * c + 6.0 * dx * d
         (x0, y0, b0), (x1, y1, b1) = (e.to(x.dtype).reshape(3, -1, *trailing) for e in (self.first, self.last))
         below, above = x < x0, x > x1
-        value = torch.where(below, y0 + (x - x0) * b0, torch.where(above, y1 + (x - x1) * b1, value))
-        slope = torch.where(below, b0, torch.where(above, b1, slope))
-        curvature = torch.where(below | above, torch.zeros_like(x), curvature)
-        return value, slope, curvature
+        value = y + dx * (b + dx * (c + dx * d))
+        out = [torch.where(below, y0 + (x - x0) * b0, torch.where(above, y1 + (x - x1) * b1, value))]
+        if order >= 1:
+            slope = b + dx * (2.0 * c + 3.0 * dx * d)
+            out.append(torch.where(below, b0, torch.where(above, b1, slope)))
+        if order >= 2:
+            curvature = 2.0 * c + 6.0 * dx * d
+            out.append(torch.where(below | above, torch.zeros_like(x), curvature))
+        return tuple(out)
 
 
 def build_function(spec: osim.FunctionSpec) -> Function:

@@ -20,14 +20,13 @@ inside `torch_threads(1)` there, and parallelise over trials instead.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
 
-from biomotion.body.functions import FunctionStack
+from biomotion.body.functions import Constant, FunctionStack, Linear, PiecewiseCubic, Polynomial
 from biomotion.body.model import BodyModel, JointModel
 from biomotion.body.spatial import axis_angle, skew
 from biomotion.body.spatial import cross_frames_last as _cross
@@ -77,7 +76,7 @@ def forward_kinematics(model: BodyModel, q: torch.Tensor) -> BodyPoses:
     """Poses of all bodies in ground at coordinates ``q`` [..., n_q]."""
     _check(model, q)
     tree = KinematicTree.of(model, q.dtype)
-    return tree.poses(tree.joint_frames(tree.axis_values(to_frames_last(q, 1))[0])).public(q.shape[:-1])
+    return tree.poses(tree.joint_frames(tree.axis_values(to_frames_last(q, 1), order=0)[0])).public(q.shape[:-1])
 
 
 def points_in_ground(poses: BodyPoses, bodies: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
@@ -135,7 +134,7 @@ def point_jacobians(
     """
     _check(model, q)
     tree = KinematicTree.of(model, q.dtype)
-    values, slopes, _ = tree.axis_values(to_frames_last(q, 1))
+    values, slopes = tree.axis_values(to_frames_last(q, 1), order=1)
     frames = tree.joint_frames(values)
     tree_poses = (
         tree.poses(frames)
@@ -251,20 +250,28 @@ def _over(matrix: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class JointFrames:
-    """Every joint at once, indexed by its child body, frames last: X_FM(q) (``r_fm`` [B, 3, 3, N], ``p_fm``
-    [B, 3, N]), X_PB(q) (``r_pb``, ``p_pb``), and every rotation axis k in F after the rotations before it,
-    W_k [A_r, 3, N] (`JointTerms.rotation_axes`)."""
+    """Every joint at once, indexed by its child body, frames last: X_PB(q) = X_PF X_FM(q) X_MB as one [B, 3, 4, N]
+    tensor (R_PB | p_PB), and every rotation axis k after the rotations before it, R_PF W_k [A_r, 3, N]
+    (`JointTerms.rotation_axes`, in the parent body's orientation)."""
 
-    r_fm: torch.Tensor
-    p_fm: torch.Tensor
-    r_pb: torch.Tensor
-    p_pb: torch.Tensor
+    x_pb: torch.Tensor
     rotation_axes: torch.Tensor
+
+    @property
+    def r_pb(self) -> torch.Tensor:
+        """R_PB [B, 3, 3, N] (a view of ``x_pb``)."""
+        return self.x_pb[:, :, :3]
+
+    @property
+    def p_pb(self) -> torch.Tensor:
+        """p_PB [B, 3, N] (a view of ``x_pb``)."""
+        return self.x_pb[:, :, 3]
 
 
 @dataclass(frozen=True)
 class TreePoses:
-    """Body orientations [B, 3, 3, N] and origins [B, 3, N] in ground, frames last."""
+    """Body orientations [B, 3, 3, N] and origins [B, 3, N] in ground, frames last (`KinematicTree.poses` gives
+    them as views of one [B, 3, 4, N] tensor)."""
 
     rotations: torch.Tensor
     positions: torch.Tensor
@@ -402,8 +409,6 @@ class KinematicTree:
         self.turns = [None] + [
             torch.tensor([b for b in range(n_b) if slots[b][r] is not None], dtype=torch.long) for r in (1, 2)
         ]  # joints with a 2nd, a 3rd rotation
-        units = skew(self.rotation_units[..., 0])
-        self.skew, self.skew2 = units[..., None], (units @ units)[..., None]
         # which rotation rates carry axis k's frame (see dynamics.joint_velocity): the preceding axes of the
         # joint ("exact"), or Simbody's rule for CustomJoints ("opensim")
         exact = torch.zeros(n_r, n_r, dtype=dtype)
@@ -431,7 +436,30 @@ class KinematicTree:
         self.r_pf, self.p_pf = stacked("parent_rotation"), stacked("parent_translation")
         self.p_bm = stacked("child_translation")
         self.r_mb = stacked("child_rotation").transpose(1, 2)
-        self.p_mb = -_mv(self.r_mb, self.p_bm)
+        # `joint_frames`'s constants. The joint's fixed rotations are folded into its axis rotations: rotation axis
+        # a of joint b is the factor L (I + sin K + (1 - cos) K^2) R, K = [u_a]x, L = R_PF if a is the joint's first
+        # rotation (else I), R = R_MB if its last (else I), so that a joint's factors multiply to R_PB directly;
+        # a joint without rotation has the constant R_PF R_MB (factor n_r + b)
+        count = [sum(s is not None for s in row) for row in slots]
+        first = torch.tensor([e[2] == 0 for e in rotation], dtype=torch.bool)[:, None, None]
+        last = torch.tensor([e[2] == count[e[1]] - 1 for e in rotation], dtype=torch.bool)[:, None, None]
+        eye = torch.eye(3, dtype=dtype)
+        left = torch.where(first, self.r_pf[self.rotation_body, ..., 0], eye)
+        right = torch.where(last, self.r_mb[self.rotation_body, ..., 0], eye)
+        units = skew(self.rotation_units[..., 0])
+        self.factor_terms = [(left @ m @ right)[..., None] for m in (eye.expand_as(units), units, units @ units)]
+        self.fixed = (self.r_pf[..., 0] @ self.r_mb[..., 0])[..., None]  # [B, 3, 3, 1]
+        self.first_factor = torch.tensor([row[0] if row[0] is not None else n_r + b for b, row in enumerate(slots)])
+        self.second_factor = self.slots[self.turns[1], 1]
+        self.third_factor = self.slots[self.turns[2], 2]
+        # R_PF W_k: constant for a joint's first rotation, its first factor (R_PF R_1) or the product of its first
+        # two (R_PF R_1 R_2) applied to u_k for the second and third; R_PF b_m for the translations
+        self.first_axes = _mv(self.r_pf[self.rotation_body[self.ranked[0]]], self.rotation_units[self.ranked[0]])
+        self.second_axes = (self.rotation_body[self.ranked[1]], self.rotation_units[self.ranked[1]])
+        self.third_axes = (self.rotation_body[self.ranked[2]], self.rotation_units[self.ranked[2]])
+        self.translation_in_parent = _mv(self.r_pf[self.translation_body], self.translation_units)
+        self.rotation_parent = self.parent[self.rotation_body]  # n_b: ground
+        self.translation_parent = self.parent[self.translation_body]
         self.ancestors = ancestors.to(dtype)
         self.owned = owned.to(dtype)
         index = self.bodies if bodies is not None else slice(None)
@@ -455,55 +483,57 @@ class KinematicTree:
             cache[dtype] = tree
         return tree
 
-    def axis_values(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def axis_values(self, q: torch.Tensor, order: int = 2) -> tuple[torch.Tensor, ...]:
         """Amount of every transform axis and its first two derivatives in its coordinate, [A, N] each, from
-        coordinates ``q`` [n_q, N]."""
+        coordinates ``q`` [n_q, N]; only the first ``order + 1`` of them (`FunctionStack.derivatives`)."""
         padded = torch.cat([q, q.new_zeros(1, q.shape[-1])])
-        return self.functions.derivatives(padded[self.argument])
+        return self.functions.derivatives(padded[self.argument], order)
 
     def joint_frames(self, values: torch.Tensor) -> JointFrames:
-        """X_FM and X_PB of every joint from the axis amounts ``values`` [A, N] (products only where a joint has
-        a second or third rotation)."""
+        """X_PB of every joint and the rotation axes from the axis amounts ``values`` [A, N]: each rotation axis
+        one factor by Rodrigues' formula (`axis_angle`) with the joint's fixed rotations folded in, products only
+        where a joint has a second or third rotation, and p_PB = p_PF + R_PF p_FM - R_PB p_BM."""
         n = values.shape[-1]
         angle = values[self.rotation, None, None, :]
-        rotations = self.eye + torch.sin(angle) * self.skew + (1.0 - torch.cos(angle)) * self.skew2  # axis_angle
-        rotations = torch.cat([rotations, self.eye.expand(3, 3, n)[None]])  # last: identity (no rotation)
-        first = rotations[self.slots[:, 0]]
+        identity, k, k2 = self.factor_terms
+        factors = identity + torch.sin(angle) * k + (1.0 - torch.cos(angle)) * k2
+        factors = torch.cat([factors, self.fixed.expand(-1, 3, 3, n)])
+        first = factors[self.first_factor]
         second, third = self.turns[1], self.turns[2]
-        first_two = first.index_put((second,), _mm(first[second], rotations[self.slots[second, 1]]))
-        r_fm = first_two.index_put((third,), _mm(first_two[third], rotations[self.slots[third, 2]]))
-        p_fm = _over(self.translation_joint, values[self.translation, None, :] * self.translation_units)
-        r_pb = _mm(_mm(self.r_pf, r_fm), self.r_mb)
-        p_pb = self.p_pf + _mv(self.r_pf, p_fm + _mv(r_fm, self.p_mb))
-        ranked = self.ranked
+        first_two = first.index_put((second,), _mm(first[second], factors[self.second_factor]))
+        r_pb = first_two.index_put((third,), _mm(first_two[third], factors[self.third_factor]))
+        shift = _over(self.translation_joint, values[self.translation, None, :] * self.translation_in_parent)
+        p_pb = (self.p_pf + shift).sub_(_mv(r_pb, self.p_bm))
+        (second_body, second_units), (third_body, third_units) = self.second_axes, self.third_axes
         axes = torch.cat(
             [
-                self.rotation_units[ranked[0]].expand(-1, 3, n),
-                _mv(first[self.rotation_body[ranked[1]]], self.rotation_units[ranked[1]]),
-                _mv(first_two[self.rotation_body[ranked[2]]], self.rotation_units[ranked[2]]),
+                self.first_axes.expand(-1, 3, n),
+                _mv(first[second_body], second_units),
+                _mv(first_two[third_body], third_units),
             ]
         )
-        return JointFrames(r_fm, p_fm, r_pb, p_pb, axes[self.unrank])
+        return JointFrames(torch.cat([r_pb, p_pb[:, :, None]], 2), axes[self.unrank])
 
     def poses(self, frames: JointFrames) -> TreePoses:
-        """Compose X_GB = X_GP X_PB down the tree, one depth level at a time."""
-        rotations: list[torch.Tensor] = []
-        positions: list[torch.Tensor] = []
+        """Compose X_GB = X_GP X_PB down the tree, one depth level at a time, on the 3x4 (R | p) of each transform:
+        (R_GB | p_GB) = R_GP (R_PB | p_PB) + (0 | p_GP). The poses are views of one [B, 3, 4, N] tensor."""
+        transforms: list[torch.Tensor] = []
         for bodies, parents in self.levels:
-            r, p = frames.r_pb[bodies], frames.p_pb[bodies]
+            x = frames.x_pb[bodies]
             if parents is not None:
-                r_gp, p_gp = rotations[-1][parents], positions[-1][parents]
-                r, p = _mm(r_gp, r), p_gp + _mv(r_gp, p)
-            rotations.append(r)
-            positions.append(p)
-        return TreePoses(torch.cat(rotations)[self.assemble], torch.cat(positions)[self.assemble])
+                x_gp = transforms[-1][parents]
+                x = _mm(x_gp[:, :, :3], x)
+                x[:, :, 3].add_(x_gp[:, :, 3])
+            transforms.append(x)
+        x = torch.cat(transforms)[self.assemble]
+        return TreePoses(x[:, :, :3], x[:, :, 3])
 
     def ground_axes(self, poses: TreePoses, frames: JointFrames) -> GroundAxes:
-        """Every moving axis in ground orientation (R_GF W_k, R_GF b_m; R_GF = R_GP R_PF) and the joint centres."""
+        """Every moving axis in ground orientation (R_GP R_PF W_k, R_GP R_PF b_m) and the joint centres."""
         ground = self.eye.expand(3, 3, poses.rotations.shape[-1])[None]
-        r_gf = _mm(torch.cat([poses.rotations, ground])[self.parent], self.r_pf)
-        rotation = _mv(r_gf[self.rotation_body], frames.rotation_axes)
-        translation = _mv(r_gf[self.translation_body], self.translation_units)
+        r_gp = torch.cat([poses.rotations, ground])  # R_GP, indexed by parent (n_b: ground)
+        rotation = _mv(r_gp[self.rotation_parent], frames.rotation_axes)
+        translation = _mv(r_gp[self.translation_parent], self.translation_in_parent)
         centers = poses.positions + _mv(poses.rotations, self.p_bm)
         return GroundAxes(rotation, translation, centers)
 
@@ -553,18 +583,32 @@ class KinematicTree:
         return affine, slope, intercept
 
 
-def _requires_grad(obj, depth: int = 0) -> bool:
-    """Whether any tensor of a model's kinematic and inertial data (joints, axes, functions) requires grad."""
-    if isinstance(obj, torch.Tensor):
-        return obj.requires_grad
-    if depth > 8:
+def _requires_grad(model: BodyModel) -> bool:
+    """Whether any tensor of a model's kinematic and inertial data (joints, axes, functions) requires grad: the
+    fields the tree is built from, read directly (a generic walk over the objects costs as much as a few IK
+    iterations on a model loaded afresh)."""
+    tensors = [model.masses, model.coms, model.inertias, model.gravity]
+    for joint in model.joints:
+        tensors += [joint.parent_rotation, joint.parent_translation, joint.child_rotation, joint.child_translation]
+        for axis in joint.axes:
+            tensors += [axis.axis, axis.scale]
+            if _function_requires_grad(axis.function):
+                return True
+    return any(t.requires_grad for t in tensors if isinstance(t, torch.Tensor))
+
+
+def _function_requires_grad(function, depth: int = 0) -> bool:
+    """Whether a model function holds a tensor that requires grad (its attributes, nested functions included)."""
+    if isinstance(function, torch.Tensor):
+        return function.requires_grad
+    if isinstance(function, (Constant, Linear, Polynomial)) or depth > 8:
         return False
-    if isinstance(obj, (tuple, list)):
-        return any(_requires_grad(o, depth + 1) for o in obj)
-    if isinstance(obj, BodyModel):
-        return _requires_grad((obj.masses, obj.coms, obj.inertias, obj.gravity, obj.joints), depth + 1)
-    if dataclasses.is_dataclass(obj) or hasattr(obj, "__dict__"):
-        return any(_requires_grad(v, depth + 1) for v in vars(obj).values())
+    if isinstance(function, PiecewiseCubic):
+        return any(t.requires_grad for t in (function.x, function.y, function.b, function.c, function.d))
+    if isinstance(function, (tuple, list)):
+        return any(_function_requires_grad(f, depth + 1) for f in function)
+    if hasattr(function, "__dict__"):
+        return any(_function_requires_grad(v, depth + 1) for v in vars(function).values())
     return False
 
 

@@ -24,10 +24,11 @@ composite-rigid-body algorithm accumulates inertias (ibid., ch. 6), so the marke
 cost per frame grows with markers x coordinates + coordinates^2, not markers x coordinates^2.
 
 Warm start, without a loop over frames: a coarse pass solves frames ``coarse_interval`` seconds apart, each from
-the best of a few root orientations (a multi-start over the root joint alone), then re-solves each from its
-neighbours' solutions and keeps the best; the fine pass starts every frame from the cubic-spline interpolation of
-the coarse solutions; frames left with a clearly higher cost than a neighbour, or off the line between their
-neighbours, are re-solved from the neighbours' solutions (OpenSim's frame-to-frame propagation, done in
+the root body's pose fitted to its markers (in closed form, a weighted Procrustes fit, where the root joint is
+three orthogonal rotations and three translations; else a multi-start over the root joint alone), then re-solves
+each from its neighbours' solutions and keeps the best; the fine pass starts every frame from the cubic-spline
+interpolation of the coarse solutions; frames left with a clearly higher cost than a neighbour, or off the line
+between their neighbours, are re-solved from the neighbours' solutions (OpenSim's frame-to-frame propagation, done in
 parallel). Unclamped angles are finally unwrapped in time, so a trajectory never jumps by 2 pi.
 """
 
@@ -223,7 +224,7 @@ class _Kinematics:
         `twists`), frames last as the tree gives them (the normal equations work in that layout)."""
         q, coupled = self.coordinates(z)
         tree = self.tree
-        values, slopes, _ = tree.axis_values(q.T)
+        values, slopes = tree.axis_values(q.T, order=1)
         frames = tree.joint_frames(values)
         poses = tree.poses(frames)
         x = tree.points(poses, self.marker_body, self.marker_offsets)  # [M, 3, T]
@@ -497,8 +498,9 @@ def _root_start(
     model: BodyModel, problem: _Problem, marker_index: Sequence[int], count: int, free: Sequence[int]
 ) -> torch.Tensor:
     """Initial z [T, n_z]: defaults, with the root joint's free coordinates fitted to the markers on the root
-    body from several orientations (best kept per frame). Defaults alone when the root body carries fewer than
-    three tracked markers."""
+    body. In closed form where the root joint allows it (`_fit_root`), else, and in the frames the closed form
+    cannot take, by a multi-start over the root joint alone (`_root_multistart`). Defaults alone when the root body
+    carries fewer than three tracked markers."""
     z0 = model.defaults.to(_F64)[list(free)].expand(count, len(free)).clone()
     roots = [j for j in model.joint_order if model.joints[j].parent < 0]
     if not roots:
@@ -509,17 +511,142 @@ def _root_start(
     root_free = [c for c in model.joints[root].coordinates if c in set(free)]
     if len(on_root) < 3 or not root_free:
         return z0
-    kin = _Kinematics.of(model, [marker_index[k] for k in on_root], root_free, joints=[root])
+    columns = [list(free).index(c) for c in root_free]
+    fitted = _fit_root(model, problem, [marker_index[k] for k in on_root], on_root, root, root_free, columns)
+    if fitted is None:
+        rest = torch.arange(count)
+    else:
+        values, fit = fitted
+        z0[:, columns] = torch.where(fit[:, None], values, z0[:, columns])
+        rest = (~fit).nonzero().squeeze(-1)
+    if rest.numel():
+        z0[rest[:, None], columns] = _root_multistart(
+            model, problem.frames(rest), [marker_index[k] for k in on_root], on_root, root, root_free, columns
+        )
+    return z0
+
+
+def _fit_root(
+    model: BodyModel,
+    problem: _Problem,
+    markers: Sequence[int],
+    on_root: Sequence[int],
+    root: int,
+    root_free: Sequence[int],
+    columns: Sequence[int],
+) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """The root joint's coordinates [T, len(root_free)] that place the root body's markers best, in closed form,
+    and [T] the frames where that fit is taken; None when the joint is not of the form it needs.
+
+    The root body's pose in ground is the weighted Procrustes fit of its markers' body-fixed offsets to the
+    observed positions (Kabsch 1976, Acta Cryst A32:922; weights the markers' IK weights, occluded ones 0): the
+    exact minimiser of the markers' part of the objective over rigid poses, for every frame at once (one batched
+    3x3 SVD). The joint's coordinates follow when it is six affine axes of its six free coordinates: three rotations
+    about mutually orthogonal axes with unit slope (their angles are the Euler angles of the joint rotation in that
+    basis; of the two sets, (a + pi, pi - b, c + pi), the one nearest the defaults among those in range) and three
+    independent translations (a 3x3 solve). A frame is left to the multi-start when fewer than three of its markers
+    are visible, they are collinear, the middle angle is at gimbal lock, or no set of angles is within the bounds.
+    """
+    joint = model.joints[root]
+    tree = KinematicTree.of(model, _F64)
+    numbers = (tree.axis_body == int((tree.bodies == joint.child).nonzero())).nonzero().flatten().tolist()
+    affine, slope, intercept = tree.affine_axes()
+    rotations = [(a, n) for a, n in zip(joint.axes, numbers) if a.rotation]
+    translations = [(a, n) for a, n in zip(joint.axes, numbers) if not a.rotation]
+    coordinates = [a.coordinate for a, _ in rotations + translations]
+    if (
+        len(rotations) != 3
+        or len(translations) != 3
+        or sorted(coordinates, key=str) != sorted(root_free, key=str)
+        or any(not bool(affine[n]) for _, n in rotations + translations)
+        or any(abs(abs(float(slope[n])) - 1.0) > 1e-12 for _, n in rotations)
+    ):
+        return None
+    units = torch.stack([a.axis.to(_F64) for a, _ in rotations], 1)  # [3, 3] columns u_k
+    shifts = torch.stack([a.axis.to(_F64) for a, _ in translations], 1)  # [3, 3] columns b_m
+    if not torch.allclose(units.T @ units, torch.eye(3, dtype=_F64), atol=1e-9) or abs(float(torch.det(shifts))) < 1e-9:
+        return None
+    flip = float(torch.det(units))  # -1: a left-handed basis, made right-handed by reversing u_3 (and its angle)
+    basis = units * torch.tensor([1.0, 1.0, flip], dtype=_F64)
+
+    # weighted Procrustes: R_GB, p_GB minimising sum_i w_i |R o_i + p - y_i|^2
+    offsets = model.marker_offsets[list(markers)].to(_F64)  # [M, 3] in the body
+    observed, weights = problem.observed[list(on_root)], problem.weights[list(on_root)]  # [M, 3, T], [M, T]
+    total = weights.sum(0).clamp(min=1e-300)  # [T]
+    o_mean = (weights.T @ offsets) / total[:, None]  # [T, 3]
+    y_mean = (weights[:, None] * observed).sum(0).T / total[:, None]  # [T, 3]
+    o_centred = (offsets[None] - o_mean[:, None]) * weights.T[..., None]  # [T, M, 3], weighted
+    y_centred = observed.permute(2, 0, 1) - y_mean[:, None]
+    u, s, vh = torch.linalg.svd(o_centred.transpose(1, 2) @ y_centred)  # sum_i w_i o_i y_i^T = U S V^T
+    v = vh.transpose(1, 2)
+    sign = torch.sign(torch.linalg.det(v @ u.transpose(1, 2)))
+    r_gb = (v * torch.stack([torch.ones_like(sign), torch.ones_like(sign), sign], -1)[:, None]) @ u.transpose(1, 2)
+    p_gb = y_mean - (r_gb @ o_mean[..., None])[..., 0]
+    fit = ((weights > 0).sum(0) >= 3) & (s[:, 1] > 1e-9 * s[:, 0].clamp(min=1e-300))
+
+    # the joint: R_GB = R_PF R_FM R_BM^T, p_GB = p_PF + R_PF (p_FM - R_FM R_BM^T p_BM)
+    r_pf, p_pf = joint.parent_rotation.to(_F64), joint.parent_translation.to(_F64)
+    r_bm, p_bm = joint.child_rotation.to(_F64), joint.child_translation.to(_F64)
+    r_fm = r_pf.T @ r_gb @ r_bm
+    p_fm = ((p_gb - p_pf) @ r_pf) + (r_fm @ (r_bm.T @ p_bm))  # [T, 3]
+    # Euler angles in the basis: B^T R_FM B = Rx(a) Ry(b) Rz(c)
+    m = basis.T @ r_fm @ basis
+    a = torch.atan2(-m[:, 1, 2], m[:, 2, 2])
+    b = torch.asin(m[:, 0, 2].clamp(-1.0, 1.0))
+    c = torch.atan2(-m[:, 0, 1], m[:, 0, 0])
+    fit &= m[:, 0, 2].abs() < 1.0 - 1e-9
+    angles = [torch.stack([a, b, flip * c], -1), torch.stack([a + math.pi, math.pi - b, flip * (c + math.pi)], -1)]
+    amounts = torch.linalg.solve(shifts, p_fm.T).T  # [T, 3] translation amounts
+
+    def coordinate_values(rotation_amounts: torch.Tensor) -> torch.Tensor:
+        values = torch.empty(rotation_amounts.shape[0], len(root_free), dtype=_F64)
+        for k, (axis, n) in enumerate(rotations):
+            values[:, root_free.index(axis.coordinate)] = (rotation_amounts[:, k] - intercept[n]) / slope[n]
+        for k, (axis, n) in enumerate(translations):
+            values[:, root_free.index(axis.coordinate)] = (amounts[:, k] - intercept[n]) / slope[n]
+        return values
+
+    lower, upper = problem.lower[list(columns)], problem.upper[list(columns)]
+    defaults = model.defaults.to(_F64)[list(root_free)]
+    turning = [root_free.index(axis.coordinate) for axis, _ in rotations]
+    reference = defaults.expand(len(total), -1)
+    options, distances = [], []
+    for option in angles:
+        values = _nearest_in_range(coordinate_values(option), turning, lower, upper, reference)
+        inside = _in_range(values, list(range(len(root_free))), lower, upper)
+        distance = ((values[:, turning] - defaults[turning]) ** 2).sum(-1)
+        options.append(values)
+        distances.append(torch.where(inside, distance, torch.full_like(distance, math.inf)))
+    second = distances[1] < distances[0]
+    chosen = torch.where(second[:, None], options[1], options[0])
+    fit &= torch.isfinite(torch.minimum(*distances))
+    return chosen, fit
+
+
+def _root_multistart(
+    model: BodyModel,
+    problem: _Problem,
+    markers: Sequence[int],
+    on_root: Sequence[int],
+    root: int,
+    root_free: Sequence[int],
+    columns: Sequence[int],
+) -> torch.Tensor:
+    """The root joint's free coordinates [T, len(root_free)] fitted to the root body's markers from several
+    orientations (`_root_candidates`, a few iterations each over the root joint alone, the best kept per frame):
+    the start where the closed form (`_fit_root`) does not apply."""
+    count = problem.observed.shape[-1]
+    kin = _Kinematics.of(model, markers, root_free, joints=[root])
     candidates = _root_candidates(model, kin)
     sub = _Problem(
         kin,
-        problem.observed[on_root],
-        problem.weights[on_root],
+        problem.observed[list(on_root)],
+        problem.weights[list(on_root)],
         torch.zeros(0, dtype=torch.long),
         torch.zeros(0, dtype=_F64),
         problem.task_targets.new_zeros(count, 0),
-        problem.lower[[list(free).index(c) for c in root_free]],
-        problem.upper[[list(free).index(c) for c in root_free]],
+        problem.lower[list(columns)],
+        problem.upper[list(columns)],
     )
     starts = candidates.repeat_interleave(count, dim=0)
     z, cost, _, _ = _levenberg_marquardt(sub.repeat(len(candidates)), starts, _ROOT_ITERATIONS, 1e-6, damping=1e-2)
@@ -527,11 +654,9 @@ def _root_start(
     z = z.reshape(len(candidates), count, -1)
     # equal fits (equivalent Euler angles): prefer the one nearest the defaults, as a start from them would give
     tie = cost <= cost.amin(0) * (1 + 1e-6) + 1e-12
-    distance = ((z - kin.defaults[root_free]) ** 2).sum(-1)
+    distance = ((z - kin.defaults[list(root_free)]) ** 2).sum(-1)
     best = torch.where(tie, distance, torch.full_like(distance, math.inf)).argmin(0)
-    chosen = z[best, torch.arange(count)]
-    z0[:, [list(free).index(c) for c in root_free]] = chosen
-    return z0
+    return z[best, torch.arange(count)]
 
 
 def _propagate(
@@ -858,9 +983,11 @@ def _continuous_branches(
     kin = problem.kinematics
     if not kin.ball_joints or z.shape[0] == 0:
         return z
-    _, cost, _, _ = problem.evaluate(z, derivatives=False)
+    cost = None  # the objective at z, evaluated once a joint's two sets can differ in it
     for joint in kin.ball_joints:
         (a, b, _), _, _ = joint
+        if cost is None and _sets_can_differ(problem, joint):
+            _, cost, _, _ = problem.evaluate(z, derivatives=False)
         alternative, valid = _other_set(problem, z, cost, joint)
         first = z[:, a].numpy()
         turns = np.round((np.unwrap(first, period=math.pi) - first) / math.pi).astype(int)
@@ -875,12 +1002,21 @@ def _continuous_branches(
     return z
 
 
+def _sets_can_differ(problem: _Problem, joint: tuple[tuple[int, int, int], float, float]) -> bool:
+    """Whether a ball joint's two sets of angles can differ in the objective: they give one pose, so the same
+    marker objective, and only coordinate tasks and couplers on the joint's coordinates can tell them apart."""
+    kin = problem.kinematics
+    coordinates = {int(kin.free[k]) for k in joint[0]}
+    seen = {int(c) for c in problem.task_columns} | {c.independent for c in kin.couplers}
+    return bool(coordinates & seen)
+
+
 def _other_set(
-    problem: _Problem, z: torch.Tensor, cost: torch.Tensor, joint: tuple[tuple[int, int, int], float, float]
+    problem: _Problem, z: torch.Tensor, cost: torch.Tensor | None, joint: tuple[tuple[int, int, int], float, float]
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """A ball joint's second set of angles (a + pi, pi - b, c + pi in the rotation amounts) for every frame of
     ``z``, each angle the in-range representative nearest ``z``'s, and [T] whether it is usable: in range and
-    with the same objective as ``cost`` (the pose's)."""
+    with the same objective as ``cost`` (the pose's; needed only where `_sets_can_differ`)."""
     (a, b, c), slope, intercept = joint
     columns = [a, b, c]
     alternative = z.clone()
@@ -889,13 +1025,8 @@ def _other_set(
     alternative[:, b] = (math.pi - 2 * intercept) / slope - z[:, b]
     alternative = _nearest_in_range(alternative, columns, problem.lower, problem.upper, z)
     valid = _in_range(alternative, columns, problem.lower, problem.upper)
-    kin = problem.kinematics
-    coordinates = {int(kin.free[k]) for k in columns}
-    seen = {int(c) for c in problem.task_columns} | {c.independent for c in kin.couplers}
     inside = valid.nonzero().squeeze(-1)
-    # the two sets give one pose, so the same marker objective: only coordinate tasks and couplers on the joint's
-    # coordinates can tell them apart, and only in range is it worth asking
-    if inside.numel() and coordinates & seen:
+    if inside.numel() and _sets_can_differ(problem, joint):  # only in range is it worth asking
         _, alt_cost, _, _ = problem.frames(inside).evaluate(alternative[inside], derivatives=False)
         valid[inside] = (alt_cost - cost[inside]).abs() <= 1e-9 * cost[inside].abs() + 1e-12
     return alternative, valid
