@@ -129,6 +129,16 @@ def test_seeded_sampling_is_deterministic_and_save_load_round_trips(tmp_path):
         FlexMotion.load(tmp_path / "bad.safetensors")
 
 
+def test_sampling_does_not_clip_the_unit_scale_latent(monkeypatch):
+    """The latents are scaled to unit standard deviation, so DDIM must not clip its clean-latent prediction to
+    [-1, 1] (diffusers' default): with an untrained (zero) ε-predictor the sample keeps the noise's scale."""
+    torch.manual_seed(0)
+    model = FlexMotion(TINY).eval()
+    monkeypatch.setattr(model, "decode_latent", lambda z: {"z": z})
+    z = model.sample(torch.randn(64, TEXT_DIM), torch.zeros(64, PROFILE_DIM), seed=0)["z"]
+    assert float(z.abs().max()) > 1.5
+
+
 def test_generator_rejects_bad_prompts_and_profiles():
     from biomotion.errors import ConfigError
     from biomotion.generation.flexmotion import FlexMotionGenerator

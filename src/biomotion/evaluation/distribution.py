@@ -202,7 +202,9 @@ def pgbig_report(
     guided generations of its action as long as itself (profile and the subject's other clips as references; sample
     r of target k has seed ``seed + r * targets + k``, as `biomotion eval generation` repeats), each read through
     the target's coordinate mask. `score_generated` of the generated clips against the real targets, both with the
-    target's label text (multimodality: over the samples of each text)."""
+    target's label text (multimodality: over the samples of each text). ``knee_range_ratio_median``: the median over
+    generated clips of the right knee angle's range over the range in its target (both as long as the target), a
+    check that the clips move as much as the real ones."""
     from biomotion.evaluation.generation import unseen_targets
     from biomotion.generation.pipeline import CHECKPOINTS, Generator
     from biomotion.models.actions import ActionRequest
@@ -240,6 +242,11 @@ def pgbig_report(
             generated.append(TextClip(values, real[k].text, real[k].mask, generator.rate, real[k].name))
         if progress:
             print(f"PG-BIG sample {r + 1}/{samples} of {len(targets)} targets generated", flush=True)
+    knee = CANONICAL_COORDINATES.index("knee_angle_r")
+    knee_ratios = [
+        float(np.ptp(g.values[:, knee]) / max(float(np.ptp(real[k % len(real)].values[: len(g.values), knee])), 1e-3))
+        for k, g in enumerate(generated)
+    ]
     real_motions, _ = embed(evaluator, real)
     generated_motions, _ = embed(evaluator, generated)
     rounds = generated_motions.reshape(samples, len(targets), -1)
@@ -252,6 +259,7 @@ def pgbig_report(
         "max_seconds": max_seconds,
         "seed": seed,
         **score_generated(evaluator, real, generated, repeats=repeats),
+        "knee_range_ratio_median": float(np.median(knee_ratios)),
         "fid_generated_to_real_one_sample_per_clip": {
             "mean": float(per_sample.mean()),
             "std": float(per_sample.std()),

@@ -21,9 +21,10 @@ generated clips of `biomotion.generation.flexmotion.consistency`. ``flexmotion_f
 top-1 means (top-2 and top-3 are given beside: with 24 targets and few distinct texts, top-2 and top-3 are 1.0 for
 the real clips and for PG-BIG, a ceiling that hides differences). ``knee_range_ratio``: the median over generated
 clips of the range of the right knee angle over the range in the target's first 64 frames, a check that the motion
-moves (a still body is trivially consistent). ``flexmotion_seconds_2048_clips``: wall time to sample and decode
-2048 clips (DDIM steps as shipped, batches of 256, text embedding included) on ONE torch thread of this CPU
-(the bar is stated for 2 cores; one thread is the slower case).
+moves (a still body is trivially consistent); PG-BIG's beside it is over the whole target (its clips are as long).
+``flexmotion_seconds_2048_clips``: wall time to sample and decode 2048 clips (DDIM steps as shipped, batches of
+256, text embedding included) on ONE torch thread of this CPU (the bar is stated for 2 cores; one thread is the
+slower case).
 """
 
 from __future__ import annotations
@@ -88,7 +89,7 @@ def seconds_2048(generator: FlexMotionGenerator, texts: list[str], profiles: lis
 
 
 def report(
-    cache_dir: str | Path,
+    cache_dir,
     evaluator_path: str | Path,
     data_root: str | Path,
     *,
@@ -98,10 +99,11 @@ def report(
     repeats: int = 10,
     command: str = "",
 ) -> dict:
-    """Every figure of the module docstring, the PG-BIG figures beside FlexMotion's, and the bars."""
+    """Every figure of the module docstring, the PG-BIG figures beside FlexMotion's, and the bars; ``cache_dir`` is
+    a dataset cache folder or an open `DatasetCache`."""
     from biomotion.data.registry import DatasetCache
 
-    cache = DatasetCache(cache_dir)
+    cache = cache_dir if isinstance(cache_dir, DatasetCache) else DatasetCache(cache_dir)
     evaluator = MotionTextEvaluator.load(evaluator_path)
     targets = flexmotion_targets(cache, data_root, checkpoints)
     real = [clip for _, clip in targets]
@@ -149,7 +151,7 @@ def report(
         "seed": seed,
         "figures": figures_out,
         "bars": bars,
-        "knee_range_ratio": {"flexmotion": float(np.median(ranges))},
+        "knee_range_ratio": {"flexmotion": float(np.median(ranges)), "pgbig": pgbig.get("knee_range_ratio_median")},
         "rprecision_ratio_top1_top2_top3": {k: r_flex[k] / max(r_pg[k], 1e-9) for k in (1, 2, 3)},
         "consistency_per_clip": {k: [round(v, 5) for v in vals] for k, vals in figures.items()},
         "timing": {
@@ -161,6 +163,7 @@ def report(
         "flexmotion": flex_scores,
         "pgbig": pgbig,
         "flexmotion_clip_seconds": flex.model.config.window / flex.model.config.rate,
+        "flexmotion_clip_frames": flex.model.config.window,
         "weights_card": "checkpoints/flexmotion.md",
     }
 
@@ -172,6 +175,8 @@ def markdown(rep: dict) -> str:
         "|---|---|---|---|",
         *(f"| {k} | {v['value']:.4g} | {v['bar']} | {'yes' if v['met'] else 'no'} |" for k, v in rep["bars"].items()),
     ]
+    knee = rep["knee_range_ratio"].get("pgbig")
+    pgbig_knee = "not computed" if knee is None else f"{knee:.3g}"
     side = ["| figure | FlexMotion | PG-BIG | real |", "|---|---|---|---|"]
     side.append(f"| FID to real | {f['fid_generated_to_real']:.4g} | {pg['fid_generated_to_real']:.4g} | "
                 f"{f['fid_real_halves']['mean']:.4g} (halves) |")  # fmt: skip
@@ -187,22 +192,72 @@ def markdown(rep: dict) -> str:
         "(one window), PG-BIG's as long as their targets (up to 6 s). Definitions: "
         "`python -m biomotion.evaluation.flexmotion --help`.\n\n"
         + "\n".join(rows)
-        + f"\n\nKnee range, generated over real (median): FlexMotion {rep['knee_range_ratio']['flexmotion']:.3g}, "
-        f"PG-BIG not computed here. R-precision ratio is of top-1; top-1/2/3 ratios: "
+        + f"\n\nKnee range, generated over real (median): FlexMotion {rep['knee_range_ratio']['flexmotion']:.3g} "
+        f"(its window over the target's first {rep['flexmotion_clip_frames']} frames), PG-BIG {pgbig_knee} (over "
+        "the whole target). R-precision ratio is of top-1; top-1/2/3 ratios: "
         + ", ".join(f"{v:.3g}" for v in rep["rprecision_ratio_top1_top2_top3"].values())
         + f". Sampling time on {rep['timing']['threads']} torch thread(s) of this CPU (bar: 2 cores), "
         f"{rep['timing']['ddim_steps']} DDIM steps, batches of {rep['timing']['batch']}.\n\n" + "\n".join(side) + "\n"
     )
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def eval_flexmotion(
+    data_root: str | Path,
+    json_path: str | Path,
+    md_path: str | Path | None = None,
+    *,
+    cache_dir: str | Path | None = None,
+    evaluator: str | Path | None = None,
+    checkpoints: str | Path = "checkpoints",
+    samples: int = 2,
+    seed: int = 0,
+    repeats: int = 10,
+    command: str = "",
+) -> dict:
+    """`report` written as JSON (and Markdown at ``md_path``). Without ``cache_dir`` the clips come from a temporary
+    cache of ``data_root`` (`biomotion.data.clips.build_temporary_cache`: the sources PG-BIG learnt, without its
+    training subjects), so any folder laid out like ../shared/data can be scored; ``evaluator`` defaults to the
+    ``evaluator.safetensors`` of ``checkpoints``."""
+    from biomotion.data.clips import build_temporary_cache
+    from biomotion.generation.pipeline import Generator
     from biomotion.io.atomic import atomic_write
+
+    checkpoints = Path(checkpoints)
+    evaluator = Path(evaluator).expanduser() if evaluator is not None else checkpoints / "evaluator.safetensors"
+    if not evaluator.is_file():
+        raise BiomotionError(f"{evaluator}: no motion-text evaluator weights (`biomotion train evaluator`)")
+    handle = None
+    if cache_dir is None:
+        seen = Generator.load(data_root, checkpoints, surrogate=False).bundle.train_subjects
+        sources = sorted({key.split("/", 1)[0] for key in seen})
+        try:
+            handle, cache_dir = build_temporary_cache(data_root, sources=sources, exclude_subjects=seen)
+        except BiomotionError as error:
+            raise BiomotionError(f"no held-out subject under {data_root}: {error}") from error
+    try:
+        rep = report(Path(cache_dir).expanduser() if isinstance(cache_dir, (str, Path)) else cache_dir, evaluator,
+                     data_root, checkpoints=checkpoints, samples=samples, seed=seed, repeats=repeats,
+                     command=command)  # fmt: skip
+    finally:
+        if handle is not None:
+            handle.cleanup()
+    with atomic_write(Path(json_path)) as out:
+        json.dump(rep, out, indent=1)
+        out.write("\n")
+    if md_path is not None:
+        with atomic_write(Path(md_path)) as out:
+            out.write(markdown(rep))
+    return rep
+
+
+def main(argv: Sequence[str] | None = None) -> int:
     from biomotion.io.paths import portable
 
     parser = argparse.ArgumentParser(prog="python -m biomotion.evaluation.flexmotion", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--cache", type=Path, required=True, help="dataset cache folder (`biomotion data build`)")
-    parser.add_argument("--evaluator", type=Path, required=True, help="motion-text evaluator weights")
+    parser.add_argument("--cache", type=Path, help="dataset cache folder (`biomotion data build`; default: a "
+                        "temporary one of --data-root)")  # fmt: skip
+    parser.add_argument("--evaluator", type=Path, help="motion-text evaluator weights (default: in --checkpoints)")
     parser.add_argument("--data-root", type=Path, default=Path("../shared/data"), help="folder with opensim-models/")
     parser.add_argument("--checkpoints", type=Path, default=Path("checkpoints"), help="shipped weights folder")
     parser.add_argument("--out", type=Path, required=True, help="report path without suffix (.json and .md)")
@@ -212,14 +267,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(1)
     words = ["python", "-m", "biomotion.evaluation.flexmotion", *(sys.argv[1:] if argv is None else argv)]
     command = " ".join(shlex.quote(portable(word)) for word in words)
-    rep = report(args.cache.expanduser(), args.evaluator.expanduser(), args.data_root, checkpoints=args.checkpoints,
-                 samples=args.samples, repeats=args.repeats, command=command)  # fmt: skip
     out = Path(args.out)
-    with atomic_write(out.with_suffix(".json")) as handle:
-        json.dump(rep, handle, indent=1)
-        handle.write("\n")
-    with atomic_write(out.with_suffix(".md")) as handle:
-        handle.write(markdown(rep))
+    rep = eval_flexmotion(args.data_root, out.with_suffix(".json"), out.with_suffix(".md"), cache_dir=args.cache,
+                          evaluator=args.evaluator, checkpoints=args.checkpoints, samples=args.samples,
+                          repeats=args.repeats, command=command)  # fmt: skip
     print(markdown(rep))
     return 0
 

@@ -274,7 +274,12 @@ class FlexMotion(nn.Module):
         guidance: float | None = None,
     ) -> dict[str, torch.Tensor]:
         """Decoded modalities of one sample per row of ``text`` [B, 384] and ``profile`` [B, PROFILE_DIM]: DDIM
-        (``steps``, default the config's) from seeded noise with classifier-free ``guidance``."""
+        (``steps``, default the config's) from seeded noise with classifier-free ``guidance``.
+
+        The predicted clean latent is not clipped (``clip_sample=False``; `diffusers`' default clips it to [-1, 1],
+        a range meant for images in [-1, 1]): the latents are scaled to unit standard deviation, so about a third
+        of their entries lie beyond ±1, and clipping them at every step shrank the sampled latents to a standard
+        deviation near 0.5 and the decoded motion with them."""
         from diffusers import DDIMScheduler
 
         c = self.config
@@ -282,7 +287,9 @@ class FlexMotion(nn.Module):
             raise ModelError(f"flexmotion samples from text [B, {TEXT_DIM}] and profile [B, {PROFILE_DIM}]")
         steps = int(steps or c.sample_steps)
         guidance = c.guidance if guidance is None else float(guidance)
-        scheduler = DDIMScheduler(num_train_timesteps=c.train_timesteps, beta_schedule="squaredcos_cap_v2")
+        scheduler = DDIMScheduler(
+            num_train_timesteps=c.train_timesteps, beta_schedule="squaredcos_cap_v2", clip_sample=False
+        )
         scheduler.set_timesteps(steps)
         generator = torch.Generator().manual_seed(int(seed))
         z = torch.randn(len(text), c.latent_dim, generator=generator)

@@ -14,7 +14,9 @@ uses the squared error) + ``euler`` x L_euler. L_euler is the Euler-Lagrange res
 coordinates, λ the decoded contact forces applied at the contact points of the decoded pose and τ the decoded
 torques, on ``euler_frames`` interior frames per window over the present coordinates; it is computed as the
 PhysPT refiner's L_euler is (`biomotion.training.train_refiner.step_losses`): `Refiner.full`, `Refiner.kinematics`,
-`finite_rates` and `biomotion.body.dynamics.inverse_dynamics` with `ExternalLoad` per contact point. L_muscle
+`finite_rates` and `biomotion.body.dynamics.inverse_dynamics` with `ExternalLoad` per contact point; with
+``euler_kinematics_grad`` false the decoded coordinates enter it as constants (only τ and λ are moved; measured
+worse, docs/decisions/flexmotion-capacity.md, so the paper's full gradient is the default). L_muscle
 (Eq. 7, activations that produce the torques through moment arms) is not trained: activations are reconstructed
 only.
 
@@ -63,6 +65,7 @@ class TrainSettings:
     euler: float = 0.1
     euler_frames: int = 4
     euler_warmup: int = 300
+    euler_kinematics_grad: bool = True
     threads: int = 1
 
 
@@ -77,10 +80,17 @@ def features(data: MultimodalSet, rows: torch.Tensor) -> tuple[torch.Tensor, tor
 
 
 def euler_loss(
-    refiner: Refiner, decoded: dict[str, torch.Tensor], mask: torch.Tensor, frames: int, generator: torch.Generator
+    refiner: Refiner,
+    decoded: dict[str, torch.Tensor],
+    mask: torch.Tensor,
+    frames: int,
+    generator: torch.Generator,
+    kinematics_grad: bool = True,
 ) -> torch.Tensor:
-    """L_euler (module docstring) of decoded modalities (`split` of raw features, [B, W, ·]) in body weights."""
-    full = refiner.full(decoded["q"], mask)
+    """L_euler (module docstring) of decoded modalities (`split` of raw features, [B, W, ·]) in body weights; with
+    ``kinematics_grad`` False the decoded coordinates enter as constants, so the term moves only the decoded
+    torques and contact forces towards what the decoded motion needs."""
+    full = refiner.full(decoded["q"] if kinematics_grad else decoded["q"].detach(), mask)
     qd, qdd = finite_rates(full, refiner.config.rate)
     _, feet = refiner.kinematics(full)
     b, w = full.shape[:2]
@@ -151,7 +161,7 @@ def autoencoder_loss(model, refiner, data, rows, settings, generator, step: int 
     euler_weight = settings.euler * min(1.0, step / max(settings.euler_warmup, 1))
     if settings.euler > 0:
         terms["euler"] = euler_loss(refiner, split(model.denormalise(out)), data.mask[rows], settings.euler_frames,
-                                    generator)  # fmt: skip
+                                    generator, settings.euler_kinematics_grad)  # fmt: skip
     loss = settings.recon * terms["recon"] + euler_weight * terms.get("euler", 0.0)
     return loss, {"loss": loss, **terms}
 
