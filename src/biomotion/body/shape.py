@@ -45,6 +45,7 @@ from types import MappingProxyType
 
 import torch
 
+from biomotion.body.canonical import CANONICAL_BODIES
 from biomotion.body.model import BodyModel
 from biomotion.body.scaling.bodies import scale_model
 from biomotion.body.scaling.osim_file import ScaleResult, write_scaled_osim
@@ -59,30 +60,7 @@ from biomotion.errors import ConfigError
 
 _F64 = torch.float64
 
-RAJAGOPAL_2016_BODIES = (
-    "pelvis",
-    "femur_r",
-    "tibia_r",
-    "patella_r",
-    "talus_r",
-    "calcn_r",
-    "toes_r",
-    "femur_l",
-    "tibia_l",
-    "patella_l",
-    "talus_l",
-    "calcn_l",
-    "toes_l",
-    "torso",
-    "humerus_r",
-    "ulna_r",
-    "radius_r",
-    "hand_r",
-    "humerus_l",
-    "ulna_l",
-    "radius_l",
-    "hand_l",
-)
+RAJAGOPAL_2016_BODIES = CANONICAL_BODIES
 """BodySet of the canonical model (Rajagopal et al. 2016, IEEE TBME 63:2068), the reference of `Shape.from_measures`
 when no generic model is given."""
 RAJAGOPAL_2016_NAME = "Rajagopal2016"

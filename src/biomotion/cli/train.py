@@ -262,23 +262,12 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 def _config(args: argparse.Namespace) -> dict:
     """The YAML config, or a one-line error naming the file and line."""
-    import yaml
-
-    from biomotion.errors import ConfigError, DataFormatError
+    from biomotion.errors import ConfigError
+    from biomotion.io.mappings import read_mapping
 
     if not args.config.is_file():
         raise ConfigError(f"{args.config}: --config is not a file")
-    try:
-        config = yaml.safe_load(args.config.read_text())
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(
-            args.config,
-            f"not valid YAML: {getattr(error, 'problem', error)}",
-            line=None if mark is None else mark.line + 1,
-        ) from None
-    if not isinstance(config, dict):
-        raise DataFormatError(args.config, "a training config is a mapping (model:, data:, train: ...)")
+    config = read_mapping(args.config, "training config", "a training config is a mapping (model:, data:, train: ...)")
     writable_file(args.out)
     return config
 

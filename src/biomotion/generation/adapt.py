@@ -75,6 +75,7 @@ from biomotion.body.shape import Shape, segment_lengths
 from biomotion.errors import ConfigError, DataFormatError
 from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.io.atomic import atomic_write
+from biomotion.io.mappings import read_mapping
 from biomotion.motion import Motion
 
 ADAPTER_FILE = "shape_adapter.safetensors"
@@ -161,21 +162,7 @@ def _default_generic(data_root: str | Path | None) -> Path:
 
 
 def _read_mapping(path: Path) -> dict:
-    import yaml
-
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read the shape file: {error.strerror or error}") from None
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(
-            path,
-            f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
-            line=None if mark is None else mark.line + 1,
-        ) from None
-    if not isinstance(data, dict):
-        raise DataFormatError(path, "a shape file holds a mapping: height and mass, or the fields of a Shape")
+    data = read_mapping(path, "shape file", "a shape file holds a mapping: height and mass, or the fields of a Shape")
     unknown = sorted(set(data) - set(SHAPE_FILE_KEYS))
     if unknown:
         raise DataFormatError(path, f"unknown keys {unknown}; a shape file holds {list(SHAPE_FILE_KEYS)}")

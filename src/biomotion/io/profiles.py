@@ -11,29 +11,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from biomotion.errors import ConfigError, DataFormatError
+from biomotion.io.mappings import read_mapping
 from biomotion.profile import Profile
 
 
 def read_profile(path: str | Path) -> Profile:
     """A `Profile` from a YAML or JSON file; errors name the file and the field."""
-    import yaml
-
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"profile file not found: {path}") from None
-    except OSError as error:
-        raise ConfigError(f"{path}: cannot read the profile file: {error.strerror or error}") from None
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        raise DataFormatError(
-            path,
-            f"not valid YAML/JSON: {getattr(error, 'problem', error)}",
-            line=None if mark is None else mark.line + 1,
-        ) from None
-    if not isinstance(data, dict):
-        raise DataFormatError(path, "a profile file holds a mapping of profile fields (age, sex, height, ...)")
+    data = read_mapping(path, "profile file", "a profile file holds a mapping of fields (age, sex, height, ...)")
     try:
         return Profile.from_dict(data)
     except (TypeError, ValueError) as error:
