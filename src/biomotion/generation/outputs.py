@@ -6,8 +6,10 @@ inferred from the motion alone, PhysPT Eq. 4-5), ``torques.sto`` (inverse dynami
 ``com_zmp.sto``, ``activations.sto`` (muscle surrogate, PG-BIG Sec. 3.3), ``metrics.json`` (the physics metrics of
 `biomotion eval` plus the guidance terms before and after latent guidance, how much foot planting changed the
 legs, the person's posture offset taken from the reference clips and the tempo the sample was played at to reach
-the asked speed, `biomotion.guidance.tempo`) and plots. ``model.osim`` (the person's
-model) is written once per request. Files are written atomically by the writers they come from.
+the asked speed, `biomotion.guidance.tempo`) and plots; with a control spec, ``control.json`` and the plot
+``control.png`` + ``control.svg``: each target against what the written files achieve (`write_control`).
+``model.osim`` (the person's model) is written once per request. Files are written atomically by the writers they
+come from.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import torch
 
 from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.generation.pipeline import Generated
+from biomotion.guidance.control import Control
 from biomotion.io.atomic import atomic_write
 from biomotion.motion import Motion
 
@@ -147,6 +150,45 @@ def write_clip(
     return files
 
 
+def write_control(
+    folder: str | Path,
+    control: Control,
+    *,
+    model=None,
+    scale: float | None = None,
+    uncontrolled: str | Path | None = None,
+    figures: bool = True,
+) -> dict[str, Path]:
+    """Measure every target of ``control`` on the clip written in ``folder`` (`biomotion.analysis.control_measures`:
+    from grf.mot, motion.mot, com_zmp.sto, torques.sto and activations.sto, the files a user reads) and write
+    ``control.json`` (per target: quantity, kind, target, achieved, met) and, with ``figures``, ``control.png`` +
+    ``control.svg`` (`biomotion.viz.control_plot`), from the same measures so that they agree. ``model``: the model
+    the files were written on (default the folder's model.osim); ``scale``: the length scale to the canonical size
+    (`biomotion.analysis.control_measures.length_scale`; default from metrics.json's profile height);
+    ``uncontrolled``: the folder of the same request generated without control, measured and drawn beside it.
+    Returns the files by role (``control_json``, ``plot_control``)."""
+    from biomotion.analysis.control_measures import control_record, measure_control, read_outputs
+
+    folder = Path(folder)
+    outputs = read_outputs(folder, model=model, scale=scale)
+    measures = measure_control(control, outputs)
+    free = None
+    if uncontrolled is not None:
+        free = measure_control(control, read_outputs(uncontrolled, model=model, scale=scale))
+    extra = {"length_scale": outputs.length_scale}
+    if uncontrolled is not None:
+        extra["uncontrolled"] = str(uncontrolled)
+    record = control_record(control, measures, uncontrolled=free, extra=extra)
+    with atomic_write(folder / "control.json") as handle:
+        json.dump(record, handle, indent=1, ensure_ascii=False)
+    files = {"control_json": folder / "control.json"}
+    if figures:
+        from biomotion.viz.control_plot import write_control_plot
+
+        files["plot_control"] = write_control_plot(control, measures, folder / "control", uncontrolled=free)[0]
+    return files
+
+
 def write_generation(
     out: str | Path,
     generated: Generated,
@@ -156,10 +198,13 @@ def write_generation(
     *,
     figures: bool = True,
     request: dict | None = None,
+    control: Control | None = None,
 ) -> dict[str, dict[str, Path]]:
     """Scale the model to ``profile``, write ``model.osim`` and each sample's files (``out`` itself for one
     sample, ``out/sample_01`` ... for several); returns the files per sample. The viewer takes its meshes from
-    the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present."""
+    the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present. ``control``:
+    the spec the clips were generated under; each sample then also gets its `write_control` files."""
+    from biomotion.analysis.control_measures import length_scale
     from biomotion.body.scaling.stature import scale_to_profile
 
     out = Path(out)
@@ -211,4 +256,8 @@ def write_generation(
             geometry=geometry,
         )
         result[folder.name]["model"] = model_file
+        if control is not None:
+            result[folder.name].update(
+                write_control(folder, control, model=model, scale=length_scale(height), figures=figures)
+            )
     return result
