@@ -16,7 +16,7 @@ The per-frame problem is convex with a separable objective, so it is solved in t
 lambda, one per balanced coordinate; Bertsekas 1999, "Nonlinear Programming", 6.1): for given lambda the minimiser
 of each actuator's term is w_i = clip(sign(s_i) (|s_i|/p)^(1/(p-1)), lo_i, hi_i) with s = B^T lambda, and the
 concave dual is maximised by a semismooth Newton method with a backtracking line search (Qi & Sun 1993,
-Math Program 58:353). All frames are solved together: one batched [T, C, C] linear solve per iteration over the
+Math Program 58:353), started from the multipliers of the same problem without bounds (closed form). All frames are solved together: one batched [T, C, C] linear solve per iteration over the
 frames still iterating. A frame leaves the batch once balanced, or once its imbalance stops falling (the bounded
 actuators cannot balance it: a filter's end effect, a missing reserve), so one such frame does not keep the
 whole trial iterating to ``max_iterations``.
@@ -32,8 +32,9 @@ from biomotion.errors import ModelError
 from biomotion.muscles.geometry import MusclePaths
 from biomotion.muscles.properties import MuscleParameters, max_active_force
 
-STALL_ITERATIONS = 15  # a frame whose torque imbalance has not dropped by STALL_GAIN in this many iterations
+STALL_ITERATIONS = 6  # a frame whose torque imbalance has not dropped by STALL_GAIN in this many iterations
 STALL_GAIN = 0.01  # stops: the bounded actuators cannot balance it (it is reported as not converged)
+MAX_HALVINGS = 10  # a frame whose step is not accepted down to 2^-MAX_HALVINGS keeps its iterate, more damped
 
 
 @dataclass(frozen=True)
@@ -86,14 +87,119 @@ def _apply(b: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
 
 
 def _apply_transposed(b: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
-    """Batched B^T lambda: [T, C, N] x [T, C] -> [T, N]."""
-    return (b * lam[:, :, None]).sum(-2)
+    """Batched B^T lambda: [T, C, N] x [T, C] -> [T, N] (here the batched product beats a multiply-sum)."""
+    return torch.bmm(lam[:, None, :], b)[:, 0]
 
 
 def _dual_value(
     lam: torch.Tensor, w: torch.Tensor, s: torch.Tensor, tau: torch.Tensor, exponent: float
 ) -> torch.Tensor:
     return (lam * tau).sum(-1) + (w.abs() ** exponent - s * w).sum(-1)
+
+
+def _unbounded_start(b: torch.Tensor, torques: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Multipliers of the problem without bounds and with squared costs, lambda = 2 (B B^T)^-1 tau: exact when no
+    bound is active, and a start whose active set is near the solution's otherwise (lambda = 0 puts every muscle on
+    its lower bound, where the dual Hessian sees only the reserves)."""
+    c = b.shape[1]
+    gram = b @ b.transpose(-1, -2) / 2 + 1e-9 * (scale**2)[:, None, None] * torch.eye(c, dtype=b.dtype)
+    return torch.linalg.solve(gram, torques)
+
+
+def _dual_newton(
+    b: torch.Tensor,
+    torques: torch.Tensor,
+    lam: torch.Tensor,
+    scale: torch.Tensor,
+    lower: torch.Tensor,
+    upper: torch.Tensor,
+    exponent: float,
+    tolerance: float,
+    max_iterations: int,
+) -> tuple[torch.Tensor, int]:
+    """Semismooth Newton ascent on the dual from ``lam`` [T, C]; the final multipliers and the iterations run.
+
+    The frames still iterating are kept gathered (``*_l``); a frame leaves when balanced, or when its imbalance has
+    not dropped by STALL_GAIN in STALL_ITERATIONS iterations (the bounds cannot balance it). Each accepted line
+    search point carries its residual and dual value into the next iteration."""
+    t, c = torques.shape
+    dtype = torques.dtype
+    eye = torch.eye(c, dtype=dtype)
+    out = lam.clone()
+    live = torch.arange(t)
+    b_l, tau_l, lam_l, scale_l = b, torques, lam.clone(), scale
+    s_l = _apply_transposed(b_l, lam_l)
+    w_l, slope_l = _actuator_response(s_l, lower, upper, exponent)
+    gradient = tau_l - _apply(b_l, w_l)  # dual ascent direction: the torque imbalance
+    value = _dual_value(lam_l, w_l, s_l, tau_l, exponent)
+    damping = torch.full((t,), 1e-3, dtype=dtype)
+    best = torch.full((t,), torch.inf, dtype=dtype)
+    since_best = torch.zeros(t, dtype=torch.long)
+    iterations = 0
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
+        imbalance = gradient.abs().amax(-1)
+        improved = imbalance < (1 - STALL_GAIN) * best
+        best = torch.where(improved, imbalance, best)
+        since_best = torch.where(improved, 0, since_best + 1)
+        keep = (imbalance > tolerance) & (since_best < STALL_ITERATIONS)
+        if not bool(keep.all()):
+            out[live[~keep]] = lam_l[~keep]
+            if not bool(keep.any()):
+                break
+            live = live[keep]
+            b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best, since_best = (
+                x[keep]
+                for x in (
+                    b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best,
+                    since_best,
+                )
+            )  # fmt: skip
+        n = len(live)
+        # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
+        mu = damping * scale_l * imbalance + 1e-12 * scale_l**2
+        hessian = (b_l * slope_l[:, None, :]) @ b_l.transpose(-1, -2) + mu[:, None, None] * eye
+        step = torch.linalg.solve(hessian, gradient)
+        slope_along = (gradient * step).sum(-1)
+        alpha = torch.ones(n, dtype=dtype)
+        accepted = torch.zeros(n, dtype=torch.bool)
+        # backtracking on the concave dual; frames accept independently, and only the ones still looking for a
+        # step are evaluated again (one stubborn frame does not cost the whole batch its halvings)
+        rows = torch.arange(n)
+        pending = (b_l, tau_l, lam_l, step, value, slope_along, imbalance)
+        chosen: list[torch.Tensor] | None = None  # the accepted points, when frames accept at different steps
+        for _ in range(MAX_HALVINGS + 1):
+            b_p, tau_p, lam_p, step_p, value_p, along_p, imbalance_p = pending
+            a = alpha[rows]
+            trial = lam_p + a[:, None] * step_p
+            s_trial = _apply_transposed(b_p, trial)
+            w_trial, slope_trial = _actuator_response(s_trial, lower, upper, exponent)
+            value_trial = _dual_value(trial, w_trial, s_trial, tau_p, exponent)
+            gradient_trial = tau_p - _apply(b_p, w_trial)
+            gain = value_trial >= value_p + 1e-4 * a * along_p
+            # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
+            take = gain | (gradient_trial.abs().amax(-1) <= 0.5 * imbalance_p)
+            point = (trial, s_trial, w_trial, slope_trial, gradient_trial, value_trial)
+            if chosen is None and bool(take.all()):  # every frame took its first step: nothing to scatter
+                lam_l, s_l, w_l, slope_l, gradient, value = point
+                accepted[:] = True
+                break
+            if chosen is None:
+                chosen = [x.clone() for x in (lam_l, s_l, w_l, slope_l, gradient, value)]
+            taken = rows[take]
+            for target, value_t in zip(chosen, point):
+                target[taken] = value_t[take]
+            accepted[taken] = True
+            if bool(take.all()):
+                break
+            rows = rows[~take]
+            alpha[rows] = alpha[rows] / 2
+            pending = tuple(x[~take] for x in pending)
+        if chosen is not None:
+            lam_l, s_l, w_l, slope_l, gradient, value = chosen
+        full = accepted & (alpha == 1)
+        damping = torch.where(accepted, torch.where(full, damping / 3, damping), damping * 10).clamp(1e-9, 1e6)
+    out[live] = lam_l
+    return out, iterations
 
 
 def solve_static_optimization(
@@ -133,72 +239,10 @@ def solve_static_optimization(
     lower = torch.cat([lo_a, torch.full((c,), -reserve_bound, dtype=dtype)])
     upper = torch.cat([hi_a, torch.full((c,), reserve_bound, dtype=dtype)])
     scale = b.abs().amax((-1, -2))  # [T] N·m
-    eye = torch.eye(c, dtype=dtype)
-    damping = torch.full((t,), 1e-3, dtype=dtype)
-
-    lam = torques.new_zeros(t, c)
-    s = lam.new_zeros(t, m + c)
-    w, slope = _actuator_response(s, lower, upper, exponent)
-    # the frames still iterating: a frame leaves when balanced, or when its imbalance has not dropped by
-    # STALL_GAIN in STALL_ITERATIONS iterations (the bounds cannot balance it); the rest iterate on their own
-    live = torch.arange(t)
-    b_l, tau_l = b, torques  # the live frames' problem, gathered again only when frames leave
-    best = torch.full((t,), torch.inf, dtype=dtype)
-    since_best = torch.zeros(t, dtype=torch.long)
-    iterations = 0
-    for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
-        lam_l, s_l, w_l, slope_l = lam[live], s[live], w[live], slope[live]
-        gradient = tau_l - _apply(b_l, w_l)  # dual ascent direction
-        imbalance = gradient.abs().amax(-1)
-        improved = imbalance < (1 - STALL_GAIN) * best[live]
-        best[live] = torch.where(improved, imbalance, best[live])
-        since_best[live] = torch.where(improved, 0, since_best[live] + 1)
-        keep = (imbalance > tolerance) & (since_best[live] < STALL_ITERATIONS)
-        if not bool(keep.any()):
-            break
-        if not bool(keep.all()):
-            live = live[keep]
-            b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance = (
-                x[keep] for x in (b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, imbalance)
-            )
-        n, scale_l, damping_l = len(live), scale[live], damping[live]
-        # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
-        mu = damping_l * scale_l * imbalance + 1e-12 * scale_l**2
-        hessian = (b_l * slope_l[:, None, :]) @ b_l.transpose(-1, -2) + mu[:, None, None] * eye
-        step = torch.linalg.solve(hessian, gradient)
-        value = _dual_value(lam_l, w_l, s_l, tau_l, exponent)
-        slope_along = (gradient * step).sum(-1)
-        alpha = torch.ones(n, dtype=dtype)
-        accepted = torch.zeros(n, dtype=torch.bool)
-        new = [lam_l.clone(), s_l.clone(), w_l.clone(), slope_l.clone()]
-        # backtracking on the concave dual; frames accept independently, and only the ones still looking for a
-        # step are evaluated again (one stubborn frame no longer costs the whole batch its halvings)
-        rows = torch.arange(n)
-        pending = (b_l, tau_l, lam_l, step, value, slope_along, imbalance)
-        for _ in range(30):
-            b_p, tau_p, lam_p, step_p, value_p, along_p, imbalance_p = pending
-            a = alpha[rows]
-            trial = lam_p + a[:, None] * step_p
-            s_trial = _apply_transposed(b_p, trial)
-            w_trial, slope_trial = _actuator_response(s_trial, lower, upper, exponent)
-            gain = _dual_value(trial, w_trial, s_trial, tau_p, exponent) >= value_p + 1e-4 * a * along_p
-            # near the optimum the dual gain drowns in rounding; then a clear drop of the imbalance also counts
-            drop = (tau_p - _apply(b_p, w_trial)).abs().amax(-1) <= 0.5 * imbalance_p
-            take = gain | drop
-            taken = rows[take]
-            for target, value_t in zip(new, (trial, s_trial, w_trial, slope_trial)):
-                target[taken] = value_t[take]
-            accepted[taken] = True
-            if bool(take.all()):
-                break
-            rows = rows[~take]
-            alpha[rows] = alpha[rows] / 2
-            pending = tuple(x[~take] for x in pending)
-        lam[live], s[live], w[live], slope[live] = new
-        full = accepted & (alpha == 1)
-        damping[live] = torch.where(accepted, torch.where(full, damping_l / 3, damping_l), damping_l * 10).clamp(
-            1e-9, 1e6
-        )
+    lam, iterations = _dual_newton(
+        b, torques, _unbounded_start(b, torques, scale), scale, lower, upper, exponent, tolerance, max_iterations
+    )
+    w, _ = _actuator_response(_apply_transposed(b, lam), lower, upper, exponent)
     residual = _apply(b, w) - torques
     activations, controls = w[:, :m], w[:, m:]
     return StaticOptimizationResult(
