@@ -45,7 +45,10 @@ evidence is in docs/decisions/guidance-weights.md and the pages it links):
   control spec one more term, ``control``, joins the sum with weight 1 (the spec weighs its own targets; muscle
   activation targets act on the surrogate's activations of the same step), and after planting the coordinates
   themselves are corrected until the path and value targets are met (``control_fit``,
-  `biomotion.guidance.control_fit`: what latents alone cannot reach); without one nothing changes.
+  `biomotion.guidance.control_fit`: what latents alone cannot reach). Bounds on the vertical GRF and joint moments
+  are then measured as the analysis measures the written files; a missed one is moved inwards by what it missed
+  and guidance runs again from the same sample (``bound_rounds``, `biomotion.guidance.measured_bounds`). Without a
+  spec nothing changes.
 
 Kinematics come from the canonical body model (generic size; clips are placed in that frame, see
 `biomotion.data.placement`), so guidance is independent of the person's size: a uniformly scaled model moves the
@@ -123,6 +126,8 @@ class GuidanceConfig:
     smooth_hz: float | None = None  # zero-lag Butterworth cutoff on the guided coordinates before planting; None: off
     planting: PlantingConfig | None = PlantingConfig()  # after guidance (immutable settings); None skips it
     control_fit: ControlFitConfig | None = ControlFitConfig()  # with control targets, the last stage; None skips it
+    bound_rounds: int = 2  # more rounds where the analysis finds a GRF/moment bound missed (`measured_bounds`)
+    bound_margin: float = 0.03  # each round moves a missed bound by what it missed plus this share of the bound
 
     def alpha(self, k: int) -> float:
         """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
@@ -318,7 +323,41 @@ class Guide:
 
     def __call__(self, z0: torch.Tensor, speed: float | None = None) -> GuidanceResult:
         """Refine latents z0 [B, N, D] (the unguided sample's codebook entries) towards locomotion at ``speed``
-        (m/s at the canonical size; None keeps each sample's own mean speed)."""
+        (m/s at the canonical size; None keeps each sample's own mean speed).
+
+        With control bounds on the vertical GRF or a joint moment, the result is measured as the analysis measures
+        the outputs (`biomotion.guidance.measured_bounds`); where a bound is missed in any clip, guidance runs
+        again from z0 with that bound moved inwards by the worst miss plus ``bound_margin`` of it, up to
+        ``bound_rounds`` more times. The round whose clips miss their bounds least (summed) is returned."""
+        from biomotion.guidance.measured_bounds import measured_bounds, measured_excess, tightened
+
+        c = self.config
+        spec = self.control
+        indices = [] if spec is None or c.bound_rounds <= 0 else measured_bounds(spec)
+        result = self._guide(z0, speed)
+        if not indices:
+            return result
+        frames = self.frames or result.q.shape[1]
+        offsets = np.zeros(len(indices))
+        best, best_miss = result, None
+        try:
+            for round_ in range(c.bound_rounds + 1):
+                excess = measured_excess(self.body, result.q[:, :frames], self.rate, spec, indices).max(0)
+                miss = float(np.clip(excess, 0, None).sum())
+                if best_miss is None or miss < best_miss:
+                    best, best_miss = result, miss
+                if miss == 0 or round_ == c.bound_rounds:
+                    break
+                values = np.array([abs(spec.targets[i].value) for i in indices])
+                offsets = offsets + np.where(excess > 0, excess + c.bound_margin * values, 0.0)
+                self.control = tightened(spec, indices, offsets)
+                result = self._guide(z0, speed)
+        finally:
+            self.control = spec
+        return best
+
+    def _guide(self, z0: torch.Tensor, speed: float | None) -> GuidanceResult:
+        """One run of latent guidance, foot planting and the coordinate-space control fit (`__call__`)."""
         c = self.config
         z0 = z0.detach()
         z = z0.clone().requires_grad_(True)
