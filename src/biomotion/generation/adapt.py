@@ -37,12 +37,22 @@ moves, how the stride time follows the target's shape). This module wraps it for
      it is about 0. Recorded as `Adapted.ground_velocity_m_s`.
   2. `plant_on_ground`: the adapted motion is moved into the frame of that ground (its velocity times time is
      subtracted from ``pelvis_tx``/``pelvis_tz``, as `biomotion.data.placement.place_clip` adds a belt speed, and
-     its floor is put at y = 0), the feet are planted there by the project's planting stage
-     (`biomotion.guidance.planting.plant_feet`: Kovar et al. 2002 footskate cleanup, the last stage of PG-BIG
-     guidance, PG-BIG Sec. 3.3), which changes only hip, knee, ankle and subtalar angles within the model's ranges
-     (so either knee sign), and the pelvis translations are put back: the output is a treadmill motion if the input
-     was one. The thresholds are `PlantingConfig`'s defaults; its fade, defined as 3 frames at the canonical 30 Hz
-     (`biomotion.body.canonical.DEFAULT_RATE`), is kept at the same 0.1 s at the motion's rate.
+     its floor is put at y = 0) and each foot is held still on the floor through each of its stance phases
+     (`stance_phases`, `stance_targets`): one phase per step, the frames its lowest contact point spends below the
+     contact height (`biomotion.metrics.contact.CONTACT_HEIGHT`, 5 cm) around frames below the stance height
+     (3 cm); in a phase the foot is translated, as a rigid whole, by minus the integral of the slip of the point it
+     rolls on (about the phase's mean, the least change), and lowered onto the floor inside ramps at the phase's
+     edges, so its roll (heel, sole, forefoot) and its touchdown and lift-off are kept. The planting stage's leg
+     solve (`biomotion.guidance.planting.reach_targets`, the solve of Kovar et al. 2002 footskate cleanup that
+     ends PG-BIG guidance, PG-BIG Sec. 3.3) meets these targets by changing only hip, knee, ankle and subtalar
+     angles within the model's ranges (so either knee sign), and the pelvis translations are put back: the output
+     is a treadmill motion if the input was one. Why not the guidance stage's own targets
+     (`biomotion.guidance.planting.plant_targets`, a target per point and run of frames near the floor): the
+     adapter's stance feet slide by up to 10 cm along the belt, so those runs break up mid-stance and each point
+     gets its own, inconsistent target; the legs then jump between them and skate more than A's angles copied
+     onto B (``docs/results/eval_shape.md``). Thresholds and fade are `PlantingConfig`'s defaults (stance height,
+     ``band`` for the rolling point, ``ramp`` for fades and ramps); the fade, defined as 3 frames at the canonical
+     30 Hz (`biomotion.body.canonical.DEFAULT_RATE`), is kept at the same 0.1 s at the motion's rate.
      `Adapted.planted` says whether it ran (off with ``planting=False``; skipped for a model without pelvis
      translations).
 
@@ -66,6 +76,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy import ndimage
 
 from biomotion.body.canonical import DEFAULT_RATE, KNEE_COORDINATES
 from biomotion.body.contact import GROUND_PERCENTILE, foot_points, lowest_foot_heights
@@ -73,9 +84,10 @@ from biomotion.body.kinematics import apply_couplers, forward_kinematics, points
 from biomotion.body.model import BodyModel
 from biomotion.body.shape import Shape, segment_lengths
 from biomotion.errors import ConfigError, DataFormatError
-from biomotion.guidance.planting import PlantingConfig, plant_feet
+from biomotion.guidance.planting import PlantingConfig, reach_targets
 from biomotion.io.atomic import atomic_write
 from biomotion.io.mappings import read_mapping
+from biomotion.metrics.contact import CONTACT_HEIGHT
 from biomotion.motion import Motion
 
 ADAPTER_FILE = "shape_adapter.safetensors"
@@ -298,14 +310,76 @@ def ground_velocity(
     return float(vx), float(vz)
 
 
+def stance_phases(heights: np.ndarray, config: PlantingConfig, contact_height: float = CONTACT_HEIGHT) -> list[slice]:
+    """The stance phases of one foot from ``heights`` [T] of its lowest contact point above the floor (m): runs of
+    frames below ``contact_height`` (`biomotion.metrics.contact.CONTACT_HEIGHT`, 5 cm: a low point) that reach
+    below ``config.stance_height`` (3 cm: a planted foot) somewhere, at least 2 frames long. One run per step, so a
+    foot that rolls and rises a few millimetres above the stance threshold mid-stance is still one phase (the
+    hysteresis of a contact detector)."""
+    labels, _ = ndimage.label(heights < contact_height)
+    planted = np.unique(labels[heights < config.stance_height])
+    runs = ndimage.find_objects(labels)
+    return [runs[k - 1][0] for k in planted[planted > 0] if runs[k - 1][0].stop - runs[k - 1][0].start >= 2]
+
+
+def stance_targets(
+    points: np.ndarray, feet: tuple[str, ...], times: np.ndarray, config: PlantingConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Targets [T, K, 3] and weights [T, K] for the contact ``points`` [T, K, 3] (m, y up, floor y = 0, in the frame
+    of the ground) of the feet labelled ``feet`` [K] at ``times`` [T] (s): each foot moved as a rigid whole so that
+    it rests on the ground through each of its `stance_phases` (module docstring, "Ground and foot planting").
+
+    - **Slip**: per stance frame, the horizontal velocity (x, z) of the foot's material contact points, weighted by
+      how near each is to the foot's lowest point (1 at it, 0 at ``config.band`` above it): the velocity of the
+      point the foot rolls on, 0 for a foot that does not skate (heel, then whole sole, then forefoot).
+    - **Horizontal**: the foot is translated by minus the integral of its slip, offset so that the translation's
+      mean over the phase is 0 (the least change that stops it); the foot's orientation, and so its roll, is kept.
+    - **Vertical**: the foot is lowered or raised by its lowest point's height, so the point it rolls on is on the
+      floor, ramped in and out over ``config.ramp`` frames inside the phase, so a foot still moving at touchdown or
+      lift-off is not pulled to the floor (HUMOS "skate": a low point moving fast).
+    - **Fades**: ``config.ramp`` frames before and after a phase carry a linearly fading share of its translation at
+      that edge (`biomotion.guidance.planting.plant_targets`' rule; the larger share wins where fades meet).
+
+    All five points of a foot share one translation, so the targets are consistent with the rigid foot and the
+    leg solve (`biomotion.guidance.planting.reach_targets`) can meet them; weight 0 (target NaN) elsewhere."""
+    n_frames, n_points, _ = points.shape
+    target = np.full((n_frames, n_points, 3), np.nan)
+    weight = np.zeros((n_frames, n_points))
+    velocity = np.gradient(points[..., [0, 2]], times, axis=0)
+    ramp = config.ramp
+    for side in sorted(set(feet)):
+        own = np.flatnonzero(np.array(feet) == side)
+        height = points[:, own, 1]
+        lowest = height.min(-1)
+        for phase in stance_phases(lowest, config):
+            near = np.clip(1.0 - (height[phase] - lowest[phase, None]) / config.band, 0.0, 1.0)
+            slip = (near[..., None] * velocity[phase][:, own]).sum(1) / near.sum(1)[:, None]
+            step = 0.5 * (slip[1:] + slip[:-1]) * np.diff(times[phase])[:, None]
+            drift = np.concatenate([np.zeros((1, 2)), np.cumsum(step, 0)])
+            shift = np.zeros((len(drift), 3))
+            shift[:, [0, 2]] = drift.mean(0) - drift
+            inside = np.arange(len(drift))
+            shift[:, 1] = -lowest[phase] * np.clip(np.minimum(inside + 1, len(drift) - inside) / (ramp + 1), 0, 1)
+            target[phase, own] = points[phase][:, own] + shift[:, None, :]
+            weight[phase, own] = 1.0
+            for d in range(1, ramp + 1):
+                share = 1.0 - d / (ramp + 1)
+                for frame, edge in ((phase.start - d, shift[0]), (phase.stop - 1 + d, shift[-1])):
+                    if 0 <= frame < n_frames and weight[frame, own[0]] < share:
+                        target[frame, own] = points[frame, own] + share * edge
+                        weight[frame, own] = share
+    return target, weight
+
+
 def plant_on_ground(
     model: BodyModel, motion: Motion, velocity: tuple[float, float], config: PlantingConfig | None = None
 ) -> Motion:
     """``motion`` on ``model`` (model order, all present, pelvis translations among them) with its feet planted on
     a ground moving at ``velocity`` (x, z) m/s (module docstring): in the ground's frame, with the floor at y = 0,
-    `biomotion.guidance.planting.plant_feet` changes the leg angles so stance feet rest; the pelvis translations
-    are returned unchanged. ``config`` defaults to `PlantingConfig` with its fade (3 frames at the canonical 30 Hz)
-    kept at the same duration at the motion's rate."""
+    each foot is held still on the floor through its stance phases (`stance_targets`) by the planting stage's leg
+    solve (`biomotion.guidance.planting.reach_targets`); the pelvis translations are returned unchanged.
+    ``config`` defaults to `PlantingConfig` with its fade (3 frames at the canonical 30 Hz) kept at the same
+    duration at the motion's rate."""
     if config is None:
         default = PlantingConfig()
         config = dataclasses.replace(default, ramp=max(1, round(default.ramp * motion.rate / DEFAULT_RATE)))
@@ -316,12 +390,13 @@ def plant_on_ground(
     moving[:, tx] -= velocity[0] * elapsed
     moving[:, tz] -= velocity[1] * elapsed
     moving[:, ty] -= _floor(model, motion)
+    points, sides = _foot_positions(model, moving)
+    target, weight = stance_targets(points, sides, motion.times, config)
     feet = foot_points(model)
     q = torch.as_tensor(moving, dtype=model.dtype)[None]
-    with torch.no_grad():
-        planted = plant_feet(
-            model, q, feet.bodies, feet.offsets, feet.feet, model.ranges[:, 0], model.ranges[:, 1], config
-        )[0]
+    planted = reach_targets(
+        model, q, feet.bodies, feet.offsets, target[None], weight[None], model.ranges[:, 0], model.ranges[:, 1], config
+    )[0]
     out = planted.double().numpy().copy()
     out[:, [tx, ty, tz]] = values[:, [tx, ty, tz]]
     return motion.with_values(out.astype(motion.values.dtype))

@@ -126,9 +126,29 @@ def plant_feet(
     contact points (`biomotion.body.contact.foot_points`), ``lower``/``upper`` [n] the coordinate ranges (only the
     leg coordinates are changed and clamped)."""
     with torch.no_grad():
-        x = q.detach().reshape(-1, q.shape[-1]).clone()
+        x = q.detach().reshape(-1, q.shape[-1])
         points = points_in_ground(forward_kinematics(body, x), bodies, offsets)
         target, weight = plant_targets(points.view(*q.shape[:2], -1, 3).double().numpy(), feet, config)
+    return reach_targets(body, q, bodies, offsets, target, weight, lower, upper, config)
+
+
+def reach_targets(
+    body,
+    q: torch.Tensor,
+    bodies: torch.Tensor,
+    offsets: torch.Tensor,
+    target: np.ndarray,
+    weight: np.ndarray,
+    lower: torch.Tensor,
+    upper: torch.Tensor,
+    config: PlantingConfig = PlantingConfig(),
+) -> torch.Tensor:
+    """Coordinates q [B, T, n] whose contact points (``bodies``/``offsets``, floor y = 0) reach ``target``
+    [B, T, K, 3] with ``weight`` [B, T, K] (0: free; NaN targets of free points are ignored): step 4 of the module
+    docstring, the solve `plant_feet` runs on `plant_targets`' targets, open to callers with targets of their own
+    (`biomotion.generation.adapt`). Only ``config.coordinates`` change, within ``lower``/``upper`` [n]."""
+    with torch.no_grad():
+        x = q.detach().reshape(-1, q.shape[-1]).clone()
         target = torch.as_tensor(np.nan_to_num(target), dtype=x.dtype).reshape(len(x), -1, 3)
         weight = torch.as_tensor(weight, dtype=x.dtype).reshape(len(x), -1)
         legs = leg_columns(tuple(body.coordinate_names), config.coordinates)
