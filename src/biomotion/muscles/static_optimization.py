@@ -16,10 +16,11 @@ The per-frame problem is convex with a separable objective, so it is solved in t
 lambda, one per balanced coordinate; Bertsekas 1999, "Nonlinear Programming", 6.1): for given lambda the minimiser
 of each actuator's term is w_i = clip(sign(s_i) (|s_i|/p)^(1/(p-1)), lo_i, hi_i) with s = B^T lambda, and the
 concave dual is maximised by a semismooth Newton method with a backtracking line search (Qi & Sun 1993,
-Math Program 58:353), started from the multipliers of the same problem without bounds (closed form). All frames are solved together: one batched [T, C, C] linear solve per iteration over the
-frames still iterating. A frame leaves the batch once balanced, or once its imbalance stops falling (the bounded
-actuators cannot balance it: a filter's end effect, a missing reserve), so one such frame does not keep the
-whole trial iterating to ``max_iterations``.
+Math Program 58:353), started from the multipliers of the same problem without bounds (closed form). All frames
+are solved together: one batched [T, C, C] linear solve per iteration over the frames still iterating. A frame
+leaves the batch once balanced, or once its imbalance stops falling (the bounded actuators cannot balance it: a
+filter's end effect, a missing reserve), so one such frame does not keep the whole trial iterating to
+``max_iterations``.
 """
 
 from __future__ import annotations
