@@ -62,3 +62,28 @@ def test_eval_control_on_two_held_out_targets(tmp_path):
         float(np.mean(path["errors_m"]))
     )
     assert "generator: **pgbig**" in (tmp_path / "c.md").read_text().replace("Generator:", "generator:")
+
+
+def test_eval_control_both_generators_on_the_same_targets(tmp_path):
+    from biomotion.evaluation.control import eval_control
+    from biomotion.generation.pipeline import CHECKPOINTS, GENERATOR_FILE, TOKENIZER_FILE
+    from tests.conftest import data_path
+
+    root = data_path(".")
+    needed = (TOKENIZER_FILE, GENERATOR_FILE, "flexmotion.safetensors", "control_net.safetensors")
+    if not all((CHECKPOINTS / f).exists() for f in needed):
+        pytest.skip("shipped weights absent")
+    settings = Settings(paths=1, grf_caps=1, torque_caps=0, max_seconds=1.0, path_seconds=0.5)
+    report = eval_control(
+        root, tmp_path / "c.json", tmp_path / "c.md", settings=settings, fid=False, progress=False, generator="both"
+    )
+    assert report["generator"] == "both" and list(report["columns"]) == ["pgbig", "flexmotion"]
+    pgbig, flex = (report["columns"][n]["per_target"] for n in ("pgbig", "flexmotion"))
+    assert [(r["kind"], r["clip"], r["seed"]) for r in pgbig] == [(r["kind"], r["clip"], r["seed"]) for r in flex]
+    path, cap = flex
+    assert np.mean(path["errors_m"]) < 0.02 < np.mean(path["uncontrolled_errors_m"])
+    assert len(path["module_errors_m"]) == path["points"]
+    assert cap["cap"] == pytest.approx(0.9 * cap["uncontrolled_peak"])
+    assert report["control_joint_mean_err_m"] == pytest.approx(float(np.mean(pgbig[0]["errors_m"])))
+    text = (tmp_path / "c.md").read_text()
+    assert "| PG-BIG guidance | FlexMotion control net |" in text and "Per target, FlexMotion control net" in text

@@ -116,11 +116,11 @@ def test_a_grf_cap_lowers_the_recomputed_peak(tmp_path, capsys):
     assert capped_grf < free_grf and capped_com < free_com
 
 
-@pytest.mark.parametrize("extra", [["--no-guidance"], ["--generator", "flexmotion"]])
-def test_control_needs_pgbig_guidance(tmp_path, capsys, extra):
+def test_control_with_pgbig_needs_guidance(tmp_path, capsys):
+    """(FlexMotion takes --control through its control module: tests/generation/test_flexmotion_control.py.)"""
     from biomotion.cli import main
 
-    args = ["generate", "--action", "run", "--control", str(EXAMPLE), *extra, "--out", str(tmp_path / "o")]
+    args = ["generate", "--action", "run", "--control", str(EXAMPLE), "--no-guidance", "--out", str(tmp_path / "o")]
     assert main(args) == 2
     assert "--control is met through guidance" in capsys.readouterr().err
 

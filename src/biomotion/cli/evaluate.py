@@ -21,7 +21,8 @@ DESCRIPTION = (
     "it. `biomotion eval shape` puts one Fukuchi runner's motion on another's body at the same treadmill speed and "
     "compares it with the other's own (HUMOS real pairs), the shape adapter against the copy baseline on pairs of "
     "runners the adapter never saw. `biomotion eval control` samples control targets (joint paths, vertical GRF and "
-    "knee-moment caps) from held-out clips, generates with PG-BIG guidance and recomputes what was met. "
+    "knee-moment caps) from held-out clips, generates with PG-BIG guidance (--generator flexmotion: FlexMotion's "
+    "control module; both: side by side) and recomputes what was met. "
     "Python: biomotion.evaluate, biomotion.eval_generation, "
     "biomotion.evaluation.ground_forces.eval_ground_forces, biomotion.evaluation.shape.eval_shape, "
     "biomotion.evaluation.control.eval_control."
@@ -141,7 +142,9 @@ def add_parser(verbs) -> None:
         choices=("pgbig", "flexmotion", "both"),
         default="pgbig",
         help="generation: pgbig, PG-BIG Tables 2-3 (default); flexmotion or both, FlexMotion beside PG-BIG on the "
-        "same held-out prompts (biomotion.evaluation.flexmotion; --repeats clips per target)",
+        "same held-out prompts (biomotion.evaluation.flexmotion; --repeats clips per target). control: pgbig, "
+        "PG-BIG's guidance path (default); flexmotion, FlexMotion's control module; both, side by side on the same "
+        "targets",
     )
     parser.add_argument(
         "--cache",
@@ -393,8 +396,9 @@ def _shape(args: argparse.Namespace) -> int:
 
 
 def _control(args: argparse.Namespace) -> int:
-    """``biomotion eval control``: control targets from held-out clips through PG-BIG guidance
-    (`biomotion.evaluation.control`); --seed, --checkpoints, --json and --md as for generation."""
+    """``biomotion eval control``: control targets from held-out clips through PG-BIG guidance, FlexMotion's
+    control module or both (--generator; `biomotion.evaluation.control`); --seed, --checkpoints, --json and --md
+    as for generation."""
     from biomotion.errors import ConfigError
     from biomotion.evaluation.control import Settings, eval_control
 
@@ -410,11 +414,15 @@ def _control(args: argparse.Namespace) -> int:
         checkpoints=args.checkpoints,
         settings=Settings(seed=args.seed),
         command=command_line(),
+        generator=args.generator,
     )
-    print(f"{report['targets']} control targets from {report['subjects']} held-out subjects (generator: pgbig)")
-    for key, row in report["bars"].items():
-        value = "–" if row["value"] is None else f"{row['value']:.3f}"
-        print(f"  {'–' if row['met'] is None else 'met' if row['met'] else 'NOT met':8s} {key}: {value} ({row['bar']})")
+    print(f"{report['targets']} control targets from {report['subjects']} held-out subjects")
+    for name, column in report["columns"].items():
+        print(f" {name}:")
+        for key, row in column["bars"].items():
+            value = "–" if row["value"] is None else f"{row['value']:.3f}"
+            met = "–" if row["met"] is None else "met" if row["met"] else "NOT met"
+            print(f"  {met:8s} {key}: {value} ({row['bar']})")
     print(f"wrote {json_path}" + (f" and {md_path}" if md_path else ""))
     return 0
 

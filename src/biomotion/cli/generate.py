@@ -103,9 +103,10 @@ def add_parser(verbs) -> None:
         metavar="FILE",
         help="control spec (YAML, examples/control/): targets on vertical GRF, joint angles, COM height, body "
         "paths, joint moments or muscle activations, met through guidance (biomotion.guidance.control, "
-        "docs/control.md). Each sample's folder then also gets control.json (per target: what it asks, what "
-        "the written files achieve, met or not) and control.png + control.svg (target against achieved; not "
-        "with --no-figures)",
+        "docs/control.md); with --generator flexmotion through FlexMotion's control module (no COM targets; "
+        "metrics.json records the bounds). With PG-BIG each sample's folder then also gets control.json (per "
+        "target: what it asks, what the written files achieve, met or not) and control.png + control.svg "
+        "(target against achieved; not with --no-figures)",
     )
     parser.add_argument(
         "--smooth",

@@ -225,6 +225,21 @@ def add_parser(verbs) -> None:
     )
     flexmotion.set_defaults(run=_flexmotion)
 
+    control_net = models.add_parser(
+        "control-net",
+        help="FlexMotion's control module: a ControlNet over the frozen FlexMotion (joint paths, GRF, torques, "
+        "activations)",
+        description="Train FlexMotion's spatial control module (FlexMotion Sec. 3.3) over the shipped FlexMotion "
+        "(the config's `flexmotion`, frozen): a trainable copy of the latent denoiser between zero-initialised "
+        "linears, fed control targets drawn from the training windows' own modalities (body origins, vertical GRF, "
+        "a joint moment, an activation, a coordinate; dense and sparse in time). Fixed iterations and seed. "
+        "Python: biomotion.training.train_control_net.train.",
+    )
+    _model_args(
+        control_net, "control_net.yaml", "folder with opensim-models/ (the canonical Rajagopal model)", iterations=False
+    )
+    control_net.set_defaults(run=_control_net)
+
 
 def _model_args(
     parser: argparse.ArgumentParser,
@@ -505,6 +520,22 @@ def _flexmotion(args: argparse.Namespace) -> int:
         args.out,
         data_root=args.data_root,
         surrogate=args.surrogate,
+        seed=args.seed,
+        progress=not args.quiet,
+        command=command_line(),
+    )
+    print(f"{args.out}: SHA-256 {card['sha256']} (card {args.out.with_suffix('.md')}); seconds {card['seconds']}")
+    return 0
+
+
+def _control_net(args: argparse.Namespace) -> int:
+    from biomotion.training.train_control_net import train
+
+    card = train(
+        _config(args),
+        args.cache.expanduser(),
+        args.out,
+        data_root=args.data_root,
         seed=args.seed,
         progress=not args.quiet,
         command=command_line(),

@@ -67,9 +67,11 @@ class FlexMotionGenerator:
         steps: int | None = None,
         guidance: float | None = None,
         sentences: torch.Tensor | None = None,
+        control=None,
     ) -> dict[str, torch.Tensor]:
         """Decoded modalities (`biomotion.models.flexmotion.split`, torques and forces in body weights) of one
-        clip per (text, profile); ``sentences`` their MiniLM embeddings when at hand."""
+        clip per (text, profile); ``sentences`` their MiniLM embeddings when at hand; ``control`` the control
+        module bound to its signal (`biomotion.models.control_net.ControlNet.bind`) or None."""
         from biomotion.models.motion_text_evaluator import embed_sentences
 
         if not texts or any(not isinstance(t, str) or not t.strip() for t in texts):
@@ -81,7 +83,7 @@ class FlexMotionGenerator:
         except Exception as error:  # a profile value that is not a positive number
             raise ConfigError(f"profile: {error}") from None
         sentences = embed_sentences([t.strip() for t in texts]) if sentences is None else sentences
-        return self.model.sample(sentences, vectors, seed=seed, steps=steps, guidance=guidance)
+        return self.model.sample(sentences, vectors, seed=seed, steps=steps, guidance=guidance, control=control)
 
 
 def foot_forces(forces: torch.Tensor, refiner: Refiner) -> torch.Tensor:
@@ -197,9 +199,14 @@ def generate(
     samples: int = 1,
     seconds: float | None = None,
     command: str = "",
+    control=None,
 ) -> dict:
     """One request with FlexMotion (``biomotion generate --generator flexmotion``): ``samples`` clips of the
-    ``action`` text for ``profile`` (a `Profile` or None), seeded; returns files and timings."""
+    ``action`` text for ``profile`` (a `Profile` or None), seeded; returns files and timings.
+
+    ``control``: a `biomotion.guidance.control.Control` met with the control module
+    (`biomotion.generation.flexmotion_control.generate_controlled`; sample k uses seed ``seed + k``); the
+    written motion is then the controlled, placed and fitted one, and metrics.json records the bounds."""
     if samples < 1:
         raise ConfigError(f"--samples must be at least 1, got {samples}")
     started = time.perf_counter()
@@ -211,12 +218,30 @@ def generate(
     if seconds is not None and seconds > length:
         notes.append(f"FlexMotion generates one window of {length:.2f} s; --seconds {seconds:g} gives the whole window")
         seconds = None
-    decoded = generator.sample([action] * samples, [profile] * samples, seed=seed)
-    if seconds is not None:
-        keep = max(2, round(seconds * generator.model.config.rate))
-        decoded = {k: v[:, :keep] for k, v in decoded.items()}
-    done = time.perf_counter()
     request = {"command": command, "text": action, "seed": seed, "samples": samples, "notes": notes}
+    keep = None if seconds is None else max(2, round(seconds * generator.model.config.rate))
+    if control is None:
+        decoded = generator.sample([action] * samples, [profile] * samples, seed=seed)
+        if keep is not None:
+            decoded = {k: v[:, :keep] for k, v in decoded.items()}
+    else:
+        from biomotion.generation.flexmotion_control import check_spec, generate_controlled, load_control_net
+
+        frames = keep or generator.model.config.window
+        check_spec(control, frames / generator.model.config.rate, getattr(generator.surrogate, "names", ()))
+        net = load_control_net(checkpoints or "checkpoints", generator.model)
+        clips = [
+            generate_controlled(generator, net, action, profile, control, seed=seed + k, frames=keep)
+            for k in range(samples)
+        ]
+        decoded = {k: torch.cat([c.decoded[k] for c in clips]) for k in clips[0].decoded}
+        request["control"] = {
+            "source": control.source,
+            "placement_heading_x_z_vx_vz": [c.frame.tolist() for c in clips],
+            "sampling_rounds": [c.rounds for c in clips],
+            "bounds": [c.bounds for c in clips],
+        }
+    done = time.perf_counter()
     files = write_flexmotion(Path(out), generator, decoded, request)
     return {
         "files": files,

@@ -90,17 +90,21 @@ def generate(
     window per sample with its torques, ground reaction and activations as generated; the profile is read as here,
     references, guidance, smoothing and refinement do not apply).
 
-    ``control``: a control spec file (`biomotion.guidance.control`), met through guidance (PG-BIG only)."""
+    ``control``: a control spec file (`biomotion.guidance.control`), with PG-BIG met through guidance (which must
+    be on), each sample's folder then also holding control.json and control.png/.svg, every target against what the
+    written files achieve (`biomotion.generation.outputs.write_control`); with FlexMotion met through its control
+    module (`biomotion.generation.flexmotion_control`, FlexMotion Sec. 3.3), the bounds recorded in metrics.json."""
     if generator not in ("pgbig", "flexmotion"):
         raise ConfigError(f"--generator {generator!r}: choose pgbig or flexmotion")
     spec = None
     if control is not None:
         from biomotion.guidance.control import Control
 
-        if generator != "pgbig" or not guidance:
-            raise ConfigError("--control is met through guidance: it needs --generator pgbig and guidance on")
-        spec = Control.load(control)
-        spec.check(seconds)
+        if generator == "pgbig" and not guidance:
+            raise ConfigError("--control is met through guidance with --generator pgbig: it needs guidance on")
+        spec = control if isinstance(control, Control) else Control.load(control)
+        if generator == "pgbig":
+            spec.check(seconds)
     if generator == "flexmotion":
         from biomotion.generation import flexmotion
 
@@ -109,7 +113,7 @@ def generate(
         chosen_profile = person(profile_file, subject_table, subject_id) if personalised else None
         return flexmotion.generate(
             action=action, out=Path(out), data_root=Path(data_root), checkpoints=checkpoints,
-            profile=chosen_profile, seed=seed, samples=samples, seconds=seconds, command=command,
+            profile=chosen_profile, seed=seed, samples=samples, seconds=seconds, command=command, control=spec,
         )  # fmt: skip
     from biomotion.body.kinematics import torch_threads
     from biomotion.data.clips import MODEL_FILE
@@ -217,6 +221,7 @@ def generate(
             "profile": profile_record(profile),
             "versions": versions(),
         },
+        control=spec,
     )
     return {
         "action": request,

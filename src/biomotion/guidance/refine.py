@@ -69,6 +69,7 @@ import torch
 
 from biomotion.errors import ModelError
 from biomotion.guidance import losses
+from biomotion.guidance.bound_fit import BoundFitConfig, fit_bounds
 from biomotion.guidance.control_fit import ControlFitConfig, fit_control
 from biomotion.guidance.planting import PlantingConfig, plant_feet
 from biomotion.guidance.tempo import WARP_RANGE, warp
@@ -128,6 +129,7 @@ class GuidanceConfig:
     control_fit: ControlFitConfig | None = ControlFitConfig()  # with control targets, the last stage; None skips it
     bound_rounds: int = 2  # more rounds where the analysis finds a GRF/moment bound missed (`measured_bounds`)
     bound_margin: float = 0.03  # each round moves a missed bound by what it missed plus this share of the bound
+    bound_fit: BoundFitConfig | None = BoundFitConfig()  # caps still missed after the rounds (`bound_fit`); None: off
 
     def alpha(self, k: int) -> float:
         """Weight of the physics terms at iteration k (0 before ``physics_start``, linear ramp to 1)."""
@@ -328,7 +330,9 @@ class Guide:
         With control bounds on the vertical GRF or a joint moment, the result is measured as the analysis measures
         the outputs (`biomotion.guidance.measured_bounds`); where a bound is missed in any clip, guidance runs
         again from z0 with that bound moved inwards by the worst miss plus ``bound_margin`` of it, up to
-        ``bound_rounds`` more times. The round whose clips miss their bounds least (summed) is returned."""
+        ``bound_rounds`` more times. The round whose clips miss their bounds least (summed) is kept; caps it still
+        misses go to the coordinate-space stage (`biomotion.guidance.bound_fit`, ``bound_fit``), then paths and
+        values are met again."""
         from biomotion.guidance.measured_bounds import measured_bounds, measured_excess, tightened
 
         c = self.config
@@ -354,7 +358,41 @@ class Guide:
                 result = self._guide(z0, speed)
         finally:
             self.control = spec
-        return best
+        if best_miss == 0 or c.bound_fit is None:
+            return best
+        q, _ = fit_bounds(
+            self.body,
+            best.q,
+            spec,
+            self.rate,
+            self.feet_bodies,
+            self.feet_offsets,
+            self.feet_sides,
+            self.lower,
+            self.upper,
+            frames,
+            c.bound_fit,
+        )
+        return GuidanceResult(self._fit_control(q), best.unplanted, best.latents, best.history)
+
+    def _fit_control(self, q: torch.Tensor) -> torch.Tensor:
+        """The path and value targets met on the coordinates (`biomotion.guidance.control_fit`), when set."""
+        c = self.config
+        if self.control is None or c.control_fit is None:
+            return q
+        return fit_control(
+            self.body,
+            q,
+            self.control,
+            self.rate,
+            self.feet_bodies,
+            self.feet_offsets,
+            self.lower,
+            self.upper,
+            self.rotational,
+            self.frames,
+            c.control_fit,
+        )
 
     def _guide(self, z0: torch.Tensor, speed: float | None) -> GuidanceResult:
         """One run of latent guidance, foot planting and the coordinate-space control fit (`__call__`)."""
@@ -400,18 +438,4 @@ class Guide:
                 self.body, q, self.feet_bodies, self.feet_offsets, self.feet_sides, self.lower, self.upper, c.planting
             )
         )
-        if self.control is not None and c.control_fit is not None:
-            planted = fit_control(
-                self.body,
-                planted,
-                self.control,
-                self.rate,
-                self.feet_bodies,
-                self.feet_offsets,
-                self.lower,
-                self.upper,
-                self.rotational,
-                self.frames,
-                c.control_fit,
-            )
-        return GuidanceResult(planted, q, final.detach(), history)
+        return GuidanceResult(self._fit_control(planted), q, final.detach(), history)

@@ -218,7 +218,10 @@ class LatentDenoiser(nn.Module):
         profile: torch.Tensor,
         drop_text: torch.Tensor | None = None,
         drop_profile: torch.Tensor | None = None,
+        residuals: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
+        """ε [B, d]; ``residuals`` (one [B, width] per block, the control module's,
+        `biomotion.models.control_net`) are added to the blocks' outputs (FlexMotion Sec. 3.3)."""
         text_c, profile_c = self.text(text), self.profile(profile)
         if drop_text is not None:
             text_c = torch.where(drop_text[:, None], self.null_text, text_c)
@@ -226,8 +229,10 @@ class LatentDenoiser(nn.Module):
             profile_c = torch.where(drop_profile[:, None], self.null_profile, profile_c)
         cond = F.gelu(self.time(timestep_embedding(t, self.width)) + text_c + profile_c)
         h = self.inp(z)
-        for block in self.blocks:
+        for k, block in enumerate(self.blocks):
             h = block(h, cond)
+            if residuals is not None:
+                h = h + residuals[k]
         return self.out(h)
 
 
@@ -272,9 +277,15 @@ class FlexMotion(nn.Module):
         seed: int = 0,
         steps: int | None = None,
         guidance: float | None = None,
+        control=None,
     ) -> dict[str, torch.Tensor]:
         """Decoded modalities of one sample per row of ``text`` [B, 384] and ``profile`` [B, PROFILE_DIM]: DDIM
         (``steps``, default the config's) from seeded noise with classifier-free ``guidance``.
+
+        ``control``: None, or a callable (z, t, text, profile, drop_text, drop_profile) -> per-block residuals,
+        the control module bound to its control signal (`biomotion.models.control_net.ControlNet.bind`, Sec. 3.3);
+        it acts on the conditional and the unconditional prediction alike, and the same seed starts from the same
+        noise with and without it.
 
         The predicted clean latent is not clipped (``clip_sample=False``; `diffusers`' default clips it to [-1, 1],
         a range meant for images in [-1, 1]): the latents are scaled to unit standard deviation, so about a third
@@ -299,7 +310,9 @@ class FlexMotion(nn.Module):
         drops = torch.cat([none, every])
         for t in scheduler.timesteps:
             ts = torch.full((2 * n,), int(t), dtype=torch.long)
-            eps = self.denoiser(torch.cat([z, z]), ts, both_text, both_profile, drops, drops)
+            both_z = torch.cat([z, z])
+            residuals = None if control is None else control(both_z, ts, both_text, both_profile, drops, drops)
+            eps = self.denoiser(both_z, ts, both_text, both_profile, drops, drops, residuals)
             cond, uncond = eps[:n], eps[n:]
             z = scheduler.step(uncond + guidance * (cond - uncond), t, z).prev_sample
         return self.decode_latent(z)
