@@ -135,26 +135,27 @@ def _dual_newton(
     value = _dual_value(lam_l, w_l, s_l, tau_l, exponent)
     damping = torch.full((t,), 1e-3, dtype=dtype)
     best = torch.full((t,), torch.inf, dtype=dtype)
+    best_lam = lam_l.clone()  # the multipliers at each frame's best imbalance: a stalled frame's answer
     since_best = torch.zeros(t, dtype=torch.long)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 - the count is reported
         imbalance = gradient.abs().amax(-1)
         improved = imbalance < (1 - STALL_GAIN) * best
         best = torch.where(improved, imbalance, best)
+        best_lam = torch.where(improved[:, None], lam_l, best_lam)
         since_best = torch.where(improved, 0, since_best + 1)
         keep = (imbalance > tolerance) & (since_best < STALL_ITERATIONS)
         if not bool(keep.all()):
-            out[live[~keep]] = lam_l[~keep]
+            balanced = imbalance <= tolerance
+            out[live[~keep]] = torch.where(balanced[:, None], lam_l, best_lam)[~keep]
             if not bool(keep.any()):
                 break
             live = live[keep]
-            b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best, since_best = (
-                x[keep]
-                for x in (
-                    b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best,
-                    since_best,
-                )
-            )  # fmt: skip
+            state = (b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best, best_lam)
+            b_l, tau_l, lam_l, s_l, w_l, slope_l, gradient, value, imbalance, scale_l, damping, best, best_lam = (
+                x[keep] for x in state
+            )
+            since_best = since_best[keep]
         n = len(live)
         # Levenberg-Marquardt damping keeps the step bounded where clipped actuators make B D B^T singular
         mu = damping * scale_l * imbalance + 1e-12 * scale_l**2
