@@ -20,7 +20,8 @@ DESCRIPTION = (
     "motion.mot (coordinates of the person's scaled model), motion.bvh, grf.mot + grf_loads.xml and torques.sto "
     "(inferred from the motion), activations.sto (surrogate), com_zmp.sto, metrics.json (with the request, the "
     "profile, the seed and the versions), plots and viewer.html; and model.osim (the generic Rajagopal 2016 model "
-    "scaled to the person's height and mass). Python: biomotion.generate."
+    "scaled to the person's height and mass; with --shape, that body's scaled model, each clip moved onto it by "
+    "the HUMOS shape adapter as `biomotion adapt` does). Python: biomotion.generate."
 )
 EPILOG = (
     'example: biomotion generate --profile examples/runner_52_acl.yaml --action "running at 3.5 m/s" '
@@ -124,6 +125,27 @@ def add_parser(verbs) -> None:
         "written: steadier speed and energy, feet that stay planted (docs/results/eval_refine.md)",
     )
     parser.add_argument("--refiner", type=Path, help="refiner weights for --refine (default: the shipped ones)")
+    parser.add_argument(
+        "--shape",
+        type=Path,
+        metavar="MODEL_OR_SHAPE",
+        help="write the clips on this body, what `biomotion adapt --to` takes: a scaled .osim, or a shape file "
+        "(.yaml/.json: height (m) and mass (kg), optionally sex, or a Shape's fields). Each clip is moved onto it by "
+        "the HUMOS shape adapter (a gait: the adapter re-times the stride for the body) and model.osim is its "
+        "model, not the generic one scaled uniformly; the body wins over the profile's height and mass (a note "
+        "says so where they differ), the profile still conditions the generator. PG-BIG only",
+    )
+    parser.add_argument(
+        "--shape-height",
+        type=number(0, low_open=True),
+        metavar="M",
+        help="standing height of the --shape body (m), needed when its model has no head or torso",
+    )
+    parser.add_argument(
+        "--adapter",
+        type=Path,
+        help="shape-adapter weights for --shape (default: the shipped checkpoints/shape_adapter.safetensors)",
+    )
     parser.add_argument("--no-profile", action="store_true", help="ignore the profile and references (ablation)")
     parser.add_argument("--no-figures", action="store_true", help="no plots or viewer")
     parser.add_argument(
@@ -166,6 +188,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--subject-table and --subject-id go together")
     if args.refiner is not None and not args.refine:
         raise ConfigError("--refiner names the weights of --refine: give --refine too")
+    if args.generator == "flexmotion" and args.shape is not None:
+        raise ConfigError("--shape moves PG-BIG clips onto a body: --generator flexmotion takes no --shape")
+    if (args.shape_height is not None or args.adapter is not None) and args.shape is None:
+        raise ConfigError("--shape-height and --adapter go with --shape")
     if args.refiner is not None and not args.refiner.is_file():
         raise ConfigError(f"{args.refiner}: --refiner is not a file")
     references = args.reference or ()
@@ -222,6 +248,8 @@ def run(args: argparse.Namespace) -> int:
             refine=args.refine,
             refiner=args.refiner,
             **({} if args.control is None else {"control": args.control}),
+            **({} if args.shape is None else {"shape": args.shape, "shape_height": args.shape_height}),
+            **({} if args.adapter is None else {"adapter": args.adapter}),
         )
     a = result["action"]
     print(f"answered by the {result['route'].describe()}")

@@ -410,7 +410,9 @@ def _read_adapter(path: Path, modified_ns: int, size: int):
     return ShapeAdapter.load(path), hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _load_adapter(adapter):
+def load_adapter(adapter: str | Path | None = None) -> tuple:
+    """The shape adapter at ``adapter`` (default the shipped weights), its path and SHA-256; a one-line
+    `ConfigError` when the file is missing. Loaded once per file version (cached on path, mtime and size)."""
     from biomotion.generation.pipeline import CHECKPOINTS
 
     path = Path(CHECKPOINTS / ADAPTER_FILE if adapter is None else adapter)
@@ -446,7 +448,7 @@ def adapt(
         source = read_body(source, height=source_height, generic=generic, data_root=data_root, what="--from")
     if not isinstance(target, Body):
         target = read_body(target, height=target_height, generic=generic, data_root=data_root, what="--to")
-    model, path, sha256 = _load_adapter(adapter)
+    model, path, sha256 = load_adapter(adapter)
     flipped = knee_flexion_negative(motion)
     moved = model.adapt(motion, source.shape, target.shape, knee_flipped=flipped)
     negative = knee_negative(target.model)

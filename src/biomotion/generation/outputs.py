@@ -10,6 +10,14 @@ the asked speed, `biomotion.guidance.tempo`) and plots; with a control spec, ``c
 ``control.png`` + ``control.svg``: each target against what the written files achieve (`write_control`).
 ``model.osim`` (the person's model) is written once per request. Files are written atomically by the writers they
 come from.
+
+With a ``shape`` (a `biomotion.generation.adapt.Body`: a scaled .osim or a shape file, what ``biomotion adapt --to``
+takes), the person's model is that body's scaled model rather than the canonical model scaled uniformly to the
+profile's height and mass, and each clip, generated at the canonical body, is first moved onto it by the HUMOS
+shape adapter (`shaped_clips`, the same call as ``biomotion adapt``: `biomotion.generation.adapt.adapt`); the
+ground reaction, torques and COM/ZMP are then the analysis of the adapted motion on that model, the activations the
+surrogate's on it, and metrics.json's ``shape`` records the body, the adapter's file and SHA-256, the stride times
+and what was done to fit the body (`shape_record`).
 """
 
 from __future__ import annotations
@@ -23,6 +31,8 @@ import numpy as np
 import torch
 
 from biomotion.body.canonical import CANONICAL_COORDINATES
+from biomotion.errors import ConfigError
+from biomotion.generation.adapt import Adapted, Body
 from biomotion.generation.pipeline import Generated
 from biomotion.guidance.control import Control
 from biomotion.io.atomic import atomic_write
@@ -189,6 +199,65 @@ def write_control(
     return files
 
 
+def shaped_clips(
+    motions: list[Motion], generic_osim: Path, shape: Body, adapter: str | Path | None = None
+) -> list[Adapted]:
+    """Each canonical clip (``Generated.motions()`` at the canonical size, on the canonical model ``generic_osim``)
+    moved onto the body ``shape`` by the HUMOS shape adapter (``humos.md``; `biomotion.generation.adapt.adapt`, the
+    call behind ``biomotion adapt``, with its knee sign, floor and foot planting). ``adapter``: the weights (default
+    the shipped ``checkpoints/shape_adapter.safetensors``). Contract: the adapter finds a stride in the clip and in
+    its output (`biomotion.models.shape_vae.stride_time`); a clip without one, or too short, is a one-line
+    `ConfigError` naming the body."""
+    from biomotion.generation.adapt import adapt, read_body
+
+    canonical = read_body(generic_osim, what="the canonical model")
+    try:
+        return [adapt(motion, canonical, shape, adapter=adapter) for motion in motions]
+    except ConfigError as error:
+        raise ConfigError(
+            f"--shape {shape.source}: {error} (the adapter moves a gait and re-times the clip with the body's "
+            "stride: a shorter stride makes a shorter clip; ask more --seconds)"
+        ) from None
+
+
+def shaped_activations(surrogate, adapted: Adapted) -> np.ndarray:
+    """The muscle surrogate's activations [T, M] for an adapted clip: its coordinates in canonical order and knee
+    sign (`biomotion.data.sources.to_canonical`), those the target body lacks masked (the surrogate reads them as
+    0)."""
+    from biomotion.data.sources import to_canonical
+
+    canonical = to_canonical(adapted.motion, knee_flipped=adapted.knee_negative["target"])
+    q = torch.as_tensor(np.where(canonical.mask[None], canonical.values, 0.0), dtype=torch.float32)[None]
+    mask = torch.as_tensor(canonical.mask)[None]
+    with torch.no_grad():
+        return surrogate.predict_symmetric(q, mask)[0][0].double().numpy()
+
+
+def shape_record(adapted: Adapted, given: str | None = None) -> dict:
+    """What metrics.json records of a clip moved onto a body (`shaped_clips`): the body given (``given``, the path
+    as the user wrote it), its `Shape`, its model's name, the adapter's file name and SHA-256, the stride times
+    before and after, the floor shift, the ground velocity, whether the feet were planted, and the clip's length
+    (s): the adapter re-times the whole clip with the stride, so a body with a longer stride gets a longer clip
+    than the request's ``seconds``."""
+    from biomotion.generation.adapt import _finite
+
+    velocity = adapted.ground_velocity_m_s
+    return _finite(
+        {
+            "input": given,
+            "shape": adapted.target.shape.as_dict(),
+            "model": adapted.target.model.name,
+            "adapter": {"weights": adapted.adapter_file.name, "sha256": adapted.adapter_sha256},
+            "stride_time_s": adapted.stride_time_s,
+            "floor_shift_m": adapted.floor_shift_m,
+            "ground_velocity_m_s": None if velocity is None else dict(zip(("x", "z"), velocity)),
+            "feet_planted": adapted.planted,
+            "seconds": float(adapted.motion.times[-1] - adapted.motion.times[0] + 1.0 / adapted.motion.rate),
+            "coordinates_at_model_defaults": list(adapted.filled),
+        }
+    )
+
+
 def write_generation(
     out: str | Path,
     generated: Generated,
@@ -199,11 +268,18 @@ def write_generation(
     figures: bool = True,
     request: dict | None = None,
     control: Control | None = None,
+    shape: Body | None = None,
+    adapter: str | Path | None = None,
 ) -> dict[str, dict[str, Path]]:
     """Scale the model to ``profile``, write ``model.osim`` and each sample's files (``out`` itself for one
     sample, ``out/sample_01`` ... for several); returns the files per sample. The viewer takes its meshes from
     the Geometry folders beside ``generic_osim`` and in ``opensim-models/Geometry`` when present. ``control``:
-    the spec the clips were generated under; each sample then also gets its `write_control` files."""
+    the spec the clips were generated under; each sample then also gets its `write_control` files.
+
+    ``shape``: the body to write the clips on instead (module docstring): ``model.osim`` is its scaled model (the
+    profile's height and mass do not scale it), each clip is moved onto it by the shape adapter at ``adapter``
+    (`shaped_clips`) and metrics.json gets ``shape`` (`shape_record`; ``request["shape"]``, when given, is the path
+    recorded as its input)."""
     from biomotion.analysis.control_measures import length_scale
     from biomotion.body.scaling.stature import scale_to_profile
 
@@ -212,13 +288,24 @@ def write_generation(
     height = profile.height if profile is not None else None
     mass = profile.mass if profile is not None else None
     model_file = out / "model.osim"
-    model = scale_to_profile(generic_osim, height, mass, model_file, name="biomotion_generated_subject")
-    motions = generated.motions(height)
+    adapted: list[Adapted] = []
+    if shape is None:
+        model = scale_to_profile(generic_osim, height, mass, model_file, name="biomotion_generated_subject")
+        motions = generated.motions(height)
+    else:
+        adapted = shaped_clips(generated.motions(), generic_osim, shape, adapter)
+        shape.write_osim(model_file)
+        model = shape.model
+        height = shape.shape.height
+        motions = [a.motion for a in adapted]
     activations = None
     names: tuple[str, ...] = ()
     if generator.surrogate is not None:
-        with torch.no_grad():
-            activations = generator.surrogate.predict_symmetric(generated.q.float())[0].double().numpy()
+        if adapted:
+            activations = [shaped_activations(generator.surrogate, a) for a in adapted]
+        else:
+            with torch.no_grad():
+                activations = generator.surrogate.predict_symmetric(generated.q.float())[0].double().numpy()
         names = tuple(generator.surrogate.names)
     guide_terms = {}
     if generated.history:
@@ -228,6 +315,8 @@ def write_generation(
             "guidance_iterations": len(generated.history),
         }
     geometry = tuple(p for p in (generic_osim.parent / "Geometry", generic_osim.parents[2] / "Geometry") if p.is_dir())
+    if shape is not None:
+        geometry = (*geometry, *(p for p in shape.geometry if p.is_dir() and p not in geometry))
     planting = planting_changes(generated)
     if generated.posture is not None:  # the person's posture offset, in the units of motion.mot
         guide_terms["posture_offset"] = {
@@ -243,6 +332,7 @@ def write_generation(
             **guide_terms,
             **({"foot_planting": planting[k]} if planting else {}),
             **({} if generated.tempo is None else {"tempo": round(float(generated.tempo[k]), 4)}),
+            **({"shape": shape_record(adapted[k], (request or {}).get("shape"))} if adapted else {}),
         }
         result[folder.name] = write_clip(
             folder,

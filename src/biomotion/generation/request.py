@@ -12,7 +12,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from biomotion.errors import ConfigError
+from biomotion.generation.adapt import Body
 from biomotion.io.profiles import person
+from biomotion.profile import Profile
 
 #: torch threads for sampling and guidance: the decoder's and the surrogate's convolutions gain a little from a
 #: second core (3 s guided clip, example profile, this shared 2-core machine, `python benchmarks/generation.py`:
@@ -26,6 +28,30 @@ def profile_record(profile) -> dict | None:
     import json
 
     return None if profile is None else json.loads(json.dumps(profile.to_dict(), default=str))
+
+
+#: how far a profile's height (m) and mass (kg) may lie from a --shape body's before a note says the body wins
+SHAPE_TOLERANCE = {"height": 0.005, "mass": 0.5}
+
+
+def shape_notes(profile: Profile, body: Body, given: Body | str | Path) -> list[str]:
+    """One note when the profile's height or mass contradicts the ``body`` (given as ``given``) the clips are
+    written on, beyond `SHAPE_TOLERANCE`: the body, not the profile, sets the model (the profile still conditions
+    the generator unless the request ignores it). Empty otherwise: a body that contradicts nothing needs no note."""
+    differ = [
+        f"{name} {mine:g} {unit} against the body's {theirs:.3g}"
+        for name, unit, mine, theirs in (
+            ("height", "m", profile.height, body.shape.height),
+            ("mass", "kg", profile.mass, body.shape.mass),
+        )
+        if mine is not None and theirs is not None and abs(mine - theirs) > SHAPE_TOLERANCE[name]
+    ]
+    if not differ:
+        return []
+    return [
+        f"--shape {given if not isinstance(given, Body) else body.source} sets the body, not the profile "
+        f"({', '.join(differ)})"
+    ]
 
 
 def versions() -> dict[str, str]:
@@ -69,6 +95,9 @@ def generate(
     refiner: Path | None = None,
     generator: str = "pgbig",
     control: Path | None = None,
+    shape: Body | str | Path | None = None,
+    shape_height: float | None = None,
+    adapter: str | Path | None = None,
 ) -> dict:
     """Run the whole request; returns a summary (files per sample, timings, the action understood, and `notes`
     on how it was understood: `ActionVocabulary.notes`, also written to each sample's metrics.json).
@@ -93,9 +122,22 @@ def generate(
     ``control``: a control spec file (`biomotion.guidance.control`), with PG-BIG met through guidance (which must
     be on), each sample's folder then also holding control.json and control.png/.svg, every target against what the
     written files achieve (`biomotion.generation.outputs.write_control`); with FlexMotion met through its control
-    module (`biomotion.generation.flexmotion_control`, FlexMotion Sec. 3.3), the bounds recorded in metrics.json."""
+    module (`biomotion.generation.flexmotion_control`, FlexMotion Sec. 3.3), the bounds recorded in metrics.json.
+
+    ``shape``: the body to write the clips on (PG-BIG only): a `biomotion.generation.adapt.Body`, or what
+    ``biomotion adapt --to`` takes, a scaled .osim or a shape file (`biomotion.generation.adapt.read_body`;
+    ``shape_height`` (m) gives the standing height of a model without head or torso). Each clip, generated at the
+    canonical body, is moved onto it by the HUMOS shape adapter (weights ``adapter``, default the shipped ones;
+    `biomotion.generation.outputs.shaped_clips`, the call behind ``biomotion adapt``), and model.osim is its
+    scaled model instead of the canonical one scaled uniformly to the profile. The profile still conditions the
+    generator; where its height or mass disagrees with the body's, the body wins and a note says so. A body that
+    cannot be read is refused before anything is generated."""
     if generator not in ("pgbig", "flexmotion"):
         raise ConfigError(f"--generator {generator!r}: choose pgbig or flexmotion")
+    if generator == "flexmotion" and shape is not None:
+        raise ConfigError("--shape moves PG-BIG clips onto a body: --generator flexmotion takes no --shape")
+    if shape_height is not None and shape is None:
+        raise ConfigError("--shape-height gives the standing height of the --shape body: give --shape too")
     spec = None
     if control is not None:
         from biomotion.guidance.control import Control
@@ -129,6 +171,24 @@ def generate(
     if smooth_hz is not None and not guidance:
         raise ConfigError("--smooth filters the guided motion: it has no effect with --no-guidance")
     profile = person(profile_file, subject_table, subject_id)
+    body = None
+    if shape is not None:
+        from biomotion.generation.adapt import load_adapter, read_body
+        from biomotion.models.shape_vae import STRIDE_RANGE
+
+        shortest = 1.5 * STRIDE_RANGE[1]  # `stride_time` searches strides up to STRIDE_RANGE[1] in 1.5 of it
+        if seconds < shortest:
+            raise ConfigError(
+                f"--seconds {seconds:g}: --shape moves a gait onto the body, and the shape adapter needs at least "
+                f"{shortest:g} s of it to find the stride"
+            )
+
+        body = (
+            shape
+            if isinstance(shape, Body)
+            else read_body(shape, height=shape_height, data_root=data_root, what="--shape")
+        )
+        load_adapter(adapter)  # missing weights are refused before anything is generated
     if reference_actions and len(reference_actions) != len(references):
         raise ConfigError(
             f"--reference-action given {len(reference_actions)} times for {len(references)} "
@@ -158,6 +218,8 @@ def generate(
             f"({', '.join(full_body.styles)})"
         ) from None
     notes = vocabulary.notes(action, request)
+    if body is not None and profile is not None:
+        notes = [*notes, *shape_notes(profile, body, shape)]
     shown = [vocabulary.parse(text) for text in reference_actions]
     loaded = time.perf_counter()
     with torch_threads(threads or min(GENERATION_THREADS, os.cpu_count() or 1)):
@@ -219,9 +281,12 @@ def generate(
                 "checkpoints": str(chosen.checkpoints),
             },
             "profile": profile_record(profile),
+            **({} if body is None else {"shape": str(body.source)}),
             "versions": versions(),
         },
         control=spec,
+        shape=body,
+        adapter=adapter,
     )
     return {
         "action": request,
