@@ -84,6 +84,7 @@ def test_generate_on_a_tall_and_a_short_body(shipped, tmp_path, capsys):
     motion = read_motion(out / "motion.mot")
     assert motion.names == model.coordinate_names
     assert read_storage(out / "activations.sto").data.shape[0] == motion.n_frames
+    assert motion.n_frames == round(3.0 * motion.rate)  # the asked length, though the adapter re-times the clip
     assert read_storage(out / "torques.sto").data.shape[0] == motion.n_frames
     metrics = json.loads((out / "metrics.json").read_text())
     record = metrics["shape"]
@@ -107,11 +108,11 @@ def test_generate_on_a_tall_and_a_short_body(shipped, tmp_path, capsys):
     )
     assert any("(height 1.76 m against the body's 1.55" in n for n in result["notes"])
     short_model = BodyModel.from_osim(tmp_path / "short_out" / "model.osim")
+    short_motion = read_motion(tmp_path / "short_out" / "motion.mot")
+    assert short_motion.n_frames == round(3.0 * short_motion.rate)
     assert segment_lengths(short_model)["tibia_r"] == pytest.approx(short.shape.lengths["tibia_r"], rel=1e-3)
     tall_stride = gait_timing(model, motion, SPEED)["stride_length_m"]
-    short_stride = gait_timing(short_model, read_motion(tmp_path / "short_out" / "motion.mot"), SPEED)[
-        "stride_length_m"
-    ]
+    short_stride = gait_timing(short_model, short_motion, SPEED)["stride_length_m"]
     assert tall_stride > 1.1 * short_stride
 
 

@@ -220,6 +220,19 @@ def shaped_clips(
         ) from None
 
 
+def trimmed(adapted: Adapted, seconds: float) -> Adapted:
+    """The adapted clip cut to its first ``seconds`` (as it is when shorter). `biomotion.generation.request` has
+    the canonical clip generated longer than asked (``SHAPE_LENGTH_MARGIN``), because the adapter re-times it to the
+    body's stride, so that the written clip is as long as the request."""
+    import dataclasses
+
+    motion = adapted.motion
+    frames = round(seconds * motion.rate)
+    if motion.n_frames <= frames:
+        return adapted
+    return dataclasses.replace(adapted, motion=motion.frames(slice(0, frames)))
+
+
 def shaped_activations(surrogate, adapted: Adapted) -> np.ndarray:
     """The muscle surrogate's activations [T, M] for an adapted clip: its coordinates in canonical order and knee
     sign (`biomotion.data.sources.to_canonical`), those the target body lacks masked (the surrogate reads them as
@@ -237,8 +250,8 @@ def shape_record(adapted: Adapted, given: str | None = None) -> dict:
     """What metrics.json records of a clip moved onto a body (`shaped_clips`): the body given (``given``, the path
     as the user wrote it), its `Shape`, its model's name, the adapter's file name and SHA-256, the stride times
     before and after, the floor shift, the ground velocity, whether the feet were planted, and the clip's length
-    (s): the adapter re-times the whole clip with the stride, so a body with a longer stride gets a longer clip
-    than the request's ``seconds``."""
+    (s): the request's ``seconds`` unless the adapter, re-timing the (longer) generated clip with the body's stride,
+    left less (`trimmed`)."""
     from biomotion.generation.adapt import _finite
 
     velocity = adapted.ground_velocity_m_s
@@ -294,6 +307,8 @@ def write_generation(
         motions = generated.motions(height)
     else:
         adapted = shaped_clips(generated.motions(), generic_osim, shape, adapter)
+        if request is not None and request.get("seconds"):  # the request's length, from a longer generated clip
+            adapted = [trimmed(a, float(request["seconds"])) for a in adapted]
         shape.write_osim(model_file)
         model = shape.model
         height = shape.shape.height

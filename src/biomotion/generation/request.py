@@ -30,6 +30,10 @@ def profile_record(profile) -> dict | None:
     return None if profile is None else json.loads(json.dumps(profile.to_dict(), default=str))
 
 
+#: with --shape, clips are generated this many times the asked length and cut to it after the adapter has re-timed
+#: them to the body's stride (a 1.55 m and a 1.95 m runner's strides differ by about 1.3x)
+SHAPE_LENGTH_MARGIN = 1.5
+
 #: how far a profile's height (m) and mass (kg) may lie from a --shape body's before a note says the body wins
 SHAPE_TOLERANCE = {"height": 0.005, "mass": 0.5}
 
@@ -229,7 +233,7 @@ def generate(
             references=motions,
             reference_actions=[r.action for r in shown],
             reference_speeds=[r.speed for r in shown],
-            seconds=seconds,
+            seconds=seconds if body is None else seconds * SHAPE_LENGTH_MARGIN,
             samples=samples,
             seed=seed,
             guidance=guidance,
