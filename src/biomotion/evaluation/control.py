@@ -22,11 +22,20 @@ target, in turn:
   in body weights.
 - ``torque`` (a knee-moment cap): the same with the right knee's extension moment (``knee_angle_r``, N·m/kg, a
   ``joint_torque`` lower bound at ``cap_fraction`` x the uncontrolled clip's most negative moment).
+- ``activation`` (a muscle-activation cap, FlexMotion Sec. 3.3's activation control): the same with one lower-limb
+  muscle's activation (a ``muscle_activation`` ``max`` bound over the whole clip at ``cap_fraction`` x the
+  uncontrolled clip's peak), the muscles taken in turn from `ACTIVATION_MUSCLES`: the right gluteus medius'
+  anterior bundle, vastus lateralis and soleus, Rajagopal 2016 names shared by the muscle surrogate and the shipped
+  path functions, each with a clear stance-phase peak in walking and running.
 
 Bounds are measured by recomputing them from the generated kinematics with the project's analysis on the canonical
 model (`biomotion.analysis.chain.analyze`: 6 Hz low-pass, inverse dynamics with the inferred ground reaction of
-the contact model, PhysPT Eq. 4-5), never from the guidance's own estimates; a bound is met when the recomputed peak
-is within it. ``control_bounds_met_share`` is the share of GRF and torque targets met.
+the contact model, PhysPT Eq. 4-5), never from the guidance's own estimates; activations by static optimization of
+those inverse-dynamics torques, the path `biomotion analyze --muscles rajagopal2016` runs
+(`biomotion.analysis.activations.trial_activations`: the shipped Rajagopal 2016 path functions, fitted on the very
+model file, the muscle parameters read from it, weak reserves), not by the muscle surrogate that the generators steer
+with. A bound is met when the recomputed peak is within it. ``control_bounds_met_share`` is the share of GRF, torque
+and activation targets met.
 
 ``control_fid_ratio``: the motion-text evaluator's FID (T2M, Guo et al. 2022; `biomotion.evaluation.distribution`)
 of the controlled clips against the real target clips, over the FID of the uncontrolled clips (same prompts and
@@ -55,10 +64,15 @@ BODY_NEEDS = {
     "hand_r": ("lumbar_extension", "arm_flex_r", "arm_add_r", "arm_rot_r", "elbow_flex_r"),
 }
 TORQUE_COORDINATE = "knee_angle_r"
+#: muscles of the activation caps, taken in turn (module docstring); names of the shipped ``rajagopal2016`` paths
+ACTIVATION_MUSCLES = ("glmed1_r", "vaslat_r", "soleus_r")
+#: the shipped muscle path functions static optimization measures activations with (fitted on the canonical model)
+MUSCLE_PATHS = "rajagopal2016"
 #: default weight of a path target: 1e5 makes a 1 cm error weigh 10, the size of the other guidance terms near
 #: their bounds (`Settings.path_weight`)
 PATH_WEIGHT = 100000.0
-KINDS = ("path", "grf", "torque")
+KINDS = ("path", "grf", "torque", "activation")
+BOUND_KINDS = ("grf", "torque", "activation")
 TRAJECTORY_FAIL_M = 0.5  # OmniControl's trajectory error threshold
 LOCATION_FAIL_M = 0.2  # OmniControl's location error threshold
 BARS = {
@@ -71,15 +85,16 @@ BARS = {
 
 @dataclass(frozen=True)
 class Settings:
-    """Sizes of the evaluation: ``paths``, ``grf_caps`` and ``torque_caps`` targets (taken from the held-out clips
-    in turn), clips cut to ``max_seconds``, path windows of ``path_seconds`` sampled every ``path_stride`` frames,
-    caps at ``cap_fraction`` of the uncontrolled peak, path targets weighted ``path_weight`` (on their mean squared
-    distance, m^2; chosen on the generator's training subjects, never the evaluated ones:
+    """Sizes of the evaluation: ``paths``, ``grf_caps``, ``torque_caps`` and ``activation_caps`` targets (taken from
+    the held-out clips in turn), clips cut to ``max_seconds``, path windows of ``path_seconds`` sampled every
+    ``path_stride`` frames, caps at ``cap_fraction`` of the uncontrolled peak, path targets weighted ``path_weight``
+    (on their mean squared distance, m^2; chosen on the generator's training subjects, never the evaluated ones:
     ``docs/decisions/control_path_weight.py``)."""
 
     paths: int = 6
     grf_caps: int = 3
     torque_caps: int = 3
+    activation_caps: int = 3
     max_seconds: float = 2.0
     path_seconds: float = 1.0
     path_stride: int = 3
@@ -109,15 +124,39 @@ def origins(model, values: np.ndarray, body: str) -> np.ndarray:
     return positions[:, model.body_index(body)].numpy()
 
 
-def recomputed(model, q: torch.Tensor | np.ndarray, rate: float) -> dict[str, np.ndarray]:
+def recomputed(model, q: torch.Tensor | np.ndarray, rate: float, muscles: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """Per frame, from the kinematics alone (`biomotion.analysis.chain.analyze` on the canonical model): the total
-    vertical ground reaction in body weights and `TORQUE_COORDINATE`'s moment in N·m/kg."""
+    vertical ground reaction in body weights (``grf_bw``), `TORQUE_COORDINATE`'s moment in N·m/kg
+    (``torque_nm_per_kg``) and, for each of ``muscles``, its static-optimization activation (``activation:NAME``,
+    0-1; `so_activations`) balancing the same analysis's torques."""
     from biomotion.analysis.chain import analyze
 
     result = analyze(_motion(q, rate), model)
     grf = result.inferred.force[:, :, 1].sum(1) / result.body_weight
     moment = result.torques[:, model.coordinate_index(TORQUE_COORDINATE)] / float(model.total_mass)
-    return {"grf_bw": grf, "torque_nm_per_kg": moment}
+    out = {"grf_bw": grf, "torque_nm_per_kg": moment}
+    if muscles:
+        out |= {f"activation:{m}": a for m, a in so_activations(result, muscles).items()}
+    return out
+
+
+def so_activations(result, muscles: Sequence[str]) -> dict[str, np.ndarray]:
+    """Per frame, the static-optimization activation of each of ``muscles`` for an analysis ``result`` on the
+    canonical model: `biomotion.analysis.activations.trial_activations` (what ``biomotion analyze --muscles``
+    runs) with the shipped `MUSCLE_PATHS`, the muscle parameters read from the model's own .osim file. Refuses
+    paths made for other coordinates (`check_paths`)."""
+    from biomotion.analysis.activations import check_paths, load_paths, trial_activations
+
+    model_file = result.model.spec.path
+    paths, label = load_paths(MUSCLE_PATHS)
+    check_paths(paths, label, model_file, tuple(result.model.coordinate_names))
+    solution = trial_activations(result, model_file, paths)
+    names = list(solution.muscle_names)
+    unknown = [m for m in muscles if m not in names]
+    if unknown:
+        raise BiomotionError(f"muscles {unknown} are not among the {len(names)} of the muscle paths {label}")
+    values = solution.activations.numpy()
+    return {m: values[:, names.index(m)] for m in muscles}
 
 
 def path_target(model, motion: Motion, body: str, rate: float, seconds: float, stride: int) -> list[list[float]]:
@@ -134,10 +173,23 @@ def measurable_bodies(motion: Motion) -> list[str]:
     return [b for b in PATH_BODIES if all(c in have for c in BODY_NEEDS[b])]
 
 
+def surrogate_peak(surrogate, q: torch.Tensor | np.ndarray, muscle: str) -> float | None:
+    """Diagnostic only, never the measure: the peak of ``muscle``'s activation as the muscle surrogate the
+    generators steer with predicts it (its left-right symmetric prediction, the one ``activations.sto`` holds) on
+    canonical coordinates [T, 39]; None without a surrogate."""
+    if surrogate is None:
+        return None
+    q = torch.as_tensor(np.asarray(q.detach() if isinstance(q, torch.Tensor) else q), dtype=torch.float32)
+    every = torch.ones(1, q.shape[-1], dtype=torch.bool)
+    with torch.no_grad():
+        activations = surrogate.predict_symmetric(q[None], every)[0][0]  # (activations, COM): [T, M]
+    return float(activations[:, list(surrogate.names).index(muscle)].max())
+
+
 def plan(clips: list[Motion], settings: Settings) -> list[tuple[str, int, str | None]]:
-    """(kind, clip index, body) per target: path targets first, then GRF caps, then torque caps, each kind
-    walking the clips from a different start so that one clip rarely serves twice; the path bodies go in turn
-    over those each clip measures."""
+    """(kind, clip index, body or muscle) per target: path targets first, then GRF, torque and activation caps,
+    each kind walking the clips from a different start so that one clip rarely serves twice; the path bodies go in
+    turn over those each clip measures, the activation caps' muscles in turn over `ACTIVATION_MUSCLES`."""
     if not clips:
         raise BiomotionError("no held-out clip to sample control targets from")
     out: list[tuple[str, int, str | None]] = []
@@ -149,9 +201,15 @@ def plan(clips: list[Motion], settings: Settings) -> list[tuple[str, int, str | 
         if not bodies:
             continue
         out.append(("path", i, bodies[k % len(bodies)]))
-    for kind, count, start in (("grf", settings.grf_caps, 1), ("torque", settings.torque_caps, 2)):
+    for kind, count, start in (
+        ("grf", settings.grf_caps, 1),
+        ("torque", settings.torque_caps, 2),
+        ("activation", settings.activation_caps, 3),
+    ):
         step = max(1, n // max(1, count))
-        out.extend((kind, (start + k * step) % n, None) for k in range(count))
+        for k in range(count):
+            muscle = ACTIVATION_MUSCLES[k % len(ACTIVATION_MUSCLES)] if kind == "activation" else None
+            out.append((kind, (start + k * step) % n, muscle))
     return out
 
 
@@ -168,6 +226,8 @@ def _spec(kind: str, body: str | None, path: list[list[float]] | None, cap: floa
         return {"quantity": "joint_position", "body": body, "kind": "path", "path": path, "weight": path_weight}
     if kind == "grf":
         return {"quantity": "grf_vertical", "kind": "max", "value": cap}
+    if kind == "activation":
+        return {"quantity": "muscle_activation", "muscle": body, "kind": "max", "value": cap}
     return {"quantity": "joint_torque", "coordinate": TORQUE_COORDINATE, "kind": "min", "value": cap}
 
 
@@ -291,10 +351,19 @@ def control_targets(
             path = path_target(model, target.motion, body, runner.rate, settings.path_seconds, settings.path_stride)
             record |= {"body": body, "points": len(path)}
         else:
-            before = recomputed(model, uncontrolled, runner.rate)
+            muscles = (body,) if kind == "activation" else ()
+            before = recomputed(model, uncontrolled, runner.rate, muscles)
             if kind == "grf":
                 peak = float(before["grf_bw"].max())
                 record |= {"quantity": "grf_vertical (BW)", "uncontrolled_peak": peak}
+            elif kind == "activation":
+                peak = float(before[f"activation:{body}"].max())
+                record |= {
+                    "quantity": f"{body} activation (static optimization)",
+                    "muscle": body,
+                    "uncontrolled_peak": peak,
+                    "surrogate_uncontrolled_peak": surrogate_peak(runner.generator.surrogate, uncontrolled, body),
+                }
             else:
                 peak = float(before["torque_nm_per_kg"].min())
                 record |= {"quantity": f"{TORQUE_COORDINATE} moment (N·m/kg)", "uncontrolled_peak": peak}
@@ -310,9 +379,14 @@ def control_targets(
             if sampled is not None:
                 record["module_errors_m"] = path_errors(model, sampled, body, path, runner.rate).tolist()
         else:
-            after = recomputed(model, q, runner.rate)
-            peak = float(after["grf_bw"].max()) if kind == "grf" else float(after["torque_nm_per_kg"].min())
-            record |= {"controlled_peak": peak, "met": bool(peak <= cap if kind == "grf" else peak >= cap)}
+            after = recomputed(model, q, runner.rate, muscles)
+            if kind == "torque":
+                peak = float(after["torque_nm_per_kg"].min())
+            else:
+                peak = float(after["grf_bw" if kind == "grf" else f"activation:{body}"].max())
+            record |= {"controlled_peak": peak, "met": bool(peak >= cap if kind == "torque" else peak <= cap)}
+            if kind == "activation":
+                record["surrogate_controlled_peak"] = surrogate_peak(runner.generator.surrogate, q, body)
         records.append(record)
         real.append(target.motion)
         free.append(_motion(placed, runner.rate))
@@ -339,7 +413,7 @@ def summary(records: list[dict]) -> dict:
     errors = [e for r in records if r["kind"] == "path" for e in r["errors_m"]]
     before = [e for r in records if r["kind"] == "path" for e in r["uncontrolled_errors_m"]]
     paths = [r for r in records if r["kind"] == "path"]
-    bounds = [r for r in records if r["kind"] in ("grf", "torque")]
+    bounds = [r for r in records if r["kind"] in BOUND_KINDS]
     out = {
         "control_joint_mean_err_m": float(np.mean(errors)) if errors else None,
         "control_joint_max_err_m": float(np.max(errors)) if errors else None,
@@ -355,7 +429,7 @@ def summary(records: list[dict]) -> dict:
     if module:  # FlexMotion: the control module's sample, placed, before the coordinate-space stage
         out["module_joint_mean_err_m"] = float(np.mean(module))
         out["module_joint_max_err_m"] = float(np.max(module))
-    for kind in ("grf", "torque"):
+    for kind in BOUND_KINDS:
         chosen = [r for r in bounds if r["kind"] == kind]
         out[f"control_{kind}_bounds_met_share"] = float(np.mean([r["met"] for r in chosen])) if chosen else None
     return out
@@ -488,10 +562,12 @@ def markdown(report: dict) -> str:
         f"{report['targets']} targets from {report['subjects']} held-out subjects (clips cut to "
         f"{s['max_seconds']:g} s; seeds {s['seed']}-{s['seed'] + report['targets'] - 1}): joint paths of the real "
         f"clip's body origins over its first {s['path_seconds']:g} s (every {s['path_stride']} frames), vertical "
-        f"GRF caps and right-knee extension-moment caps at {s['cap_fraction']:g} x each generator's own "
-        "uncontrolled clip's peak (same request and seed). Bounds are recomputed from the generated kinematics by "
-        "the analysis (6 Hz low-pass, inverse dynamics with the contact model's ground reaction), not read from the "
-        "generator.",
+        f"GRF caps, right-knee extension-moment caps and muscle-activation caps ({', '.join(ACTIVATION_MUSCLES)} in "
+        f"turn) at {s['cap_fraction']:g} x each generator's own uncontrolled clip's peak (same request and seed). "
+        "Bounds are recomputed from the generated kinematics by the analysis (6 Hz low-pass, inverse dynamics with "
+        "the contact model's ground reaction), activations by static optimization of those torques with the "
+        f"shipped {MUSCLE_PATHS} muscle paths (as `biomotion analyze --muscles {MUSCLE_PATHS}`), not read from the "
+        "generator or its muscle surrogate.",
         "",
         "| figure | " + " | ".join(label.get(n, n) for n in names) + " | issue 47 bar |",
         "|---|" + "---|" * len(names) + "---|",
@@ -512,6 +588,7 @@ def markdown(report: dict) -> str:
         "module_joint_max_err_m",
         "control_grf_bounds_met_share",
         "control_torque_bounds_met_share",
+        "control_activation_bounds_met_share",
         "fid_controlled_to_real",
         "fid_uncontrolled_to_real",
     ):
@@ -542,6 +619,11 @@ def markdown(report: dict) -> str:
                     f"uncontrolled peak {r['uncontrolled_peak']:.3f}, cap {r['cap']:.3f}, controlled peak "
                     f"{r['controlled_peak']:.3f} ({'met' if r['met'] else 'NOT met'})"
                 )
+                if r.get("surrogate_controlled_peak") is not None:
+                    result += (
+                        f"; muscle surrogate on the same coordinates (not the measure): "
+                        f"{r['surrogate_uncontrolled_peak']:.3f} to {r['surrogate_controlled_peak']:.3f}"
+                    )
             lines.append(f"| {k} | {r['kind']} | {r['clip']} | {r['action']} | {what} | {result} |")
     lines += [
         "",
