@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def lowpass(
     flat = moved.reshape(moved.shape[0], -1)
     gaps = ~np.isfinite(flat)
     filled = _bridge_gaps(flat, gaps)
-    sos = scipy.signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
+    sos = _butterworth(order, cutoff_hz, rate).copy()  # scipy's filter needs a writable array
     padlen = 3 * (2 * len(sos) + 1) if padlen is None else padlen
     padlen = min(padlen, flat.shape[0] - 2)
     if flat.shape[0] < 2:
@@ -60,6 +61,15 @@ def lowpass(
     out = scipy.signal.sosfiltfilt(sos, filled, axis=0, padlen=max(padlen, 0))
     out[gaps] = np.nan
     return np.moveaxis(out.reshape(moved.shape), 0, axis)
+
+
+@lru_cache(maxsize=64)
+def _butterworth(order: int, cutoff_hz: float, rate: float) -> np.ndarray:
+    """Second-order sections of a low-pass Butterworth filter; designed once per (order, cutoff, rate), since a
+    chain of analyses filters many signals with the same few filters (callers take a copy)."""
+    import scipy.signal
+
+    return scipy.signal.butter(order, cutoff_hz, btype="low", fs=rate, output="sos")
 
 
 def _bridge_gaps(flat: np.ndarray, gaps: np.ndarray) -> np.ndarray:
@@ -171,9 +181,20 @@ class _Series:
         t1 = self.times[-1] if stop is None else stop
         count = int(np.floor((t1 - t0) * rate + 1e-6)) + 1
         new_times = t0 + np.arange(count) / rate
-        return replace(
-            self, times=new_times, **{n: _resample(self.times, getattr(self, n), new_times, rate) for n in self._timed}
-        )
+        return replace(self, times=new_times, **self._resampled(new_times, rate))
+
+    def _resampled(self, new_times: np.ndarray, rate: float) -> dict[str, np.ndarray]:
+        """Every timed array at ``new_times`` (`_resample`), resampled together: the columns are independent, so
+        one filter pass and one spline over all of them give what one per array would."""
+        arrays = {n: getattr(self, n) for n in self._timed}
+        flat = np.concatenate([a.reshape(a.shape[0], -1).astype(float) for a in arrays.values()], axis=1)
+        sampled = _resample(self.times, flat, new_times, rate)
+        out, start = {}, 0
+        for name, array in arrays.items():
+            width = int(np.prod(array.shape[1:], dtype=int))
+            out[name] = sampled[:, start : start + width].reshape((len(new_times),) + array.shape[1:])
+            start += width
+        return out
 
     def at(self, new_times: np.ndarray):
         """Copy sampled at ``new_times`` (uniform), with the same anti-alias rule as `resample`; NaN outside the
@@ -181,11 +202,9 @@ class _Series:
         new_times = np.asarray(new_times, dtype=float)
         rate = _uniform_rate(new_times) if new_times.size > 1 else self.rate
         outside = (new_times < self.times[0] - 1e-9) | (new_times > self.times[-1] + 1e-9)
-        arrays = {}
-        for name in self._timed:
-            sampled = _resample(self.times, getattr(self, name), new_times, rate)
+        arrays = self._resampled(new_times, rate)
+        for sampled in arrays.values():
             sampled[outside] = np.nan  # no extrapolation beyond the recording
-            arrays[name] = sampled
         return replace(self, times=new_times, **arrays)
 
     def filtered(self, cutoff_hz: float, order: int = 4, padlen: int | None = None):
