@@ -53,7 +53,7 @@ _F64 = torch.float64
 _ROOT_ITERATIONS = 5  # iterations of the root-joint multi-start: a start, not a solution (enough to rank starts)
 _COARSE_ITERATIONS = 30  # coarse pass and neighbour re-solves: starts for the fine pass, not solutions
 _COARSE_TOLERANCE = 1e-6
-_NEIGHBOUR_ITERATIONS = 6  # coarse frames re-solved from their neighbours: enough to see a better basin
+_NEIGHBOUR_ITERATIONS = 10  # coarse frames re-solved from their neighbours: enough to see a better basin
 _STEP_TOLERANCE = 1e-6  # rad or m: an accepted step this small ends a frame's iterations
 
 
