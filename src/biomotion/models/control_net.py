@@ -62,7 +62,6 @@ from biomotion.models.flexmotion import (
     FlexMotion,
     FlexMotionConfig,
     LatentDenoiser,
-    timestep_embedding,
 )
 from biomotion.settings import settings_from_dict
 
@@ -192,12 +191,7 @@ class ControlNet(nn.Module):
         timesteps [B], text [B, 384], profile [B, PROFILE_DIM] and standardised control ``values``/``mask``
         [B, W, CONTROL_DIM] (`standardise`)."""
         c = self.copy
-        text_c, profile_c = c.text(text), c.profile(profile)
-        if drop_text is not None:
-            text_c = torch.where(drop_text[:, None], c.null_text, text_c)
-        if drop_profile is not None:
-            profile_c = torch.where(drop_profile[:, None], c.null_profile, profile_c)
-        cond = F.gelu(c.time(timestep_embedding(t, c.width)) + text_c + profile_c)
+        cond = c.condition(t, text, profile, drop_text, drop_profile)
         h = c.inp(z) + self.hint(self.encoder(values, mask))
         out = []
         for block, zero in zip(c.blocks, self.zero):

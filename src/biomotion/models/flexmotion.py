@@ -210,6 +210,23 @@ class LatentDenoiser(nn.Module):
         nn.init.zeros_(self.out[1].weight)
         nn.init.zeros_(self.out[1].bias)
 
+    def condition(
+        self,
+        t: torch.Tensor,
+        text: torch.Tensor,
+        profile: torch.Tensor,
+        drop_text: torch.Tensor | None = None,
+        drop_profile: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """The blocks' condition [B, width]: timestep, text and profile embeddings, the dropped ones (``drop_*``
+        [B] bool) replaced by their learned null embeddings (classifier-free guidance)."""
+        text_c, profile_c = self.text(text), self.profile(profile)
+        if drop_text is not None:
+            text_c = torch.where(drop_text[:, None], self.null_text, text_c)
+        if drop_profile is not None:
+            profile_c = torch.where(drop_profile[:, None], self.null_profile, profile_c)
+        return F.gelu(self.time(timestep_embedding(t, self.width)) + text_c + profile_c)
+
     def forward(
         self,
         z: torch.Tensor,
@@ -222,12 +239,7 @@ class LatentDenoiser(nn.Module):
     ) -> torch.Tensor:
         """ε [B, d]; ``residuals`` (one [B, width] per block, the control module's,
         `biomotion.models.control_net`) are added to the blocks' outputs (FlexMotion Sec. 3.3)."""
-        text_c, profile_c = self.text(text), self.profile(profile)
-        if drop_text is not None:
-            text_c = torch.where(drop_text[:, None], self.null_text, text_c)
-        if drop_profile is not None:
-            profile_c = torch.where(drop_profile[:, None], self.null_profile, profile_c)
-        cond = F.gelu(self.time(timestep_embedding(t, self.width)) + text_c + profile_c)
+        cond = self.condition(t, text, profile, drop_text, drop_profile)
         h = self.inp(z)
         for k, block in enumerate(self.blocks):
             h = block(h, cond)

@@ -34,7 +34,6 @@ reproduces the weights (same torch and thread count).
 from __future__ import annotations
 
 import hashlib
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,7 +57,7 @@ from biomotion.models.flexmotion import FlexMotion
 from biomotion.settings import settings_from_dict
 from biomotion.training.cards import environment, write_card
 from biomotion.training.flexmotion_data import MultimodalSet, MultimodalSettings, build
-from biomotion.training.train_flexmotion import encode_all
+from biomotion.training.train_flexmotion import cosine_lr, encode_all, noised
 
 #: shares of the quantities a random target constrains
 QUANTITY_SHARES = {"position": 0.45, "grf": 0.15, "torque": 0.15, "activation": 0.1, "angle": 0.15}
@@ -201,10 +200,6 @@ def random_control(
     return values, mask
 
 
-def _cosine(step: int, total: int, lr: float) -> float:
-    return lr * 0.5 * (1 + math.cos(math.pi * step / max(total, 1)))
-
-
 def decoded_control(model, refiner, z: torch.Tensor) -> torch.Tensor:
     """Raw control-layout values [B, W, CONTROL_DIM] of scaled latents z [B, d]: the frozen decoder's modalities,
     the body origins by forward kinematics of its coordinates and the vertical force summed over the foot points."""
@@ -225,12 +220,7 @@ def control_loss(
     min(SNR, γ) / SNR with ``snr_gamma`` γ > 0, plus ``consistency`` x the standardised squared error of the
     constrained entries of the decoded clean-latent estimate, weighted by ᾱ_t; returns (loss, terms)."""
     settings = settings or TrainSettings()
-    b, p = len(z0), model.config.cond_dropout
-    noise = torch.randn(z0.shape, generator=generator)
-    t = torch.randint(0, model.config.train_timesteps, (b,), generator=generator)
-    noisy = scheduler.add_noise(z0, noise, t)
-    drop_text = torch.rand(b, generator=generator) < p
-    drop_profile = torch.rand(b, generator=generator) < p
+    noise, t, noisy, drop_text, drop_profile = noised(model, scheduler, z0, generator)
     x, m = net.standardise(values, mask)
     residuals = net.residuals(noisy, t, text, profile, x, m, drop_text, drop_profile)
     eps = model.denoiser(noisy, t, text, profile, drop_text, drop_profile, residuals)
@@ -310,7 +300,7 @@ def train(
         t0 = time.monotonic()
         for step in range(settings.iterations):
             for group in optimiser.param_groups:
-                group["lr"] = _cosine(step, settings.iterations, settings.lr)
+                group["lr"] = cosine_lr(step, settings.iterations, settings.lr)
             rows = torch.randint(len(data), (settings.batch_size,), generator=generator)
             values, mask = random_control(source, rows, settings, generator)
             loss, terms = control_loss(model, net, scheduler, latents[rows], table[data.text_ids[rows]],

@@ -110,7 +110,8 @@ def euler_loss(
     return residual.abs().sum(-1).mean()
 
 
-def _cosine(step: int, total: int, lr: float) -> float:
+def cosine_lr(step: int, total: int, lr: float) -> float:
+    """The learning rate at ``step`` of ``total`` on a cosine decay from ``lr`` to 0."""
     return lr * 0.5 * (1 + math.cos(math.pi * step / max(total, 1)))
 
 
@@ -132,7 +133,7 @@ def train_autoencoder(model, refiner, data, settings, generator, progress=True) 
     history = []
     for step in range(settings.ae_iterations):
         for group in optimiser.param_groups:
-            group["lr"] = _cosine(step, settings.ae_iterations, settings.lr)
+            group["lr"] = cosine_lr(step, settings.ae_iterations, settings.lr)
         rows = torch.randint(len(data), (settings.batch_size,), generator=generator)
         loss, terms = autoencoder_loss(model, refiner, data, rows, settings, generator, step)
         optimiser.zero_grad(set_to_none=True)
@@ -188,7 +189,7 @@ def train_diffusion(model, latents, text_table, data, settings, generator, progr
     history, running = [], []
     for step in range(settings.diffusion_iterations):
         for group in optimiser.param_groups:
-            group["lr"] = _cosine(step, settings.diffusion_iterations, settings.diffusion_lr)
+            group["lr"] = cosine_lr(step, settings.diffusion_iterations, settings.diffusion_lr)
         rows = torch.randint(len(latents), (settings.diffusion_batch,), generator=generator)
         loss = diffusion_loss(model, scheduler, latents[rows], text_table[data.text_ids[rows]], data.profiles[rows],
                               generator)  # fmt: skip
@@ -205,14 +206,22 @@ def train_diffusion(model, latents, text_table, data, settings, generator, progr
     return history
 
 
-def diffusion_loss(model, scheduler, z0, text, profile, generator) -> torch.Tensor:
-    """ε-prediction MSE at random timesteps with condition dropout (module docstring)."""
+def noised(model, scheduler, z0: torch.Tensor, generator: torch.Generator) -> tuple[torch.Tensor, ...]:
+    """A training draw for latents z0 [B, d]: (noise, timesteps, noisy latents, text dropped, profile dropped),
+    the timesteps uniform over the schedule and each condition dropped with ``cond_dropout`` (DDPM training with
+    classifier-free guidance). The draws come in a fixed order from ``generator``, so seeded runs repeat."""
     b, p = len(z0), model.config.cond_dropout
     noise = torch.randn(z0.shape, generator=generator)
     t = torch.randint(0, model.config.train_timesteps, (b,), generator=generator)
     noisy = scheduler.add_noise(z0, noise, t)
     drop_text = torch.rand(b, generator=generator) < p
     drop_profile = torch.rand(b, generator=generator) < p
+    return noise, t, noisy, drop_text, drop_profile
+
+
+def diffusion_loss(model, scheduler, z0, text, profile, generator) -> torch.Tensor:
+    """ε-prediction MSE at random timesteps with condition dropout (module docstring)."""
+    noise, t, noisy, drop_text, drop_profile = noised(model, scheduler, z0, generator)
     return (model.denoiser(noisy, t, text, profile, drop_text, drop_profile) - noise).square().mean()
 
 
