@@ -54,6 +54,7 @@ import torch
 
 from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.errors import BiomotionError
+from biomotion.guidance.measured_bounds import analysed_series
 from biomotion.motion import Motion
 
 PATH_BODIES = ("pelvis", "calcn_r", "hand_r")
@@ -132,9 +133,10 @@ def recomputed(model, q: torch.Tensor | np.ndarray, rate: float, muscles: Sequen
     from biomotion.analysis.chain import analyze
 
     result = analyze(_motion(q, rate), model)
-    grf = result.inferred.force[:, :, 1].sum(1) / result.body_weight
-    moment = result.torques[:, model.coordinate_index(TORQUE_COORDINATE)] / float(model.total_mass)
-    out = {"grf_bw": grf, "torque_nm_per_kg": moment}
+    out = {
+        "grf_bw": analysed_series(result, "grf_vertical"),
+        "torque_nm_per_kg": analysed_series(result, "joint_torque", TORQUE_COORDINATE),
+    }
     if muscles:
         out |= {f"activation:{m}": a for m, a in so_activations(result, muscles).items()}
     return out

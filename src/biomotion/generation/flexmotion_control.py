@@ -56,6 +56,7 @@ from biomotion.body.canonical import CANONICAL_COORDINATES
 from biomotion.errors import ConfigError
 from biomotion.guidance.bound_fit import BoundFitConfig
 from biomotion.guidance.control import GRAVITY, Control, Target, body_origins
+from biomotion.guidance.measured_bounds import analysed_series
 from biomotion.models.control_net import CONTROL_DIM, CONTROL_SLICES, ControlNet, position_channels
 from biomotion.models.refiner import to_world
 
@@ -235,10 +236,8 @@ def measured(generator, q: torch.Tensor, spec: Control, rate: float) -> dict[str
             activations = generator.surrogate(q[None].float(), every)[0].numpy()
     names = list(getattr(generator.surrogate, "names", ()))
     for t in bounds:
-        if t.quantity == "grf_vertical":
-            series = result.inferred.force[:, :, 1].sum(1) / result.body_weight
-        elif t.quantity == "joint_torque":
-            series = result.torques[:, model.coordinate_index(t.coordinate)] / float(model.total_mass)
+        if t.quantity in ("grf_vertical", "joint_torque"):
+            series = analysed_series(result, t.quantity, t.coordinate)
         elif t.quantity == "muscle_activation":
             series = activations[:, names.index(t.muscle)]
         else:

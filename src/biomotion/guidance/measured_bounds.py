@@ -41,25 +41,33 @@ def _window(target: Target, rate: float, frames: int) -> slice:
     return slice(round(target.window[0] * rate), min(round(target.window[1] * rate), last) + 1)
 
 
+def analysed_series(result, quantity: str, coordinate: str | None = None) -> np.ndarray:
+    """[T] the series a bound on ``quantity`` is judged on in an analysis (`biomotion.analysis.chain.Analysis`):
+    ``grf_vertical``, the inferred vertical ground reaction summed over the feet, in body weights; ``joint_torque``,
+    ``coordinate``'s generalized force per kg of the analysed model (N·m/kg, OpenSim's sign)."""
+    if quantity == "grf_vertical":
+        return result.inferred.force[:, :, 1].sum(1) / result.body_weight
+    if quantity == "joint_torque":
+        model = result.model
+        return result.torques[:, model.coordinate_index(coordinate)] / float(model.total_mass)
+    raise ValueError(f"the analysis judges no bound on {quantity}")
+
+
 def measured_excess(body, q: torch.Tensor, rate: float, control: Control, indices: Sequence[int]) -> np.ndarray:
     """[B, len(indices)] by how much each clip of q [B, T, 39] (canonical coordinates, on the floor) misses each
     bound, as the analysis measures it: the measured extreme over the window minus the bound for ``max``, the bound
     minus the extreme for ``min`` (body weights, N·m/kg; <= 0 where met). ``body``: the canonical `BodyModel`."""
-    from biomotion.analysis.chain import STANDARD_GRAVITY, analyze
+    from biomotion.analysis.chain import analyze
     from biomotion.body.canonical import CANONICAL_COORDINATES
     from biomotion.motion import Motion
 
     model = body.to(torch.float64)
-    weight = float(model.total_mass) * STANDARD_GRAVITY
     out = np.zeros((q.shape[0], len(indices)))
     for b, clip in enumerate(q.detach().double().numpy()):
         result = analyze(Motion(times=np.arange(len(clip)) / rate, values=clip, names=CANONICAL_COORDINATES), model)
         for j, i in enumerate(indices):
             target = control.targets[i]
-            if target.quantity == "grf_vertical":
-                series = result.inferred.force[:, :, 1].sum(1) / weight
-            else:
-                series = result.torques[:, model.coordinate_index(target.coordinate)] / float(model.total_mass)
+            series = analysed_series(result, target.quantity, target.coordinate)
             x = series[_window(target, rate, len(series))]
             out[b, j] = x.max() - target.value if target.kind == "max" else target.value - x.min()
     return out
